@@ -1,0 +1,130 @@
+//! The camera frame-sync trigger: a PIO1 state machine that drives the trigger pin
+//! (side-set) high for an exact number of clock cycles after an exact delay.
+//!
+//! ```text
+//! wrap_target:
+//!     pull block      side 0   ; pulse width - 1, in cycles
+//!     out  y, 32      side 0
+//!     pull block      side 0   ; delay, in cycles (see `arm`)
+//!     out  x, 32      side 0
+//! wait:
+//!     jmp  x--, wait  side 0
+//! high:
+//!     jmp  y--, high  side 1   ; the rising edge is this instruction's first cycle
+//! wrap                          ; back to `pull` with side 0: falling edge
+//! ```
+//!
+//! [`arm`] is called inside a critical section right after a 1 MHz timer tick, so the
+//! edge lands on the requested microsecond, independent of executor latency.
+
+use core::cell::RefCell;
+
+use embassy_rp::Peri;
+use embassy_rp::clocks::clk_sys_freq;
+use embassy_rp::gpio::Pin;
+use embassy_rp::peripherals::{PIN_6, PIO1};
+use embassy_rp::pio::{Common, Config, Direction, Pio, StateMachine};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_time::Instant;
+
+/// Cycles from the delay word's push to the state machine's `pull` completing, plus the
+/// `out` and the first `jmp` (measured in emulation; see hil-tests).
+const ARM_LATENCY_CYCLES: u32 = 4;
+
+static TRIGGER: Mutex<CriticalSectionRawMutex, RefCell<Option<TriggerPio>>> =
+    Mutex::new(RefCell::new(None));
+
+/// The trigger state machine.
+pub struct TriggerPio {
+    // Kept alive for the program's lifetime (see `leds::Strips`).
+    _common: Common<'static, PIO1>,
+    sm: StateMachine<'static, PIO1, 0>,
+    cycles_per_us: u32,
+    pin: u8,
+}
+
+impl TriggerPio {
+    /// Load the program into PIO1 and drive `pin` low.
+    pub fn new(pio: Pio<'static, PIO1>, pin: Peri<'static, PIN_6>) -> Self {
+        let Pio {
+            mut common,
+            mut sm0,
+            ..
+        } = pio;
+        let number = pin.pin();
+        let side_set = pio::SideSet::new(false, 1, false);
+        let mut a: pio::Assembler<32> = pio::Assembler::new_with_side_set(side_set);
+        let mut wrap_target = a.label();
+        let mut wrap_source = a.label();
+        let mut wait = a.label();
+        let mut high = a.label();
+        a.bind(&mut wrap_target);
+        a.pull_with_side_set(false, true, 0);
+        a.out_with_side_set(pio::OutDestination::Y, 32, 0);
+        a.pull_with_side_set(false, true, 0);
+        a.out_with_side_set(pio::OutDestination::X, 32, 0);
+        a.bind(&mut wait);
+        a.jmp_with_side_set(pio::JmpCondition::XDecNonZero, &mut wait, 0);
+        a.bind(&mut high);
+        a.jmp_with_side_set(pio::JmpCondition::YDecNonZero, &mut high, 1);
+        a.bind(&mut wrap_source);
+        let program = a.assemble_with_wrap(wrap_source, wrap_target);
+        let loaded = common.load_program(&program);
+
+        let pin = common.make_pio_pin(pin);
+        let mut cfg = Config::default();
+        cfg.use_program(&loaded, &[&pin]);
+        sm0.set_config(&cfg);
+        sm0.set_pin_dirs(Direction::Out, &[&pin]);
+        sm0.set_pins(embassy_rp::gpio::Level::Low, &[&pin]);
+        sm0.set_enable(true);
+        Self {
+            _common: common,
+            sm: sm0,
+            cycles_per_us: clk_sys_freq() / 1_000_000,
+            pin: number,
+        }
+    }
+
+    /// GPIO number of the trigger output.
+    pub fn pin(&self) -> u8 {
+        self.pin
+    }
+}
+
+/// Make the trigger available to [`arm`].
+pub fn install(trigger: TriggerPio) {
+    TRIGGER.lock(|t| *t.borrow_mut() = Some(trigger));
+}
+
+/// Wait for the next tick of the 1 MHz timer and return its value. Call with interrupts
+/// off; takes at most a microsecond.
+pub fn next_tick_us() -> u64 {
+    let start = Instant::now().as_micros();
+    loop {
+        let now = Instant::now().as_micros();
+        if now != start {
+            return now;
+        }
+    }
+}
+
+/// Schedule a pulse of `width_us` whose rising edge is at `edge_us`, given that the timer
+/// ticked to `tick_us` just now. Must be called in a critical section right after
+/// [`next_tick_us`], with `edge_us > tick_us`.
+pub fn arm(tick_us: u64, edge_us: u64, width_us: u32) {
+    TRIGGER.lock(|t| {
+        let mut t = t.borrow_mut();
+        let Some(t) = t.as_mut() else { return };
+        let lead_us = u32::try_from(edge_us.saturating_sub(tick_us)).unwrap_or(u32::MAX);
+        // Edge = pull + 2 + (x + 1) cycles; the push itself takes ARM_LATENCY_CYCLES.
+        let delay = lead_us
+            .saturating_mul(t.cycles_per_us)
+            .saturating_sub(3 + ARM_LATENCY_CYCLES);
+        let width = width_us.saturating_mul(t.cycles_per_us).saturating_sub(1);
+        let tx = t.sm.tx();
+        tx.push(width);
+        tx.push(delay);
+    });
+}
