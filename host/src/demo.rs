@@ -67,16 +67,13 @@ pub fn run(mode: DemoMode, period_ms: u32, phases: u32) -> Result<()> {
             }
             let (edge, index) = match p.trigger {
                 TriggerOutcome::Fired { index, edge_us } => {
+                    if let Some(prev) = previous_edge.replace(edge_us) {
+                        periods.push(edge_us - prev);
+                    }
                     (edge_us.to_string(), index.to_string())
                 }
                 TriggerOutcome::Overrun { .. } => ("overrun".into(), "-".into()),
             };
-            if let TriggerOutcome::Fired { edge_us, .. } = p.trigger {
-                if let Some(prev) = previous_edge {
-                    periods.push(edge_us - prev);
-                }
-                previous_edge = Some(edge_us);
-            }
             println!(
                 "{:>5} {:>5} {:>14} {:>14} {:>14} {:>14} {:>9}",
                 p.index,

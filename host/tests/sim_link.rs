@@ -108,47 +108,17 @@ impl Link for FutureDevice {
         let (frame, _) = decoder.feed(bytes);
         let request: HostMessage = decode(frame.unwrap().unwrap()).unwrap();
         // Stable prefix: Reply(0), id, Ok(0), Info(0), protocol_version 7, then a new layout.
-        let mut payload = vec![0, request.id as u8, 0, 0, 7];
-        payload.extend_from_slice(&[0xAA; 30]);
-        let crc = frame::CRC32C.checksum(&payload).to_le_bytes();
-        payload.extend_from_slice(&crc);
-        let mut cobs = vec![0u8; payload.len() + 4];
-        let n = cobs_encode(&payload, &mut cobs);
-        self.pending.extend_from_slice(&cobs[..n]);
-        self.pending.push(0);
+        // postcard writes a tuple as its fields in order, so this is exactly that payload.
+        let reply = (0u32, request.id, 0u32, 0u32, 7u16, [0xAAu8; 30]);
+        let mut buf = [0u8; MAX_FRAME];
+        self.pending
+            .extend_from_slice(encode(&reply, &mut buf).unwrap());
         Ok(())
     }
 
     fn receive(&mut self, _: Duration) -> Result<Vec<u8>, LinkError> {
         Ok(std::mem::take(&mut self.pending))
     }
-}
-
-/// Plain COBS encoding for the test device.
-fn cobs_encode(input: &[u8], out: &mut [u8]) -> usize {
-    let mut code_at = 0;
-    let mut n = 1;
-    let mut code = 1u8;
-    for &b in input {
-        if b == 0 {
-            out[code_at] = code;
-            code_at = n;
-            n += 1;
-            code = 1;
-        } else {
-            out[n] = b;
-            n += 1;
-            code += 1;
-            if code == 0xFF {
-                out[code_at] = code;
-                code_at = n;
-                n += 1;
-                code = 1;
-            }
-        }
-    }
-    out[code_at] = code;
-    n
 }
 
 #[test]
