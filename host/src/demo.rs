@@ -11,7 +11,12 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-pub fn run(mode: DemoMode, period_ms: u32, phases: u32) -> Result<()> {
+pub fn run(
+    mode: DemoMode,
+    period_ms: u32,
+    phases: u32,
+    tactile_out: Option<&std::path::Path>,
+) -> Result<()> {
     if phases == 0 {
         bail!("--phases must be at least 1");
     }
@@ -108,5 +113,8 @@ pub fn run(mode: DemoMode, period_ms: u32, phases: u32) -> Result<()> {
         status.frames_rejected,
         client.lost_events()
     );
+    if let Some(out) = tactile_out {
+        crate::demo_tactile::run(&mut client, out)?;
+    }
     Ok(())
 }

@@ -13,4 +13,5 @@
 
 pub mod client;
 pub mod sim;
+pub mod tactile;
 pub mod uf2;

@@ -7,6 +7,11 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 
 mod demo;
+mod demo_tactile;
+mod tactile_cli;
+
+use stereotac::tactile::model::ModelKind;
+use stereotac::tactile::poisson::SolverKind;
 
 /// stereotac: visuotactile sensor toolkit (firmware link, tactile and stereo depth).
 #[derive(Debug, Parser)]
@@ -30,6 +35,71 @@ enum Command {
         /// Number of phases to run.
         #[arg(long, default_value_t = 12)]
         phases: u32,
+        /// Where the tactile part writes its outputs.
+        #[arg(long, default_value = "stereotac-demo-out")]
+        out: PathBuf,
+        /// Skip the tactile part (calibration and reconstruction).
+        #[arg(long)]
+        no_tactile: bool,
+    },
+    /// Calibrate the tactile model from ball presses: DIR holds NAME_dx.png / NAME_dy.png.
+    Calibrate {
+        /// Directory of pairs.
+        dir: PathBuf,
+        /// Diameter of the calibration ball.
+        #[arg(long)]
+        ball_diameter_mm: f64,
+        /// Image scale.
+        #[arg(long, default_value_t = 15.0)]
+        px_per_mm: f64,
+        /// No-contact dx frame (otherwise the per-pixel median of the pairs).
+        #[arg(long, requires = "ref_dy")]
+        ref_dx: Option<PathBuf>,
+        /// No-contact dy frame.
+        #[arg(long, requires = "ref_dx")]
+        ref_dy: Option<PathBuf>,
+        /// JSON file of contact circles to use instead of fitted ones:
+        /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
+        #[arg(long)]
+        overrides: Option<PathBuf>,
+        /// Model file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Reconstruct the depth of one dx/dy pair into depth.npy, PNGs, PLY and summary.json.
+    Reconstruct {
+        /// Model file from `calibrate`.
+        #[arg(long)]
+        model: PathBuf,
+        /// dx image (strips 1 and 3 lit).
+        #[arg(long)]
+        dx: PathBuf,
+        /// dy image (strips 2 and 4 lit).
+        #[arg(long)]
+        dy: PathBuf,
+        /// No-contact dx frame (otherwise the model's background).
+        #[arg(long, requires = "ref_dy")]
+        ref_dx: Option<PathBuf>,
+        /// No-contact dy frame.
+        #[arg(long, requires = "ref_dx")]
+        ref_dy: Option<PathBuf>,
+        /// Output directory.
+        #[arg(long)]
+        out_dir: PathBuf,
+        /// Poisson solver: dct (Neumann, default) or dst (Dirichlet).
+        #[arg(long, default_value = "dct")]
+        solver: SolverKind,
+        /// Gradient model: lut (default) or mlp.
+        #[arg(long = "model-kind", default_value = "lut")]
+        model_kind: ModelKind,
+        /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Benchmarks on built-in synthetic data.
+    Bench {
+        #[command(subcommand)]
+        what: BenchWhat,
     },
     /// Report a firmware ELF's flash and RAM footprint, and optionally write it as UF2.
     FirmwareImage {
@@ -38,6 +108,25 @@ enum Command {
         /// Write a UF2 file here for drag-and-drop flashing.
         #[arg(long)]
         uf2: Option<PathBuf>,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchWhat {
+    /// Tactile pipeline: time per stage against depth error, per scene, model and solver.
+    Tactile {
+        /// Print JSON records instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Also write the JSON report to this file.
+        #[arg(long)]
+        json_out: Option<PathBuf>,
+        /// Frame sizes (default 640x480 and 1280x960).
+        #[arg(long = "size", value_parser = tactile_cli::parse_size)]
+        sizes: Vec<(usize, usize)>,
+        /// Repeats per measurement; the median is reported.
+        #[arg(long, default_value_t = 15)]
+        repeats: usize,
     },
 }
 
@@ -60,7 +149,61 @@ fn run(cli: Cli) -> Result<()> {
             mode,
             period_ms,
             phases,
-        } => demo::run(mode, period_ms, phases),
+            out,
+            no_tactile,
+        } => demo::run(
+            mode,
+            period_ms,
+            phases,
+            (!no_tactile).then_some(out.as_path()),
+        ),
+        Command::Calibrate {
+            dir,
+            ball_diameter_mm,
+            px_per_mm,
+            ref_dx,
+            ref_dy,
+            overrides,
+            out,
+        } => tactile_cli::calibrate_cmd(tactile_cli::CalibrateArgs {
+            dir,
+            ball_diameter_mm,
+            px_per_mm,
+            ref_dx,
+            ref_dy,
+            overrides,
+            out,
+        }),
+        Command::Reconstruct {
+            model,
+            dx,
+            dy,
+            ref_dx,
+            ref_dy,
+            out_dir,
+            solver,
+            model_kind,
+            json,
+        } => tactile_cli::reconstruct_cmd(tactile_cli::ReconstructArgs {
+            model,
+            dx,
+            dy,
+            ref_dx,
+            ref_dy,
+            out_dir,
+            solver,
+            model_kind,
+            json,
+        }),
+        Command::Bench {
+            what:
+                BenchWhat::Tactile {
+                    json,
+                    json_out,
+                    sizes,
+                    repeats,
+                },
+        } => tactile_cli::bench_tactile(sizes, repeats, json, json_out.as_deref()),
         Command::FirmwareImage { elf, uf2 } => {
             let image = stereotac::uf2::FirmwareImage::read(&elf)
                 .with_context(|| format!("reading firmware {}", elf.display()))?;

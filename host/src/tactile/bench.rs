@@ -1,0 +1,443 @@
+//! `stereotac bench tactile`: run time per stage against depth error on the built-in
+//! scenes, for every gradient model and solver, plus the references the goals are
+//! measured against (one real 2-D FFT of the frame size, full-frame solves) and the
+//! 13 mm disk pressed at 30 random places.
+//!
+//! Times are medians over repeats on one thread; the machine is shared, so compare the
+//! ratios within one run rather than absolute numbers across runs.
+
+use std::time::Instant;
+
+use realfft::RealFftPlanner;
+use realfft::num_complex::Complex;
+use serde::Serialize;
+
+use super::calibrate::{CalibrationSettings, calibrate};
+use super::grid::{Grid, transpose};
+use super::model::{ModelKind, TactileModel};
+use super::poisson::{PoissonSolver, SolverKind};
+use super::reconstruct::{Reconstructor, StageTimings};
+use super::render::{Optics, Rng, Scene, builtin_scenes, disk, render};
+use super::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchConfig {
+    /// Frame sizes.
+    pub sizes: Vec<(usize, usize)>,
+    /// Repeats per measurement (the median is reported).
+    pub repeats: usize,
+    /// Ball presses rendered for calibration at each size.
+    pub calibration_presses: usize,
+    /// Random placements of the 13 mm disk for the accuracy statistic.
+    pub disk_placements: usize,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            sizes: vec![(640, 480), (1280, 960)],
+            repeats: 15,
+            calibration_presses: 20,
+            disk_placements: 30,
+        }
+    }
+}
+
+/// Depth errors of one reconstruction against the truth (mm).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct DepthErrors {
+    /// RMS over pixels where either truth or result is non-zero.
+    pub rms_mm: f64,
+    /// Largest absolute error.
+    pub max_mm: f64,
+    /// True deepest point.
+    pub true_peak_mm: f64,
+    /// Reconstructed deepest point.
+    pub peak_mm: f64,
+    /// Median reconstructed depth where the truth is ≥ 95 % of its peak: what the sensor
+    /// "reads" for the object (0 without contact).
+    pub reading_mm: f64,
+}
+
+/// One scene × size × model × solver.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchRecord {
+    /// Scene name.
+    pub scene: String,
+    /// Frame width.
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
+    /// Gradient model.
+    pub model: ModelKind,
+    /// Solver.
+    pub solver: SolverKind,
+    /// Median milliseconds per stage.
+    pub median_ms: StageTimings,
+    /// Errors versus ground truth.
+    pub errors: DepthErrors,
+    /// Regions integrated.
+    pub regions: usize,
+}
+
+/// Reference timings at one frame size.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SizeReference {
+    /// Frame width.
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
+    /// One forward real 2-D FFT of the frame (ms, median).
+    pub fft2d_ms: f64,
+    /// Full-frame Poisson solves (ms, median), per solver.
+    pub solve_ms: Vec<(SolverKind, f64)>,
+    /// Calibration fit (slope RMS) at this size.
+    pub calibration: super::model::FitReport,
+}
+
+/// The disk-at-random-places statistic for one model and solver.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiskStatistic {
+    /// Gradient model.
+    pub model: ModelKind,
+    /// Solver.
+    pub solver: SolverKind,
+    /// Placements.
+    pub placements: usize,
+    /// Mean reading (mm); truth 1.0.
+    pub mean_mm: f64,
+    /// Standard deviation of the readings (mm).
+    pub std_mm: f64,
+}
+
+/// Everything the benchmark measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchReport {
+    /// Per size references.
+    pub references: Vec<SizeReference>,
+    /// One record per scene, size, model and solver.
+    pub records: Vec<BenchRecord>,
+    /// The 13 mm disk at random places (first size only).
+    pub disk: Vec<DiskStatistic>,
+}
+
+/// Progress messages for a progress bar.
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+
+/// Runs the benchmark.
+pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
+    let mut report = BenchReport {
+        references: Vec::new(),
+        records: Vec::new(),
+        disk: Vec::new(),
+    };
+    for (size_index, &(w, h)) in config.sizes.iter().enumerate() {
+        let optics = Optics::sized(w, h);
+        let label = format!("{w}x{h}");
+        progress(&format!("{label}: calibrating"), 0, 1);
+        let (model, refs) = calibrated(&optics, config.calibration_presses);
+        report.references.push(SizeReference {
+            width: w,
+            height: h,
+            fft2d_ms: median_ms(config.repeats, fft2d_timer(w, h)),
+            solve_ms: SolverKind::ALL
+                .into_iter()
+                .map(|k| (k, median_ms(config.repeats, full_solve_timer(k, w, h))))
+                .collect(),
+            calibration: model.fit,
+        });
+        let scenes = builtin_scenes(&optics);
+        let total = scenes.len() * ModelKind::ALL.len() * SolverKind::ALL.len();
+        let mut done = 0;
+        for (name, scene) in &scenes {
+            let pair = render(&optics, scene, 7);
+            let truth = scene.truth(w, h, optics.px_per_mm).depth;
+            for kind in ModelKind::ALL {
+                for solver in SolverKind::ALL {
+                    let mut rec =
+                        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1)))
+                            .expect("sizes match by construction");
+                    let mut runs = Vec::with_capacity(config.repeats);
+                    let mut last = None;
+                    for _ in 0..config.repeats.max(1) {
+                        let r = rec.reconstruct(&pair.dx, &pair.dy).expect("valid input");
+                        runs.push(r.timings);
+                        last = Some(r);
+                    }
+                    let last = last.expect("at least one run");
+                    report.records.push(BenchRecord {
+                        scene: name.to_string(),
+                        width: w,
+                        height: h,
+                        model: kind,
+                        solver,
+                        median_ms: median_timings(&runs),
+                        errors: errors(&last.depth_mm, &truth),
+                        regions: last.regions.len(),
+                    });
+                    done += 1;
+                    progress(&label, done, total);
+                }
+            }
+        }
+        if size_index == 0 && config.disk_placements > 0 {
+            report.disk = disk_statistics(&optics, &model, &refs, config.disk_placements, progress);
+        }
+    }
+    report
+}
+
+fn calibrated(
+    optics: &Optics,
+    presses: usize,
+) -> (TactileModel, (image::RgbImage, image::RgbImage)) {
+    let pairs = ball_presses(optics, presses, CALIBRATION_BALL_MM, 42);
+    let refs = reference_frames(optics);
+    let settings = CalibrationSettings {
+        ball_diameter_mm: CALIBRATION_BALL_MM,
+        px_per_mm: optics.px_per_mm,
+        ..Default::default()
+    };
+    let cal = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings, |_| {})
+        .expect("built-in presses calibrate");
+    (cal.model, refs)
+}
+
+fn disk_statistics(
+    optics: &Optics,
+    model: &TactileModel,
+    refs: &(image::RgbImage, image::RgbImage),
+    placements: usize,
+    progress: Progress<'_>,
+) -> Vec<DiskStatistic> {
+    let mut rng = Rng::new(2024);
+    let (wmm, hmm) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    // The disk and its rim (9 mm radius) stay inside the frame.
+    let scenes: Vec<(Scene, Grid<f32>)> = (0..placements)
+        .map(|_| {
+            let scene = Scene {
+                shapes: vec![disk(
+                    rng.range(9.5, wmm - 9.5),
+                    rng.range(9.5, hmm - 9.5),
+                    false,
+                )],
+            };
+            let truth = scene
+                .truth(optics.width, optics.height, optics.px_per_mm)
+                .depth;
+            (scene, truth)
+        })
+        .collect();
+    let mut out = Vec::new();
+    let total = placements * ModelKind::ALL.len() * SolverKind::ALL.len();
+    let mut done = 0;
+    for kind in ModelKind::ALL {
+        for solver in SolverKind::ALL {
+            let mut rec = Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1)))
+                .expect("sizes match by construction");
+            let mut readings = Vec::with_capacity(placements);
+            for (i, (scene, truth)) in scenes.iter().enumerate() {
+                let pair = render(optics, scene, 100 + i as u64);
+                let r = rec.reconstruct(&pair.dx, &pair.dy).expect("valid input");
+                readings.push(errors(&r.depth_mm, truth).reading_mm);
+                done += 1;
+                progress("disk at 30 places", done, total);
+            }
+            let n = readings.len() as f64;
+            let mean = readings.iter().sum::<f64>() / n;
+            let var = readings.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+            out.push(DiskStatistic {
+                model: kind,
+                solver,
+                placements,
+                mean_mm: mean,
+                std_mm: var.sqrt(),
+            });
+        }
+    }
+    out
+}
+
+/// Errors of `depth` against `truth` (both mm).
+pub fn errors(depth: &Grid<f32>, truth: &Grid<f32>) -> DepthErrors {
+    let true_peak = truth.as_slice().iter().copied().fold(0.0f32, f32::max) as f64;
+    let peak = depth.as_slice().iter().copied().fold(0.0f32, f32::max) as f64;
+    let (mut sq, mut n, mut max) = (0.0f64, 0usize, 0.0f64);
+    let mut top = Vec::new();
+    for (&d, &t) in depth.as_slice().iter().zip(truth.as_slice()) {
+        if d != 0.0 || t != 0.0 {
+            let e = (d - t) as f64;
+            sq += e * e;
+            n += 1;
+            max = max.max(e.abs());
+        }
+        if true_peak > 0.0 && t as f64 >= 0.95 * true_peak {
+            top.push(d as f64);
+        }
+    }
+    top.sort_by(f64::total_cmp);
+    DepthErrors {
+        rms_mm: if n > 0 { (sq / n as f64).sqrt() } else { 0.0 },
+        max_mm: max,
+        true_peak_mm: true_peak,
+        peak_mm: peak,
+        reading_mm: top.get(top.len() / 2).copied().unwrap_or(0.0),
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn median_timings(runs: &[StageTimings]) -> StageTimings {
+    let m = |f: fn(&StageTimings) -> f64| median(runs.iter().map(f).collect());
+    StageTimings {
+        detect_ms: m(|t| t.detect_ms),
+        colour_ms: m(|t| t.colour_ms),
+        model_ms: m(|t| t.model_ms),
+        solve_ms: m(|t| t.solve_ms),
+        total_ms: m(|t| t.total_ms),
+    }
+}
+
+fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
+    f(); // warm-up: plans, caches
+    median(
+        (0..repeats.max(1))
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    )
+}
+
+/// A full-frame solve of a smooth random field, for the solver-versus-FFT ratio.
+fn full_solve_timer(kind: SolverKind, w: usize, h: usize) -> impl FnMut() {
+    let p = Grid::from_fn(w, h, |x, y| {
+        ((x as f32 * 0.05).sin() * (y as f32 * 0.03).cos()) * 0.3
+    });
+    let q = Grid::from_fn(w, h, |x, y| {
+        ((x as f32 * 0.02).cos() * (y as f32 * 0.07).sin()) * 0.3
+    });
+    let mut solver = PoissonSolver::<f32>::new();
+    move || {
+        let z = solver.integrate(kind, &p, &q).expect("finite input");
+        std::hint::black_box(z);
+    }
+}
+
+/// One forward real 2-D FFT of a `w × h` f32 frame: real FFT of each row, then complex
+/// FFTs down the `w/2 + 1` columns (through a transpose), plans built once.
+fn fft2d_timer(w: usize, h: usize) -> impl FnMut() {
+    let mut planner = RealFftPlanner::<f32>::new();
+    let rows = planner.plan_fft_forward(w);
+    let cols = rustfft::FftPlanner::<f32>::new().plan_fft_forward(h);
+    let frame: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 251) as f32).collect();
+    let half = w / 2 + 1;
+    let mut input = frame.clone();
+    let mut spectrum = vec![Complex::<f32>::default(); half * h];
+    let mut transposed = vec![Complex::<f32>::default(); half * h];
+    let mut scratch_r = rows.make_scratch_vec();
+    let mut scratch_c = vec![Complex::default(); cols.get_inplace_scratch_len()];
+    move || {
+        input.copy_from_slice(&frame);
+        for (row, out) in input
+            .chunks_exact_mut(w)
+            .zip(spectrum.chunks_exact_mut(half))
+        {
+            rows.process_with_scratch(row, out, &mut scratch_r)
+                .expect("plan lengths");
+        }
+        transpose(&spectrum, &mut transposed, half, h);
+        cols.process_with_scratch(&mut transposed, &mut scratch_c);
+        std::hint::black_box(&transposed);
+    }
+}
+
+/// The report as a plain-text table.
+pub fn format_table(report: &BenchReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    for r in &report.references {
+        let _ = writeln!(
+            s,
+            "{}x{}: one real 2-D FFT {:.2} ms; full-frame solve {}; calibration slope RMS lut {:.3}/{:.3} mlp {:.3}/{:.3} (train/held-out)",
+            r.width,
+            r.height,
+            r.fft2d_ms,
+            r.solve_ms
+                .iter()
+                .map(|(k, ms)| format!("{k} {ms:.2} ms ({:.2}x FFT)", ms / r.fft2d_ms))
+                .collect::<Vec<_>>()
+                .join(", "),
+            r.calibration.lut_train_rms,
+            r.calibration.lut_validation_rms,
+            r.calibration.mlp_train_rms,
+            r.calibration.mlp_validation_rms,
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n{:<11} {:>9} {:<4} {:<4} | {:>6} {:>6} {:>6} {:>6} {:>7} | {:>7} {:>7} {:>6} {:>6} {:>7}",
+        "scene",
+        "size",
+        "mdl",
+        "slv",
+        "detect",
+        "colour",
+        "model",
+        "solve",
+        "total",
+        "rms",
+        "max",
+        "peak",
+        "true",
+        "reading"
+    );
+    for r in &report.records {
+        let t = &r.median_ms;
+        let e = &r.errors;
+        let _ = writeln!(
+            s,
+            "{:<11} {:>9} {:<4} {:<4} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>7.2} | {:>7.4} {:>7.3} {:>6.3} {:>6.3} {:>7.3}",
+            r.scene,
+            format!("{}x{}", r.width, r.height),
+            r.model,
+            r.solver,
+            t.detect_ms,
+            t.colour_ms,
+            t.model_ms,
+            t.solve_ms,
+            t.total_ms,
+            e.rms_mm,
+            e.max_mm,
+            e.peak_mm,
+            e.true_peak_mm,
+            e.reading_mm
+        );
+    }
+    if !report.disk.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n13 mm disk pressed 1.000 mm at random places (reading = median depth over the plateau):"
+        );
+        for d in &report.disk {
+            let _ = writeln!(
+                s,
+                "  {} + {}: {} places, mean {:.3} mm, std {:.3} mm",
+                d.model, d.solver, d.placements, d.mean_mm, d.std_mm
+            );
+        }
+    }
+    s
+}

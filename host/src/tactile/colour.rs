@@ -1,0 +1,210 @@
+//! Colour filter: keep only the light of the LEDs and express it relative to flat skin.
+//!
+//! The strips emit pure red and pure blue; white or greenish light (room light, a
+//! ceiling lamp seen through the skin) reaches all three channels. So the green channel
+//! measures the non-LED light at each pixel, and `R − G`, `B − G` are the LED light alone.
+//! A pixel is rejected (its slope is taken as zero downstream, never "black") when it is
+//! saturated, when too little LED light is left, when green is a large part of it, or when
+//! green rose above the no-contact reference by more than the pixel's LED light (strong
+//! light that was not there at calibration; weaker white light is subtracted exactly). Accepted pixels are divided by the reference's LED light at the same
+//! pixel: flat skin reads `(1, 1)` anywhere in the frame, which removes the strips'
+//! fall-off and vignetting before any model sees the colour.
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+/// Thresholds of the colour filter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ColourFilter {
+    /// Minimum LED light `max(R−G, B−G)` for a usable pixel (DN).
+    pub min_led: f32,
+    /// Maximum `G / max(R, B)`: above it the pixel is mostly white or green light.
+    pub max_white_ratio: f32,
+    /// Maximum rise of green over the reference, as a fraction of the pixel's LED light
+    /// `max(R−G, B−G)`, before the pixel is rejected.
+    pub max_green_rise: f32,
+    /// Any channel at or above this value is saturated.
+    pub saturation: u8,
+}
+
+impl Default for ColourFilter {
+    fn default() -> Self {
+        Self {
+            min_led: 6.0,
+            max_white_ratio: 0.6,
+            max_green_rise: 1.0,
+            saturation: 250,
+        }
+    }
+}
+
+/// Flat-skin LED light of one phase image, stored as reciprocals for the hot loop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reference {
+    width: usize,
+    height: usize,
+    inv_red: Vec<f32>,
+    inv_blue: Vec<f32>,
+    green: Vec<f32>,
+}
+
+/// Smallest LED light a reference pixel is assumed to have (keeps ratios bounded).
+const REFERENCE_FLOOR: f32 = 4.0;
+
+impl Reference {
+    /// Reference from a no-contact frame of the same phase.
+    pub fn from_image(image: &RgbImage) -> Self {
+        let (w, h) = image.dimensions();
+        let mut r = Self {
+            width: w as usize,
+            height: h as usize,
+            inv_red: Vec::with_capacity((w * h) as usize),
+            inv_blue: Vec::with_capacity((w * h) as usize),
+            green: Vec::with_capacity((w * h) as usize),
+        };
+        for px in image.pixels() {
+            let [red, green, blue] = px.0.map(f32::from);
+            r.push(red - green, blue - green, green);
+        }
+        r
+    }
+
+    /// Reference from per-pixel LED light (`red`, `blue` after ambient removal, and green).
+    pub fn from_planes(
+        width: usize,
+        height: usize,
+        planes: impl Iterator<Item = [f32; 3]>,
+    ) -> Self {
+        let mut r = Self {
+            width,
+            height,
+            inv_red: Vec::with_capacity(width * height),
+            inv_blue: Vec::with_capacity(width * height),
+            green: Vec::with_capacity(width * height),
+        };
+        for [red, blue, green] in planes {
+            r.push(red, blue, green);
+        }
+        assert_eq!(r.green.len(), width * height, "plane length");
+        r
+    }
+
+    fn push(&mut self, red: f32, blue: f32, green: f32) {
+        self.inv_red.push(1.0 / red.max(REFERENCE_FLOOR));
+        self.inv_blue.push(1.0 / blue.max(REFERENCE_FLOOR));
+        self.green.push(green);
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Normalised LED colour `(red, blue)` of `pixel` at index `i`, or `None` when the
+    /// filter rejects it. Flat skin gives about `(1, 1)`.
+    #[inline]
+    pub fn normalise(&self, filter: &ColourFilter, i: usize, pixel: [u8; 3]) -> Option<(f32, f32)> {
+        if pixel.iter().any(|&c| c >= filter.saturation) {
+            return None;
+        }
+        let [r, g, b] = pixel.map(f32::from);
+        let (led_r, led_b) = (r - g, b - g);
+        if led_r.max(led_b) < filter.min_led
+            || g > filter.max_white_ratio * r.max(b)
+            || g - self.green[i] > filter.max_green_rise * led_r.max(led_b)
+        {
+            return None;
+        }
+        Some((
+            led_r.max(0.0) * self.inv_red[i],
+            led_b.max(0.0) * self.inv_blue[i],
+        ))
+    }
+}
+
+/// Per-pixel median of several no-contact-ish frames: each pixel's background when
+/// contacts sit at different places in each frame (used by calibration when no reference
+/// frames are given).
+pub fn median_image(images: &[&RgbImage]) -> Option<RgbImage> {
+    let first = images.first()?;
+    let (w, h) = first.dimensions();
+    if images.iter().any(|i| i.dimensions() != (w, h)) {
+        return None;
+    }
+    let mut out = RgbImage::new(w, h);
+    let mut values = Vec::with_capacity(images.len());
+    for (x, y, px) in out.enumerate_pixels_mut() {
+        for c in 0..3 {
+            values.clear();
+            values.extend(images.iter().map(|i| i.get_pixel(x, y).0[c]));
+            values.sort_unstable();
+            px.0[c] = values[values.len() / 2];
+        }
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reference(pixel: [u8; 3]) -> Reference {
+        Reference::from_image(&RgbImage::from_pixel(1, 1, image::Rgb(pixel)))
+    }
+
+    #[test]
+    fn ambient_white_light_cancels() {
+        let f = ColourFilter::default();
+        let reference = reference([106, 6, 86]);
+        let (r, b) = reference.normalise(&f, 0, [106, 6, 86]).unwrap();
+        assert!((r - 1.0).abs() < 1e-6 && (b - 1.0).abs() < 1e-6);
+        // Extra white light of 10 DN on every channel changes nothing.
+        let (r, b) = reference.normalise(&f, 0, [116, 16, 96]).unwrap();
+        assert!((r - 1.0).abs() < 1e-6 && (b - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn rejects_white_spots_saturation_and_darkness() {
+        let f = ColourFilter::default();
+        let reference = reference([106, 6, 86]);
+        assert_eq!(reference.normalise(&f, 0, [200, 180, 190]), None, "white");
+        assert_eq!(
+            reference.normalise(&f, 0, [150, 140, 120]),
+            None,
+            "green rose"
+        );
+        // White light weaker than the LEDs' is subtracted, not rejected.
+        assert!(reference.normalise(&f, 0, [150, 50, 130]).is_some());
+        // A rise of green beyond the LED light itself is rejected even if not white.
+        assert_eq!(
+            reference.normalise(&f, 0, [160, 90, 60]),
+            None,
+            "strong cast"
+        );
+        assert_eq!(reference.normalise(&f, 0, [255, 6, 20]), None, "saturated");
+        assert_eq!(reference.normalise(&f, 0, [9, 6, 10]), None, "dark");
+        assert!(
+            reference.normalise(&f, 0, [10, 6, 200]).is_some(),
+            "one LED dark is fine"
+        );
+    }
+
+    #[test]
+    fn median_needs_equal_sizes() {
+        let a = RgbImage::from_pixel(2, 2, image::Rgb([1, 2, 3]));
+        let b = RgbImage::from_pixel(2, 2, image::Rgb([9, 9, 9]));
+        let c = RgbImage::from_pixel(2, 2, image::Rgb([5, 5, 5]));
+        assert_eq!(
+            median_image(&[&a, &b, &c]).unwrap().get_pixel(1, 1).0,
+            [5, 5, 5]
+        );
+        let d = RgbImage::new(3, 2);
+        assert!(median_image(&[&a, &d]).is_none());
+        assert!(median_image(&[]).is_none());
+    }
+}

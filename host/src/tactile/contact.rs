@@ -1,0 +1,319 @@
+//! Contact detection: where does the colour differ from flat skin, and which small
+//! rectangles (regions of interest) must the rest of the pipeline look at?
+//!
+//! Detection samples a coarse grid (every `coarse_step` pixels) so a frame with no contact
+//! costs a few tens of thousands of pixel reads and nothing else. Marked cells are grouped
+//! into 8-connected components; components smaller than `min_cells` are noise. Each
+//! component's bounding box, padded, becomes a region; overlapping regions merge, and each
+//! is grown to a length the FFT solvers handle efficiently (5-smooth) where the frame
+//! allows.
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use super::colour::{ColourFilter, Reference};
+use super::poisson::SolverKind;
+
+/// Thresholds of contact detection.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ContactParams {
+    /// A pixel is touched when `Σ |normalised colour − 1|` over both images exceeds this.
+    pub threshold: f32,
+    /// Sampling step of the coarse detection grid (px).
+    pub coarse_step: usize,
+    /// Smallest component on the coarse grid that counts as a contact (cells).
+    pub min_cells: usize,
+    /// Flat margin around each contact inside its region (px).
+    pub pad_px: usize,
+    /// The full-resolution mask is grown by this many pixels (the faint outer slopes).
+    pub dilate_px: usize,
+}
+
+impl Default for ContactParams {
+    fn default() -> Self {
+        Self {
+            threshold: 0.25,
+            coarse_step: 4,
+            min_cells: 3,
+            pad_px: 16,
+            dilate_px: 6,
+        }
+    }
+}
+
+/// No-contact references of both phases.
+#[derive(Debug, Clone, PartialEq)]
+pub struct References {
+    /// dx phase.
+    pub dx: Reference,
+    /// dy phase.
+    pub dy: Reference,
+}
+
+/// A rectangle of the frame, in pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Roi {
+    /// Left column.
+    pub x: usize,
+    /// Top row.
+    pub y: usize,
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+}
+
+impl Roi {
+    fn overlaps(&self, o: &Roi) -> bool {
+        self.x < o.x + o.width
+            && o.x < self.x + self.width
+            && self.y < o.y + o.height
+            && o.y < self.y + self.height
+    }
+
+    fn union(&self, o: &Roi) -> Roi {
+        let (x0, y0) = (self.x.min(o.x), self.y.min(o.y));
+        let x1 = (self.x + self.width).max(o.x + o.width);
+        let y1 = (self.y + self.height).max(o.y + o.height);
+        Roi {
+            x: x0,
+            y: y0,
+            width: x1 - x0,
+            height: y1 - y0,
+        }
+    }
+
+    /// Number of pixels.
+    pub fn area(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+/// How far pixel `i` is from flat skin: `Σ |colour − 1|` over both phases; rejected
+/// pixels count as flat.
+#[inline]
+pub fn deviation(
+    refs: &References,
+    filter: &ColourFilter,
+    dx: &RgbImage,
+    dy: &RgbImage,
+    x: usize,
+    y: usize,
+) -> f32 {
+    let i = y * refs.dx.width() + x;
+    let mut d = 0.0;
+    if let Some((r, b)) = refs
+        .dx
+        .normalise(filter, i, dx.get_pixel(x as u32, y as u32).0)
+    {
+        d += (r - 1.0).abs() + (b - 1.0).abs();
+    }
+    if let Some((r, b)) = refs
+        .dy
+        .normalise(filter, i, dy.get_pixel(x as u32, y as u32).0)
+    {
+        d += (r - 1.0).abs() + (b - 1.0).abs();
+    }
+    d
+}
+
+/// Finds the regions of interest around contacts; empty when nothing touches the skin.
+/// Images and references must have the same size (checked by the caller).
+pub fn find_regions(
+    dx: &RgbImage,
+    dy: &RgbImage,
+    refs: &References,
+    filter: &ColourFilter,
+    params: &ContactParams,
+    solver: SolverKind,
+) -> Vec<Roi> {
+    let (w, h) = (dx.width() as usize, dx.height() as usize);
+    let step = params.coarse_step.max(1);
+    let (gw, gh) = (w.div_ceil(step), h.div_ceil(step));
+    let mut marked = vec![false; gw * gh];
+    let mut any = false;
+    for gy in 0..gh {
+        let y = (gy * step + step / 2).min(h - 1);
+        for gx in 0..gw {
+            let x = (gx * step + step / 2).min(w - 1);
+            if deviation(refs, filter, dx, dy, x, y) > params.threshold {
+                marked[gy * gw + gx] = true;
+                any = true;
+            }
+        }
+    }
+    if !any {
+        return Vec::new();
+    }
+    let mut regions: Vec<Roi> = components(&mut marked, gw, gh)
+        .into_iter()
+        .filter(|c| c.cells >= params.min_cells)
+        .map(|c| {
+            let x0 = (c.x0 * step).saturating_sub(params.pad_px);
+            let y0 = (c.y0 * step).saturating_sub(params.pad_px);
+            let x1 = ((c.x1 + 1) * step + params.pad_px).min(w);
+            let y1 = ((c.y1 + 1) * step + params.pad_px).min(h);
+            Roi {
+                x: x0,
+                y: y0,
+                width: x1 - x0,
+                height: y1 - y0,
+            }
+        })
+        .collect();
+    merge_overlapping(&mut regions);
+    for r in &mut regions {
+        (r.x, r.width) = fit_length(r.x, r.width, w, solver);
+        (r.y, r.height) = fit_length(r.y, r.height, h, solver);
+    }
+    // Growing may make regions overlap again; merged ones keep their (valid) size.
+    merge_overlapping(&mut regions);
+    regions
+}
+
+/// Grows `[start, start+len)` to an efficient solver length inside `[0, total)`, keeping
+/// the original span inside; the whole axis when the efficient length does not fit.
+fn fit_length(start: usize, len: usize, total: usize, solver: SolverKind) -> (usize, usize) {
+    let good = solver.good_length(len);
+    if good >= total {
+        return (0, total);
+    }
+    let grow = good - len;
+    let start = start.saturating_sub(grow / 2).min(total - good);
+    (start, good)
+}
+
+fn merge_overlapping(regions: &mut Vec<Roi>) {
+    let mut merged = true;
+    while merged {
+        merged = false;
+        'outer: for i in 0..regions.len() {
+            for j in i + 1..regions.len() {
+                if regions[i].overlaps(&regions[j]) {
+                    regions[i] = regions[i].union(&regions[j]);
+                    regions.swap_remove(j);
+                    merged = true;
+                    break 'outer;
+                }
+            }
+        }
+    }
+}
+
+struct Component {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+    cells: usize,
+}
+
+/// 8-connected components of `marked` (consumed: cells are cleared as they are visited).
+fn components(marked: &mut [bool], w: usize, h: usize) -> Vec<Component> {
+    let mut out = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..marked.len() {
+        if !marked[start] {
+            continue;
+        }
+        marked[start] = false;
+        stack.push(start);
+        let mut c = Component {
+            x0: usize::MAX,
+            y0: usize::MAX,
+            x1: 0,
+            y1: 0,
+            cells: 0,
+        };
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            c.x0 = c.x0.min(x);
+            c.x1 = c.x1.max(x);
+            c.y0 = c.y0.min(y);
+            c.y1 = c.y1.max(y);
+            c.cells += 1;
+            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    let j = ny * w + nx;
+                    if marked[j] {
+                        marked[j] = false;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// Grows a `w × h` mask by `r` pixels (square structuring element), in place.
+pub fn dilate(mask: &mut [bool], w: usize, h: usize, r: usize) {
+    if r == 0 || w == 0 || h == 0 {
+        return;
+    }
+    let mut tmp = vec![false; mask.len()];
+    // Rows: a pixel is set when any pixel within ±r in its row is.
+    for y in 0..h {
+        let row = &mask[y * w..(y + 1) * w];
+        let out = &mut tmp[y * w..(y + 1) * w];
+        let mut last_set: Option<usize> = None;
+        for x in 0..(w + r) {
+            if x < w && row[x] {
+                last_set = Some(x);
+            }
+            if x >= r
+                && let Some(s) = last_set
+                && x - s <= 2 * r
+            {
+                out[x - r] = true;
+            }
+        }
+    }
+    // Columns, from tmp back into mask.
+    for x in 0..w {
+        let mut last_set: Option<usize> = None;
+        for y in 0..(h + r) {
+            if y < h && tmp[y * w + x] {
+                last_set = Some(y);
+            }
+            if y >= r {
+                mask[(y - r) * w + x] = matches!(last_set, Some(s) if y - s <= 2 * r);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dilate_grows_by_exactly_r() {
+        let (w, h) = (9, 7);
+        let mut m = vec![false; w * h];
+        m[3 * w + 4] = true;
+        dilate(&mut m, w, h, 2);
+        for y in 0..h {
+            for x in 0..w {
+                let want = (2..=6).contains(&x) && (1..=5).contains(&y);
+                assert_eq!(m[y * w + x], want, "({x},{y})");
+            }
+        }
+        let mut corner = vec![false; 4];
+        corner[0] = true;
+        dilate(&mut corner, 2, 2, 5);
+        assert!(corner.iter().all(|&v| v));
+    }
+
+    #[test]
+    fn lengths_grow_to_smooth_sizes_inside_the_frame() {
+        assert_eq!(fit_length(100, 97, 640, SolverKind::Dct), (99, 100));
+        assert_eq!(fit_length(0, 97, 640, SolverKind::Dct), (0, 100));
+        assert_eq!(fit_length(600, 40, 640, SolverKind::Dct), (600, 40));
+        assert_eq!(fit_length(630, 7, 640, SolverKind::Dct), (630, 8));
+        assert_eq!(fit_length(0, 470, 479, SolverKind::Dct), (0, 479));
+        // DST-I of length N runs an FFT of 2(N+1): 107 + 1 = 108 = 2²·3³.
+        assert_eq!(fit_length(10, 100, 640, SolverKind::Dst), (7, 107));
+    }
+}

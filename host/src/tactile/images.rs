@@ -1,0 +1,102 @@
+//! Reading the phase images: single RGB8 files and directories of `NAME_dx.png` /
+//! `NAME_dy.png` pairs, with errors that name the file.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use image::RgbImage;
+
+use super::calibrate::CalibrationPair;
+
+/// Why images could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// The file could not be opened or decoded.
+    #[error("{}: {source}", path.display())]
+    Read {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: image::ImageError,
+    },
+    /// The directory could not be listed.
+    #[error("{}: {source}", path.display())]
+    Dir {
+        /// Directory.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// A `_dx` file without its `_dy` partner, or the other way round.
+    #[error("{}: no matching {partner} file", path.display())]
+    Unpaired {
+        /// The file found.
+        path: PathBuf,
+        /// The partner looked for.
+        partner: String,
+    },
+    /// No pairs in the directory.
+    #[error("{}: no NAME_dx.png / NAME_dy.png pairs found", path.display())]
+    Empty {
+        /// Directory.
+        path: PathBuf,
+    },
+}
+
+/// Reads an image as RGB8 (grey or 16-bit inputs are converted).
+pub fn load_rgb(path: &Path) -> Result<RgbImage, ImageError> {
+    image::open(path)
+        .map(|i| i.to_rgb8())
+        .map_err(|source| ImageError::Read {
+            path: path.to_path_buf(),
+            source,
+        })
+}
+
+/// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored),
+/// sorted by name.
+pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
+    let dir_error = |source| ImageError::Dir {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let mut found: BTreeMap<String, [Option<PathBuf>; 2]> = BTreeMap::new();
+    for e in std::fs::read_dir(dir).map_err(dir_error)? {
+        let path = e.map_err(dir_error)?.path();
+        let file = path
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let lower = file.to_ascii_lowercase();
+        for (slot, suffix) in ["_dx.png", "_dy.png"].into_iter().enumerate() {
+            if lower.ends_with(suffix) {
+                let name = file[..file.len() - suffix.len()].to_string();
+                found.entry(name).or_default()[slot] = Some(path.clone());
+            }
+        }
+    }
+    if found.is_empty() {
+        return Err(ImageError::Empty {
+            path: dir.to_path_buf(),
+        });
+    }
+    found
+        .into_iter()
+        .map(|(name, paths)| match paths {
+            [Some(dx), Some(dy)] => Ok(CalibrationPair {
+                dx: load_rgb(&dx)?,
+                dy: load_rgb(&dy)?,
+                name,
+            }),
+            [Some(path), None] => Err(ImageError::Unpaired {
+                path,
+                partner: format!("{name}_dy.png"),
+            }),
+            [None, Some(path)] => Err(ImageError::Unpaired {
+                path,
+                partner: format!("{name}_dx.png"),
+            }),
+            [None, None] => unreachable!("an entry is made with one path"),
+        })
+        .collect()
+}

@@ -1,0 +1,23 @@
+//! Tactile reconstruction: from the dx and dy images of the lit skin to the depth of the
+//! imprint in millimetres.
+//!
+//! Stages, each in its own module: [`colour`] keeps the LEDs' red and blue light and
+//! normalises it by a no-contact reference; [`contact`] finds touched pixels and the region
+//! of interest (no contact → no further work); [`model`] turns colour into slopes (lookup
+//! table or small MLP, trained by [`calibrate`]); [`sanitize`] bounds the slopes;
+//! [`poisson`] integrates them; [`output`] writes NPY/PNG/PLY/JSON. [`render`] is our own
+//! synthetic sensor used by the demo, the benchmark and the tests.
+
+pub mod bench;
+pub mod calibrate;
+pub mod colour;
+pub mod contact;
+pub mod grid;
+pub mod images;
+pub mod model;
+pub mod output;
+pub mod poisson;
+pub mod reconstruct;
+pub mod render;
+pub mod sanitize;
+pub mod synthetic;

@@ -1,0 +1,230 @@
+//! Lookup-table gradient model: slope as a function of the normalised colour `(r, b)`,
+//! bilinear in colour, times a gain that varies smoothly over the frame.
+//!
+//! The gain follows what changes across the frame (the light's elevation is higher near
+//! a strip, so the same colour means a smaller slope there). It is one number per spatial
+//! cell, blended bilinearly, fitted by least squares after the colour table. A full colour
+//! table per cell was tried first: with a dozen ball presses each cell's table is too
+//! sparse, fell back on the all-frame table, and the position effect vanished.
+//!
+//! Training averages the samples falling around each table entry (bilinear splatting);
+//! colours never seen take the value of the nearest seen ones (iterative neighbour fill),
+//! which saturates gracefully instead of extrapolating.
+
+use serde::{Deserialize, Serialize};
+
+use super::Sample;
+
+/// The table and its axes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Lut {
+    /// Entries per colour axis.
+    pub bins: usize,
+    /// Colour value of the last bin (values above are clamped).
+    pub max_value: f32,
+    /// Spatial cells across.
+    pub cells_x: usize,
+    /// Spatial cells down.
+    pub cells_y: usize,
+    /// `bins(r) × bins(b)` slopes.
+    pub table: Vec<f32>,
+    /// `cells_y × cells_x` gains.
+    pub gain: Vec<f32>,
+}
+
+/// Bilinear position along an axis of `n` entries: `(index, fraction)`.
+#[inline]
+fn locate(v: f32, n: usize) -> (usize, f32) {
+    if n <= 1 {
+        return (0, 0.0);
+    }
+    // NaN compares false everywhere: map it to the first entry.
+    let v = if v.is_nan() {
+        0.0
+    } else {
+        v.clamp(0.0, (n - 1) as f32)
+    };
+    let i = (v as usize).min(n - 2);
+    (i, v - i as f32)
+}
+
+/// The four bilinear neighbours `(index, weight)` of `(x, y)` ∈ [0, 1]² on a grid of
+/// cell centres.
+#[inline]
+fn cell_weights(x: f32, y: f32, cells_x: usize, cells_y: usize) -> [(usize, f32); 4] {
+    let (cx, fx) = locate(x * cells_x as f32 - 0.5, cells_x);
+    let (cy, fy) = locate(y * cells_y as f32 - 0.5, cells_y);
+    let cxn = (cx + 1).min(cells_x - 1);
+    let cyn = (cy + 1).min(cells_y - 1);
+    [
+        (cy * cells_x + cx, (1.0 - fx) * (1.0 - fy)),
+        (cy * cells_x + cxn, fx * (1.0 - fy)),
+        (cyn * cells_x + cx, (1.0 - fx) * fy),
+        (cyn * cells_x + cxn, fx * fy),
+    ]
+}
+
+impl Lut {
+    /// Fits a table of `bins × bins` colours and `cells_x × cells_y` gains.
+    pub fn fit(
+        samples: &[Sample],
+        bins: usize,
+        max_value: f32,
+        cells_x: usize,
+        cells_y: usize,
+    ) -> Self {
+        let bins = bins.max(2);
+        let (cells_x, cells_y) = (cells_x.max(1), cells_y.max(1));
+        let mut sum = vec![0.0f32; bins * bins];
+        let mut weight = vec![0.0f32; bins * bins];
+        let scale = (bins - 1) as f32 / max_value;
+        for s in samples {
+            let (ir, fr) = locate(s.features[0] * scale, bins);
+            let (ib, fb) = locate(s.features[1] * scale, bins);
+            for (dr, wr) in [(0, 1.0 - fr), (1, fr)] {
+                for (db, wb) in [(0, 1.0 - fb), (1, fb)] {
+                    let entry = (ir + dr) * bins + ib + db;
+                    sum[entry] += wr * wb * s.target;
+                    weight[entry] += wr * wb;
+                }
+            }
+        }
+        let mut lut = Self {
+            bins,
+            max_value,
+            cells_x,
+            cells_y,
+            table: fill_gaps(&sum, &weight, bins),
+            gain: vec![1.0; cells_x * cells_y],
+        };
+        if cells_x * cells_y > 1 {
+            // Least-squares gain per cell: minimise Σ w (gain · table − target)².
+            let mut num = vec![0.0f64; cells_x * cells_y];
+            let mut den = vec![0.0f64; cells_x * cells_y];
+            for s in samples {
+                let g = lut.colour(s.features[0], s.features[1]) as f64;
+                for (cell, w) in cell_weights(s.features[2], s.features[3], cells_x, cells_y) {
+                    num[cell] += w as f64 * g * s.target as f64;
+                    den[cell] += w as f64 * g * g;
+                }
+            }
+            // Cells with little slope signal keep gain 1.
+            let total: f64 = den.iter().sum();
+            let floor = 0.02 * total / den.len() as f64;
+            for ((gain, n), d) in lut.gain.iter_mut().zip(&num).zip(&den) {
+                if *d > floor && *d > 0.0 {
+                    *gain = ((n / d) as f32).clamp(0.5, 2.0);
+                }
+            }
+        }
+        lut
+    }
+
+    /// The colour table alone, bilinear.
+    #[inline]
+    fn colour(&self, r: f32, b: f32) -> f32 {
+        let bins = self.bins;
+        let scale = (bins - 1) as f32 / self.max_value;
+        let (ir, fr) = locate(r * scale, bins);
+        let (ib, fb) = locate(b * scale, bins);
+        let t = &self.table;
+        let a = t[ir * bins + ib] * (1.0 - fb) + t[ir * bins + ib + 1] * fb;
+        let c = t[(ir + 1) * bins + ib] * (1.0 - fb) + t[(ir + 1) * bins + ib + 1] * fb;
+        a * (1.0 - fr) + c * fr
+    }
+
+    /// Slope for normalised colour `(r, b)` at normalised position `(x, y)` ∈ [0, 1]².
+    #[inline]
+    pub fn eval(&self, r: f32, b: f32, x: f32, y: f32) -> f32 {
+        let colour = self.colour(r, b);
+        if self.gain.len() == 1 {
+            return colour * self.gain[0];
+        }
+        let gain: f32 = cell_weights(x, y, self.cells_x, self.cells_y)
+            .iter()
+            .map(|&(cell, w)| self.gain[cell] * w)
+            .sum();
+        colour * gain
+    }
+}
+
+/// Mean per entry where samples fell; elsewhere the mean of already-filled neighbours,
+/// spreading outwards until the table is full. An empty table is all zero.
+fn fill_gaps(sum: &[f32], weight: &[f32], bins: usize) -> Vec<f32> {
+    const SEEN: f32 = 1e-3;
+    let mut value: Vec<f32> = sum
+        .iter()
+        .zip(weight)
+        .map(|(s, w)| if *w > SEEN { s / w } else { 0.0 })
+        .collect();
+    let mut known: Vec<bool> = weight.iter().map(|w| *w > SEEN).collect();
+    if !known.iter().any(|&k| k) {
+        return value;
+    }
+    while known.iter().any(|&k| !k) {
+        let snapshot = known.clone();
+        for i in 0..bins {
+            for j in 0..bins {
+                let e = i * bins + j;
+                if snapshot[e] {
+                    continue;
+                }
+                let mut acc = 0.0;
+                let mut n = 0;
+                for (di, dj) in [(-1i32, 0i32), (1, 0), (0, -1), (0, 1)] {
+                    let (ni, nj) = (i as i32 + di, j as i32 + dj);
+                    if ni < 0 || nj < 0 || ni >= bins as i32 || nj >= bins as i32 {
+                        continue;
+                    }
+                    let ne = ni as usize * bins + nj as usize;
+                    if snapshot[ne] {
+                        acc += value[ne];
+                        n += 1;
+                    }
+                }
+                if n > 0 {
+                    value[e] = acc / n as f32;
+                    known[e] = true;
+                }
+            }
+        }
+    }
+    value
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn learns_a_smooth_function_and_saturates_outside_the_data() {
+        // slope = (r − b) / (r + b) · 1.7, sampled on a grid of colours in [0.3, 1.7].
+        let f = |r: f32, b: f32| 1.7 * (r - b) / (r + b);
+        let mut samples = Vec::new();
+        for i in 0..=140 {
+            for j in 0..=140 {
+                let (r, b) = (0.3 + i as f32 * 0.01, 0.3 + j as f32 * 0.01);
+                samples.push(Sample {
+                    features: [r, b, (i % 7) as f32 / 7.0, (j % 5) as f32 / 5.0],
+                    target: f(r, b),
+                });
+            }
+        }
+        let lut = Lut::fit(&samples, 64, 3.0, 2, 2);
+        let mut worst = 0.0f32;
+        for (r, b) in [(0.5, 0.9), (1.0, 1.0), (1.6, 0.4), (0.77, 1.31)] {
+            worst = worst.max((lut.eval(r, b, 0.4, 0.6) - f(r, b)).abs());
+        }
+        assert!(worst < 0.01, "max error {worst}");
+        // Beyond the data (r = 2.5) the value stays near the edge of the data.
+        let far = lut.eval(2.5, 0.3, 0.5, 0.5);
+        assert!((far - f(1.7, 0.3)).abs() < 0.05, "{far}");
+        assert!(lut.eval(f32::NAN, 1.0, 0.5, 0.5).is_finite());
+    }
+
+    #[test]
+    fn an_empty_training_set_gives_zero_slopes() {
+        let lut = Lut::fit(&[], 8, 3.0, 1, 1);
+        assert_eq!(lut.eval(1.2, 0.8, 0.5, 0.5), 0.0);
+    }
+}

@@ -1,0 +1,295 @@
+//! Gradient models: from the normalised LED colour `(r, b)` of one phase image and the
+//! pixel's position `(x, y)` (both in [0, 1]) to the slope along that phase's axis.
+//!
+//! [`TactileModel`] is what calibration writes and reconstruction reads: one
+//! [`AxisModel`] per phase (each with a lookup table and an MLP), the colour filter and
+//! contact thresholds it was calibrated with, and a low-resolution no-contact background
+//! used when no reference frames are given. The file is JSON with a format name and a
+//! version number checked on load.
+
+pub mod lut;
+pub mod mlp;
+
+use std::fmt;
+use std::path::Path;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+pub use lut::Lut;
+pub use mlp::{Mlp, MlpTraining};
+
+use super::colour::{ColourFilter, Reference};
+use super::contact::{ContactParams, References};
+
+/// One training example: features `[r, b, x, y]` and the true slope.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    /// Normalised red, normalised blue, x / width, y / height.
+    pub features: [f32; 4],
+    /// Slope along the phase's axis.
+    pub target: f32,
+}
+
+/// Which model turns colour into slope.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// Lookup table (fast).
+    Lut,
+    /// Multilayer perceptron (smooth).
+    Mlp,
+}
+
+impl ModelKind {
+    /// Both kinds.
+    pub const ALL: [ModelKind; 2] = [ModelKind::Lut, ModelKind::Mlp];
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelKind::Lut => "lut",
+            ModelKind::Mlp => "mlp",
+        }
+    }
+}
+
+impl fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for ModelKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown model {s:?} (expected lut or mlp)"))
+    }
+}
+
+/// Both models of one phase.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AxisModel {
+    /// Lookup table.
+    pub lut: Lut,
+    /// Perceptron.
+    pub mlp: Mlp,
+}
+
+impl AxisModel {
+    /// Slopes for feature rows with the chosen model.
+    pub fn eval(&self, kind: ModelKind, features: &[[f32; 4]], out: &mut [f32]) {
+        match kind {
+            ModelKind::Lut => {
+                for (f, o) in features.iter().zip(out.iter_mut()) {
+                    *o = self.lut.eval(f[0], f[1], f[2], f[3]);
+                }
+            }
+            ModelKind::Mlp => self.mlp.eval_batch(features, out),
+        }
+    }
+}
+
+/// No-contact LED light at reduced resolution: per block, `[red − green, blue − green,
+/// green]` of each phase, averaged over `factor × factor` pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Background {
+    /// Block size (px).
+    pub factor: usize,
+    /// Blocks across.
+    pub width: usize,
+    /// Blocks down.
+    pub height: usize,
+    /// dx phase planes.
+    pub dx: Vec<[f32; 3]>,
+    /// dy phase planes.
+    pub dy: Vec<[f32; 3]>,
+}
+
+impl Background {
+    /// Block-averages two full-resolution references (`[red, blue, green]` planes).
+    pub fn from_images(dx: &image::RgbImage, dy: &image::RgbImage, factor: usize) -> Self {
+        let (w, h) = (dx.width() as usize, dx.height() as usize);
+        let (bw, bh) = (w.div_ceil(factor), h.div_ceil(factor));
+        let blocks = |img: &image::RgbImage| {
+            let mut acc = vec![[0.0f32; 4]; bw * bh];
+            for (x, y, px) in img.enumerate_pixels() {
+                let [r, g, b] = px.0.map(f32::from);
+                let a = &mut acc[(y as usize / factor) * bw + x as usize / factor];
+                a[0] += r - g;
+                a[1] += b - g;
+                a[2] += g;
+                a[3] += 1.0;
+            }
+            acc.into_iter()
+                .map(|a| [a[0] / a[3], a[1] / a[3], a[2] / a[3]])
+                .collect()
+        };
+        Self {
+            factor,
+            width: bw,
+            height: bh,
+            dx: blocks(dx),
+            dy: blocks(dy),
+        }
+    }
+
+    /// Full-resolution references by bilinear interpolation between block centres.
+    pub fn references(&self, width: usize, height: usize) -> References {
+        let plane = |blocks: &[[f32; 3]]| {
+            let f = self.factor as f32;
+            let sample = move |x: usize, y: usize| {
+                let u = ((x as f32 + 0.5) / f - 0.5).clamp(0.0, (self.width - 1) as f32);
+                let v = ((y as f32 + 0.5) / f - 0.5).clamp(0.0, (self.height - 1) as f32);
+                let (i, j) = (u as usize, v as usize);
+                let (i1, j1) = ((i + 1).min(self.width - 1), (j + 1).min(self.height - 1));
+                let (fu, fv) = (u - i as f32, v - j as f32);
+                let at = |i: usize, j: usize| blocks[j * self.width + i];
+                let mut out = [0.0; 3];
+                for (c, o) in out.iter_mut().enumerate() {
+                    let top = at(i, j)[c] * (1.0 - fu) + at(i1, j)[c] * fu;
+                    let bottom = at(i, j1)[c] * (1.0 - fu) + at(i1, j1)[c] * fu;
+                    *o = top * (1.0 - fv) + bottom * fv;
+                }
+                out
+            };
+            Reference::from_planes(
+                width,
+                height,
+                (0..height).flat_map(move |y| (0..width).map(move |x| sample(x, y))),
+            )
+        };
+        References {
+            dx: plane(&self.dx),
+            dy: plane(&self.dy),
+        }
+    }
+}
+
+/// How well the models fit, in slope units (RMS).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Pairs used for training.
+    pub training_pairs: usize,
+    /// Pairs held out for validation.
+    pub validation_pairs: usize,
+    /// Training samples per axis.
+    pub samples_per_axis: usize,
+    /// LUT RMS on the training pairs.
+    pub lut_train_rms: f32,
+    /// LUT RMS on the held-out pairs.
+    pub lut_validation_rms: f32,
+    /// MLP RMS on the training pairs.
+    pub mlp_train_rms: f32,
+    /// MLP RMS on the held-out pairs.
+    pub mlp_validation_rms: f32,
+}
+
+/// Format name stored in every model file.
+pub const MODEL_FORMAT: &str = "stereotac-tactile-model";
+/// Current model file version.
+pub const MODEL_VERSION: u32 = 1;
+
+/// A calibrated sensor: everything reconstruction needs besides the frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TactileModel {
+    /// Always [`MODEL_FORMAT`].
+    pub format: String,
+    /// File version ([`MODEL_VERSION`]).
+    pub version: u32,
+    /// Frame width the model was calibrated at.
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
+    /// Scale (px per mm).
+    pub px_per_mm: f64,
+    /// Ball used for calibration (mm).
+    pub ball_diameter_mm: f64,
+    /// Colour filter thresholds.
+    pub filter: ColourFilter,
+    /// Contact detection thresholds.
+    pub contact: ContactParams,
+    /// No-contact background (used when no reference frames are given).
+    pub background: Background,
+    /// dx phase: slope along x.
+    pub dx: AxisModel,
+    /// dy phase: slope along y.
+    pub dy: AxisModel,
+    /// Fit quality.
+    pub fit: FitReport,
+}
+
+/// Why a model file could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// Reading or writing failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// File.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Not valid JSON for a model.
+    #[error("{path}: not a stereotac model file: {source}")]
+    Parse {
+        /// File.
+        path: String,
+        /// Cause.
+        source: serde_json::Error,
+    },
+    /// Another format, or a version this build cannot read.
+    #[error(
+        "{path}: format {format:?} version {version}, this build reads {MODEL_FORMAT:?} version {MODEL_VERSION}"
+    )]
+    Version {
+        /// File.
+        path: String,
+        /// Format found.
+        format: String,
+        /// Version found.
+        version: u32,
+    },
+}
+
+impl TactileModel {
+    /// Writes the model as JSON.
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        let io = |source| ModelError::Io {
+            path: path.display().to_string(),
+            source,
+        };
+        let json = serde_json::to_vec(self).map_err(|e| io(std::io::Error::other(e)))?;
+        std::fs::write(path, json).map_err(io)
+    }
+
+    /// Reads and checks a model file.
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+            path: name.clone(),
+            source,
+        })?;
+        #[derive(Deserialize)]
+        struct Header {
+            format: String,
+            version: u32,
+        }
+        let header: Header =
+            serde_json::from_slice(&bytes).map_err(|source| ModelError::Parse {
+                path: name.clone(),
+                source,
+            })?;
+        if header.format != MODEL_FORMAT || header.version != MODEL_VERSION {
+            return Err(ModelError::Version {
+                path: name,
+                format: header.format,
+                version: header.version,
+            });
+        }
+        serde_json::from_slice(&bytes).map_err(|source| ModelError::Parse { path: name, source })
+    }
+}

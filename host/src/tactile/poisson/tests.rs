@@ -1,0 +1,219 @@
+use proptest::prelude::*;
+
+use super::*;
+
+/// A sum of Gaussian bumps with its exact gradient.
+#[derive(Debug, Clone)]
+struct Bumps(Vec<(f64, f64, f64, f64)>); // (cx, cy, sigma, amplitude)
+
+impl Bumps {
+    fn z(&self, x: f64, y: f64) -> f64 {
+        self.0
+            .iter()
+            .map(|&(cx, cy, s, a)| {
+                a * (-((x - cx).powi(2) + (y - cy).powi(2)) / (2.0 * s * s)).exp()
+            })
+            .sum()
+    }
+    fn grad(&self, x: f64, y: f64) -> (f64, f64) {
+        self.0.iter().fold((0.0, 0.0), |(gx, gy), &(cx, cy, s, a)| {
+            let e = a * (-((x - cx).powi(2) + (y - cy).powi(2)) / (2.0 * s * s)).exp();
+            (gx - e * (x - cx) / (s * s), gy - e * (y - cy) / (s * s))
+        })
+    }
+    fn fields<T: Real>(&self, w: usize, h: usize) -> (Grid<T>, Grid<T>, Grid<f64>) {
+        let p = Grid::from_fn(w, h, |x, y| {
+            T::from(self.grad(x as f64, y as f64).0).unwrap()
+        });
+        let q = Grid::from_fn(w, h, |x, y| {
+            T::from(self.grad(x as f64, y as f64).1).unwrap()
+        });
+        let z = Grid::from_fn(w, h, |x, y| self.z(x as f64, y as f64));
+        (p, q, z)
+    }
+}
+
+fn max_error<T: Real>(got: &Grid<T>, want: &Grid<f64>) -> f64 {
+    got.as_slice()
+        .iter()
+        .zip(want.as_slice())
+        .map(|(a, b)| (a.to_f64().unwrap() - b).abs())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn neumann_solver_inverts_the_discrete_laplacian_exactly() {
+    // Analytic check of the linear solve itself: z → L z (mirror boundary) → solve → z.
+    let (w, h) = (37, 24);
+    let z = Grid::from_fn(w, h, |x, y| ((x * 31 + y * 17) % 23) as f64 / 7.0);
+    let mean = z.as_slice().iter().sum::<f64>() / (w * h) as f64;
+    let at = |x: isize, y: isize| {
+        let x = x.clamp(0, w as isize - 1) as usize;
+        let y = y.clamp(0, h as isize - 1) as usize;
+        z.get(x, y)
+    };
+    let mut f: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            at(x - 1, y) + at(x + 1, y) + at(x, y - 1) + at(x, y + 1) - 4.0 * at(x, y)
+        })
+        .collect();
+    let mut solver = PoissonSolver::<f64>::new();
+    solver.prepare(SolverKind::Dct, w, h);
+    solver.solve_in_place(SolverKind::Dct, &mut f, w, h);
+    for (got, want) in f.iter().zip(z.as_slice()) {
+        assert!(
+            (got - (want - mean)).abs() < 1e-9,
+            "{got} vs {}",
+            want - mean
+        );
+    }
+}
+
+#[test]
+fn dirichlet_solver_inverts_the_discrete_laplacian_exactly() {
+    let (w, h) = (29, 40);
+    let z = Grid::from_fn(w, h, |x, y| ((x * 13 + y * 7) % 19) as f64 / 5.0 - 1.0);
+    let at = |x: isize, y: isize| {
+        if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+            0.0
+        } else {
+            z.get(x as usize, y as usize)
+        }
+    };
+    let mut f: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            at(x - 1, y) + at(x + 1, y) + at(x, y - 1) + at(x, y + 1) - 4.0 * at(x, y)
+        })
+        .collect();
+    let mut solver = PoissonSolver::<f64>::new();
+    solver.prepare(SolverKind::Dst, w, h);
+    solver.solve_in_place(SolverKind::Dst, &mut f, w, h);
+    for (got, want) in f.iter().zip(z.as_slice()) {
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+    }
+}
+
+#[test]
+fn gaussian_bump_integrates_back_with_both_solvers() {
+    let bump = Bumps(vec![(60.0, 45.0, 12.0, 10.0)]);
+    let (w, h) = (120, 90);
+    let (p, q, z) = bump.fields::<f64>(w, h);
+    let mut solver = PoissonSolver::<f64>::new();
+    for kind in SolverKind::ALL {
+        let got = solver.integrate(kind, &p, &q).unwrap();
+        let err = max_error(&got, &z);
+        // Half-pixel averaging is second-order: ~h²/8 · z''' relative error.
+        assert!(err < 0.02, "{kind}: max error {err} on a 10-unit bump");
+    }
+}
+
+#[test]
+fn bump_on_the_frame_edge_needs_neumann() {
+    // Centred on the left edge: Dirichlet forces z = 0 where the bump is tallest.
+    let bump = Bumps(vec![(0.0, 40.0, 10.0, 5.0)]);
+    let (p, q, z) = bump.fields::<f64>(96, 80);
+    let mut solver = PoissonSolver::<f64>::new();
+    let neumann = solver.integrate(SolverKind::Dct, &p, &q).unwrap();
+    let dirichlet = solver.integrate(SolverKind::Dst, &p, &q).unwrap();
+    let peak = |g: &Grid<f64>| g.as_slice().iter().copied().fold(f64::MIN, f64::max);
+    assert!(
+        (peak(&neumann) - 5.0).abs() < 0.1,
+        "neumann peak {}",
+        peak(&neumann)
+    );
+    assert!(
+        peak(&dirichlet) < 3.0,
+        "dirichlet peak {}",
+        peak(&dirichlet)
+    );
+    assert!(max_error(&neumann, &z) < 0.1);
+}
+
+#[test]
+fn degenerate_sizes_and_bad_input_are_typed() {
+    let mut solver = PoissonSolver::<f32>::new();
+    for kind in SolverKind::ALL {
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (2, 3)] {
+            let p = Grid::from_fn(w, h, |x, _| x as f32 * 0.1);
+            let q = Grid::from_fn(w, h, |_, y| y as f32 * 0.1);
+            let z = solver.integrate(kind, &p, &q).unwrap();
+            assert!(z.as_slice().iter().all(|v| v.is_finite()), "{kind} {w}x{h}");
+        }
+        let empty = Grid::<f32>::filled(0, 4, 0.0);
+        assert!(matches!(
+            solver.integrate(kind, &empty, &empty),
+            Err(PoissonError::Empty { .. })
+        ));
+        let a = Grid::filled(3, 4, 0.0f32);
+        let b = Grid::filled(4, 3, 0.0f32);
+        assert!(matches!(
+            solver.integrate(kind, &a, &b),
+            Err(PoissonError::SizeMismatch { .. })
+        ));
+        let mut nan = a.clone();
+        nan.set(2, 1, f32::NAN);
+        assert_eq!(
+            solver.integrate(kind, &nan, &a),
+            Err(PoissonError::NonFinite { x: 2, y: 1 })
+        );
+        let mut inf = a.clone();
+        inf.set(0, 3, f32::INFINITY);
+        assert_eq!(
+            solver.integrate(kind, &a, &inf),
+            Err(PoissonError::NonFinite { x: 0, y: 3 })
+        );
+    }
+}
+
+#[test]
+fn a_constant_ramp_stays_finite_and_monotone() {
+    // Constant slope: z = 0.5 x up to a constant; Neumann sees zero divergence inside but
+    // nonzero flux at the border, which it cannot honour. The least-squares answer is a
+    // bounded, finite surface; we only require finiteness and monotone rows.
+    let p = Grid::filled(16, 8, 0.5f64);
+    let q = Grid::filled(16, 8, 0.0f64);
+    let z = PoissonSolver::new()
+        .integrate(SolverKind::Dct, &p, &q)
+        .unwrap();
+    for y in 0..8 {
+        for x in 1..16 {
+            assert!(z.get(x, y) > z.get(x - 1, y));
+        }
+    }
+}
+
+fn bumps_strategy() -> impl Strategy<Value = Bumps> {
+    prop::collection::vec(
+        (20.0..80.0f64, 20.0..60.0f64, 6.0..14.0f64, -3.0..3.0f64),
+        1..4,
+    )
+    .prop_map(Bumps)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// Exact gradients of random smooth surfaces integrate back, in f64 and in f32, and
+    /// f32 stays within 1e-4 of f64 relative to the peak.
+    #[test]
+    fn random_smooth_surfaces_integrate_back(bumps in bumps_strategy(), kind in prop::sample::select(SolverKind::ALL.to_vec())) {
+        let (w, h) = (100, 80);
+        let (p64, q64, z) = bumps.fields::<f64>(w, h);
+        let (p32, q32, _) = bumps.fields::<f32>(w, h);
+        let z64 = PoissonSolver::<f64>::new().integrate(kind, &p64, &q64).unwrap();
+        let z32 = PoissonSolver::<f32>::new().integrate(kind, &p32, &q32).unwrap();
+        let peak = z.as_slice().iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-3);
+        // Bumps may reach the border; Dirichlet is then only approximately right.
+        let border = z.row(0).iter().chain(z.row(h - 1)).chain((0..h).flat_map(|y| [z.get(0, y), z.get(w - 1, y)]).collect::<Vec<_>>().iter()).fold(0.0f64, |m, v| m.max(v.abs()));
+        let tolerance = 0.01 * peak + match kind { SolverKind::Dct => 2.0, SolverKind::Dst => 1.0 } * border;
+        // Neumann fixes the constant by the border median; compare shapes after removing it.
+        let offset = |g: &Grid<f64>| g.as_slice().iter().zip(z.as_slice()).map(|(a, b)| a - b).sum::<f64>() / (w * h) as f64;
+        let o64 = if kind == SolverKind::Dct { offset(&z64) } else { 0.0 };
+        let err64 = z64.as_slice().iter().zip(z.as_slice()).map(|(a, b)| (a - o64 - b).abs()).fold(0.0, f64::max);
+        prop_assert!(err64 <= tolerance, "f64 error {} > {}", err64, tolerance);
+        let diff = z32.as_slice().iter().zip(z64.as_slice()).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
+        prop_assert!(diff <= 1e-4 * peak.max(1.0), "f32 vs f64 {} (peak {})", diff, peak);
+    }
+}

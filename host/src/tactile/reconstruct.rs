@@ -1,0 +1,305 @@
+//! The reconstruction pipeline for one dx/dy frame pair: colour filter and contact
+//! detection, gradient model on the touched pixels only, sanitising, Poisson integration
+//! per region of interest, depth in millimetres.
+//!
+//! Work is proportional to contact area: a frame without contact stops after the coarse
+//! detection grid; with contact, only the padded regions around contacts are normalised,
+//! only their touched pixels go through the model, and only the regions are integrated.
+
+use std::time::Instant;
+
+use image::RgbImage;
+use serde::Serialize;
+
+use super::colour::Reference;
+use super::contact::{self, References, Roi};
+use super::grid::Grid;
+use super::model::{ModelKind, TactileModel};
+use super::poisson::{PoissonError, PoissonSolver, SolverKind};
+use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
+
+/// Why a frame pair could not be reconstructed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReconstructError {
+    /// dx and dy differ in size.
+    #[error("dx is {dx:?} but dy is {dy:?}: both phase images must have the same size")]
+    PairSize {
+        /// dx `(width, height)`.
+        dx: (u32, u32),
+        /// dy `(width, height)`.
+        dy: (u32, u32),
+    },
+    /// Frames, references and model disagree on size.
+    #[error("{what} is {got:?} but the model was calibrated at {want:?}")]
+    ModelSize {
+        /// Which input.
+        what: &'static str,
+        /// Its size.
+        got: (u32, u32),
+        /// The model's size.
+        want: (u32, u32),
+    },
+    /// Integration failed (cannot happen after sanitising; kept typed, never a panic).
+    #[error("integration failed: {0}")]
+    Poisson(#[from] PoissonError),
+}
+
+/// Milliseconds spent in each stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    /// Coarse contact detection over the frame.
+    pub detect_ms: f64,
+    /// Colour normalisation and contact mask inside the regions.
+    pub colour_ms: f64,
+    /// Gradient model on touched pixels.
+    pub model_ms: f64,
+    /// Sanitising and Poisson integration.
+    pub solve_ms: f64,
+    /// Everything, including the output depth map.
+    pub total_ms: f64,
+}
+
+/// The result for one frame pair.
+#[derive(Debug, Clone)]
+pub struct Reconstruction {
+    /// Depth in mm, positive where pressed in, 0 outside the regions of interest.
+    pub depth_mm: Grid<f32>,
+    /// Touched pixels (the dilated contact mask), full frame.
+    pub contact_mask: Grid<bool>,
+    /// Regions integrated.
+    pub regions: Vec<Roi>,
+    /// Pixels rejected by the colour filter inside the regions.
+    pub rejected_pixels: usize,
+    /// Slopes replaced or clamped by the sanitiser.
+    pub sanitized_slopes: usize,
+    /// Stage timings.
+    pub timings: StageTimings,
+}
+
+impl Reconstruction {
+    /// `true` when nothing touched the skin.
+    pub fn no_contact(&self) -> bool {
+        self.regions.is_empty()
+    }
+}
+
+/// Reusable reconstruction state: model, references, solver plans and buffers.
+pub struct Reconstructor {
+    model: TactileModel,
+    kind: ModelKind,
+    solver_kind: SolverKind,
+    refs: References,
+    solver: PoissonSolver<f32>,
+    max_slope: f32,
+    features: Vec<[f32; 4]>,
+    targets: Vec<usize>,
+    slopes: Vec<f32>,
+}
+
+impl Reconstructor {
+    /// A reconstructor for `model` with the chosen gradient model and solver. With
+    /// `references` (no-contact dx and dy frames), colours are normalised per pixel by
+    /// them; without, by the model's calibrated background.
+    pub fn new(
+        model: TactileModel,
+        kind: ModelKind,
+        solver_kind: SolverKind,
+        references: Option<(&RgbImage, &RgbImage)>,
+    ) -> Result<Self, ReconstructError> {
+        let want = (model.width as u32, model.height as u32);
+        let refs = match references {
+            Some((dx, dy)) => {
+                for (what, img) in [("reference dx", dx), ("reference dy", dy)] {
+                    if img.dimensions() != want {
+                        return Err(ReconstructError::ModelSize {
+                            what,
+                            got: img.dimensions(),
+                            want,
+                        });
+                    }
+                }
+                References {
+                    dx: Reference::from_image(dx),
+                    dy: Reference::from_image(dy),
+                }
+            }
+            None => model.background.references(model.width, model.height),
+        };
+        Ok(Self {
+            model,
+            kind,
+            solver_kind,
+            refs,
+            solver: PoissonSolver::new(),
+            max_slope: DEFAULT_MAX_SLOPE,
+            features: Vec::new(),
+            targets: Vec::new(),
+            slopes: Vec::new(),
+        })
+    }
+
+    /// The calibrated model.
+    pub fn model(&self) -> &TactileModel {
+        &self.model
+    }
+
+    /// Reconstructs one frame pair.
+    pub fn reconstruct(
+        &mut self,
+        dx: &RgbImage,
+        dy: &RgbImage,
+    ) -> Result<Reconstruction, ReconstructError> {
+        let start = Instant::now();
+        if dx.dimensions() != dy.dimensions() {
+            return Err(ReconstructError::PairSize {
+                dx: dx.dimensions(),
+                dy: dy.dimensions(),
+            });
+        }
+        let want = (self.model.width as u32, self.model.height as u32);
+        if dx.dimensions() != want {
+            return Err(ReconstructError::ModelSize {
+                what: "frame",
+                got: dx.dimensions(),
+                want,
+            });
+        }
+        let (w, h) = (self.model.width, self.model.height);
+        let filter = self.model.filter;
+        let params = self.model.contact;
+        let regions = contact::find_regions(dx, dy, &self.refs, &filter, &params, self.solver_kind);
+        let detected = Instant::now();
+        let mut timings = StageTimings {
+            detect_ms: ms(start, detected),
+            ..Default::default()
+        };
+        let mut out = Reconstruction {
+            depth_mm: Grid::filled(w, h, 0.0),
+            contact_mask: Grid::filled(w, h, false),
+            regions,
+            rejected_pixels: 0,
+            sanitized_slopes: 0,
+            timings,
+        };
+        let regions = out.regions.clone();
+        for roi in &regions {
+            self.region(dx, dy, roi, &mut out, &mut timings)?;
+        }
+        timings.total_ms = ms(start, Instant::now());
+        out.timings = timings;
+        Ok(out)
+    }
+
+    fn region(
+        &mut self,
+        dx: &RgbImage,
+        dy: &RgbImage,
+        roi: &Roi,
+        out: &mut Reconstruction,
+        timings: &mut StageTimings,
+    ) -> Result<(), ReconstructError> {
+        let t0 = Instant::now();
+        let (w, h) = (self.model.width, self.model.height);
+        let filter = self.model.filter;
+        let params = self.model.contact;
+        let n = roi.area();
+        // Normalised colours of both phases; NaN marks rejected pixels.
+        let mut colour = vec![[f32::NAN; 4]; n];
+        let mut mask = vec![false; n];
+        for ry in 0..roi.height {
+            let y = roi.y + ry;
+            for rx in 0..roi.width {
+                let x = roi.x + rx;
+                let i = y * w + x;
+                let c = &mut colour[ry * roi.width + rx];
+                let mut dev = 0.0;
+                if let Some((r, b)) =
+                    self.refs
+                        .dx
+                        .normalise(&filter, i, dx.get_pixel(x as u32, y as u32).0)
+                {
+                    (c[0], c[1]) = (r, b);
+                    dev += (r - 1.0).abs() + (b - 1.0).abs();
+                } else {
+                    out.rejected_pixels += 1;
+                }
+                if let Some((r, b)) =
+                    self.refs
+                        .dy
+                        .normalise(&filter, i, dy.get_pixel(x as u32, y as u32).0)
+                {
+                    (c[2], c[3]) = (r, b);
+                    dev += (r - 1.0).abs() + (b - 1.0).abs();
+                } else {
+                    out.rejected_pixels += 1;
+                }
+                mask[ry * roi.width + rx] = dev > params.threshold;
+            }
+        }
+        contact::dilate(&mut mask, roi.width, roi.height, params.dilate_px);
+        let t1 = Instant::now();
+        timings.colour_ms += ms(t0, t1);
+
+        // Slopes from the model on touched, accepted pixels; zero elsewhere.
+        let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
+        let mut q = Grid::filled(roi.width, roi.height, 0.0f32);
+        let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
+        for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
+            self.features.clear();
+            self.targets.clear();
+            for (k, c) in colour.iter().enumerate() {
+                let (r, b) = (c[2 * axis], c[2 * axis + 1]);
+                if mask[k] && !r.is_nan() {
+                    let (rx, ry) = (k % roi.width, k / roi.width);
+                    let xn = (roi.x + rx) as f32 * inv_w;
+                    let yn = (roi.y + ry) as f32 * inv_h;
+                    self.features.push([r, b, xn, yn]);
+                    self.targets.push(k);
+                }
+            }
+            self.slopes.clear();
+            self.slopes.resize(self.features.len(), 0.0);
+            let model = if axis == 0 {
+                &self.model.dx
+            } else {
+                &self.model.dy
+            };
+            model.eval(self.kind, &self.features, &mut self.slopes);
+            let values = grid.as_mut_slice();
+            for (&k, &s) in self.targets.iter().zip(&self.slopes) {
+                values[k] = s;
+            }
+        }
+        let t2 = Instant::now();
+        timings.model_ms += ms(t1, t2);
+
+        let fixed = sanitize(p.as_mut_slice(), self.max_slope);
+        let fixed_q = sanitize(q.as_mut_slice(), self.max_slope);
+        out.sanitized_slopes +=
+            fixed.non_finite + fixed.clamped + fixed_q.non_finite + fixed_q.clamped;
+        let depth_px = self.solver.integrate(self.solver_kind, &p, &q)?;
+        let scale = 1.0 / self.model.px_per_mm as f32;
+        for ry in 0..roi.height {
+            let y = roi.y + ry;
+            let src = depth_px.row(ry);
+            let dst = &mut out.depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d = s * scale;
+            }
+            let m = &mut out.contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
+            for (d, s) in m
+                .iter_mut()
+                .zip(&mask[ry * roi.width..(ry + 1) * roi.width])
+            {
+                *d |= *s;
+            }
+        }
+        debug_assert!(roi.x + roi.width <= w && roi.y + roi.height <= h);
+        timings.solve_ms += ms(t2, Instant::now());
+        Ok(())
+    }
+}
+
+fn ms(a: Instant, b: Instant) -> f64 {
+    (b - a).as_secs_f64() * 1e3
+}

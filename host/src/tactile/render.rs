@@ -1,0 +1,547 @@
+//! Our own synthetic visuotactile sensor: shapes pressed into a flat skin, shaded the way
+//! the dx and dy LED phases light it, with a choice of reflectance models, LED fall-off,
+//! ambient light, a ceiling-light spot and camera noise. It feeds the demo, the benchmark
+//! and the tests; the pipeline never sees its ground truth except through images.
+//!
+//! Conventions: depth `d` in mm is positive where the skin is pressed in; slopes are
+//! `p = ∂d/∂x`, `q = ∂d/∂y` (dimensionless); the surface normal is `(p, q, 1)/|…|`. In the
+//! dx image strip 1 (x−) is blue and strip 3 (x+) red; in the dy image strip 2 (y−) is
+//! blue and strip 4 (y+) red.
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use super::grid::Grid;
+
+/// One indenter, positioned in mm from the image's top-left corner.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Shape {
+    /// A ball of `diameter` pressed `depth` into the skin (a spherical cap).
+    Ball {
+        /// Centre x (mm).
+        cx: f64,
+        /// Centre y (mm).
+        cy: f64,
+        /// Ball diameter (mm).
+        diameter: f64,
+        /// Press depth (mm).
+        depth: f64,
+    },
+    /// A flat-bottomed disk of `diameter` pressed `depth`, its rim falling to zero over
+    /// `wall` mm: a raised-cosine rim when `linear` is false, a straight one (slope
+    /// `depth / wall`) when true.
+    Disk {
+        /// Centre x (mm).
+        cx: f64,
+        /// Centre y (mm).
+        cy: f64,
+        /// Diameter of the flat bottom (mm).
+        diameter: f64,
+        /// Press depth (mm).
+        depth: f64,
+        /// Rim width (mm).
+        wall: f64,
+        /// Straight rim instead of raised cosine.
+        linear: bool,
+    },
+    /// A screw lying on its side: a cylinder with a thread, pressed `depth`.
+    Screw {
+        /// Centre x (mm).
+        cx: f64,
+        /// Centre y (mm).
+        cy: f64,
+        /// Length (mm).
+        length: f64,
+        /// Major diameter (mm).
+        diameter: f64,
+        /// Press depth (mm).
+        depth: f64,
+        /// Thread pitch (mm).
+        pitch: f64,
+        /// Axis angle (radians from +x).
+        angle: f64,
+    },
+}
+
+impl Shape {
+    /// Indentation depth (mm, ≥ 0) at `(x, y)` mm.
+    pub fn depth(&self, x: f64, y: f64) -> f64 {
+        match *self {
+            Shape::Ball {
+                cx,
+                cy,
+                diameter,
+                depth,
+            } => {
+                let r = diameter / 2.0;
+                let rho2 = (x - cx).powi(2) + (y - cy).powi(2);
+                if rho2 >= r * r {
+                    0.0
+                } else {
+                    ((r * r - rho2).sqrt() - (r - depth)).max(0.0)
+                }
+            }
+            Shape::Disk {
+                cx,
+                cy,
+                diameter,
+                depth,
+                wall,
+                linear,
+            } => {
+                let rho = ((x - cx).powi(2) + (y - cy).powi(2)).sqrt();
+                let t = (rho - diameter / 2.0) / wall;
+                if t <= 0.0 {
+                    depth
+                } else if t >= 1.0 {
+                    0.0
+                } else if linear {
+                    depth * (1.0 - t)
+                } else {
+                    depth * 0.5 * (1.0 + (std::f64::consts::PI * t).cos())
+                }
+            }
+            Shape::Screw {
+                cx,
+                cy,
+                length,
+                diameter,
+                depth,
+                pitch,
+                angle,
+            } => {
+                let (s, c) = angle.sin_cos();
+                let along = (x - cx) * c + (y - cy) * s;
+                let across = -(x - cx) * s + (y - cy) * c;
+                if along.abs() > length / 2.0 {
+                    return 0.0;
+                }
+                let thread =
+                    0.08 * diameter * (0.5 + 0.5 * (std::f64::consts::TAU * along / pitch).cos());
+                let r = diameter / 2.0 - thread;
+                if across.abs() >= r {
+                    return 0.0;
+                }
+                let major = diameter / 2.0;
+                // The ends are chamfered over 1 mm rather than cut square (a cliff has no
+                // gradient to measure).
+                let end = ((length / 2.0 - along.abs()) / 1.0).min(1.0);
+                (((r * r - across * across).sqrt() - (major - depth)) * end).max(0.0)
+            }
+        }
+    }
+}
+
+/// A set of indenters; where they overlap the deepest one shapes the skin.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Scene {
+    /// The indenters.
+    pub shapes: Vec<Shape>,
+}
+
+impl Scene {
+    /// Depth (mm) at `(x, y)` mm.
+    pub fn depth(&self, x: f64, y: f64) -> f64 {
+        self.shapes
+            .iter()
+            .map(|s| s.depth(x, y))
+            .fold(0.0, f64::max)
+    }
+
+    /// Ground-truth depth (mm) and slopes `(p, q)` at pixel centres. Slopes are central
+    /// differences of the exact depth over ±1/100 px.
+    pub fn truth(&self, width: usize, height: usize, px_per_mm: f64) -> SceneTruth {
+        let h = 0.01 / px_per_mm;
+        let at = |x: usize, y: usize| ((x as f64 + 0.5) / px_per_mm, (y as f64 + 0.5) / px_per_mm);
+        let depth = Grid::from_fn(width, height, |x, y| {
+            let (mx, my) = at(x, y);
+            self.depth(mx, my) as f32
+        });
+        let p = Grid::from_fn(width, height, |x, y| {
+            let (mx, my) = at(x, y);
+            ((self.depth(mx + h, my) - self.depth(mx - h, my)) / (2.0 * h)) as f32
+        });
+        let q = Grid::from_fn(width, height, |x, y| {
+            let (mx, my) = at(x, y);
+            ((self.depth(mx, my + h) - self.depth(mx, my - h)) / (2.0 * h)) as f32
+        });
+        SceneTruth { depth, p, q }
+    }
+}
+
+/// Exact depth and slopes of a scene on the pixel grid.
+#[derive(Debug, Clone)]
+pub struct SceneTruth {
+    /// Depth in mm.
+    pub depth: Grid<f32>,
+    /// `∂d/∂x`.
+    pub p: Grid<f32>,
+    /// `∂d/∂y`.
+    pub q: Grid<f32>,
+}
+
+/// How the skin's coating reflects the LED light.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum Reflectance {
+    /// Matte (cosine law).
+    Lambert,
+    /// Matte plus a Blinn–Phong highlight towards the camera.
+    Glossy {
+        /// Highlight strength relative to the matte term.
+        strength: f64,
+        /// Blinn–Phong exponent.
+        shininess: f64,
+    },
+    /// Matte seen through a non-linear camera response `v^(1/gamma)`.
+    Gamma(f64),
+}
+
+/// A bright white blob, e.g. a ceiling light seen through the skin.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Spot {
+    /// Centre x (px).
+    pub x: f64,
+    /// Centre y (px).
+    pub y: f64,
+    /// Gaussian radius (px).
+    pub radius: f64,
+    /// Peak added to every channel (DN).
+    pub level: f64,
+}
+
+/// Everything about the simulated sensor except what is pressed into it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Optics {
+    /// Image width (px).
+    pub width: usize,
+    /// Image height (px).
+    pub height: usize,
+    /// Scale (px per mm).
+    pub px_per_mm: f64,
+    /// Light elevation far from a strip (degrees above the skin).
+    pub elevation_far_deg: f64,
+    /// Light elevation right next to a strip.
+    pub elevation_near_deg: f64,
+    /// Distance over which the elevation goes from near to far, and the fall-off scale of
+    /// the intensity `1 / (1 + (d / falloff)²)` (mm).
+    pub falloff_mm: f64,
+    /// Brightness of flat skin in the middle of the frame (DN).
+    pub flat_level: f64,
+    /// Reflectance model.
+    pub reflectance: Reflectance,
+    /// Uniform white ambient light (DN, every channel).
+    pub ambient: f64,
+    /// Optional ceiling-light spot.
+    pub spot: Option<Spot>,
+    /// Fraction of each LED's light that the camera also records in green.
+    pub green_leak: f64,
+    /// Camera noise, standard deviation (DN).
+    pub noise: f64,
+    /// Noise seed.
+    pub seed: u64,
+}
+
+impl Optics {
+    /// A 640×480 sensor at 15 px/mm with moderate fall-off and noise.
+    pub fn standard() -> Self {
+        Self::sized(640, 480)
+    }
+
+    /// The standard optics at another size (same px/mm).
+    pub fn sized(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            px_per_mm: 15.0,
+            elevation_far_deg: 30.0,
+            elevation_near_deg: 45.0,
+            falloff_mm: 30.0,
+            flat_level: 110.0,
+            reflectance: Reflectance::Lambert,
+            ambient: 6.0,
+            spot: None,
+            green_leak: 0.0,
+            noise: 1.0,
+            seed: 1,
+        }
+    }
+}
+
+/// The two images of one gradient pair.
+#[derive(Debug, Clone)]
+pub struct RenderedPair {
+    /// Strips 1 (blue, x−) and 3 (red, x+) lit.
+    pub dx: RgbImage,
+    /// Strips 2 (blue, y−) and 4 (red, y+) lit.
+    pub dy: RgbImage,
+}
+
+/// Which phase to shade.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Axis {
+    /// The dx phase.
+    X,
+    /// The dy phase.
+    Y,
+}
+
+/// Renders the dx and dy images of `scene`. `frame` varies the noise between frames.
+pub fn render(optics: &Optics, scene: &Scene, frame: u64) -> RenderedPair {
+    let truth = scene.truth(optics.width, optics.height, optics.px_per_mm);
+    render_slopes(optics, &truth.p, &truth.q, frame)
+}
+
+/// Renders a pair from slope fields (shared by [`render`] and tests of odd inputs).
+pub fn render_slopes(optics: &Optics, p: &Grid<f32>, q: &Grid<f32>, frame: u64) -> RenderedPair {
+    let mut rng = Rng::new(optics.seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    RenderedPair {
+        dx: shade(optics, Axis::X, p, q, &mut rng),
+        dy: shade(optics, Axis::Y, p, q, &mut rng),
+    }
+}
+
+fn shade(optics: &Optics, axis: Axis, p: &Grid<f32>, q: &Grid<f32>, rng: &mut Rng) -> RgbImage {
+    let (w, h) = (optics.width, optics.height);
+    let mm = |px: usize| (px as f64 + 0.5) / optics.px_per_mm;
+    let (span_w, span_h) = (w as f64 / optics.px_per_mm, h as f64 / optics.px_per_mm);
+    let centre_gain = {
+        let d = match axis {
+            Axis::X => span_w / 2.0,
+            Axis::Y => span_h / 2.0,
+        };
+        1.0 / falloff(d, optics.falloff_mm)
+    };
+    let mut img = RgbImage::new(w as u32, h as u32);
+    for y in 0..h {
+        for x in 0..w {
+            let (px, py) = (p.get(x, y) as f64, q.get(x, y) as f64);
+            let norm = (1.0 + px * px + py * py).sqrt();
+            let n = [px / norm, py / norm, 1.0 / norm];
+            // Distance to the blue strip (at the low side) and to the red one.
+            let (d_blue, d_red, sign) = match axis {
+                Axis::X => (mm(x), span_w - mm(x), [1.0, 0.0]),
+                Axis::Y => (mm(y), span_h - mm(y), [0.0, 1.0]),
+            };
+            let blue = light(optics, &n, d_blue, [-sign[0], -sign[1]]) * centre_gain;
+            let red = light(optics, &n, d_red, sign) * centre_gain;
+            let mut spot = 0.0;
+            if let Some(s) = optics.spot {
+                let r2 = (x as f64 - s.x).powi(2) + (y as f64 - s.y).powi(2);
+                spot = s.level * (-r2 / (2.0 * s.radius * s.radius)).exp();
+            }
+            let white = optics.ambient + spot;
+            let level = optics.flat_level;
+            let r = level * red + white;
+            let b = level * blue + white;
+            let g = optics.green_leak * level * (red + blue) + white;
+            let mut out = [r, g, b];
+            for v in &mut out {
+                *v += optics.noise * rng.gaussian();
+            }
+            img.put_pixel(
+                x as u32,
+                y as u32,
+                image::Rgb(out.map(|v| v.round().clamp(0.0, 255.0) as u8)),
+            );
+        }
+    }
+    img
+}
+
+fn falloff(d: f64, scale: f64) -> f64 {
+    1.0 / (1.0 + (d / scale).powi(2))
+}
+
+/// Light from a strip at distance `d` mm in horizontal direction `dir`, reflected by a
+/// surface with normal `n`, relative to flat skin lit from the same place.
+fn light(optics: &Optics, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
+    let blend = (-d / optics.falloff_mm * 3.0).exp();
+    let elevation = (optics.elevation_far_deg
+        + (optics.elevation_near_deg - optics.elevation_far_deg) * blend)
+        .to_radians();
+    let (se, ce) = elevation.sin_cos();
+    let l = [dir[0] * ce, dir[1] * ce, se];
+    let cos_i = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]).max(0.0);
+    let matte = cos_i / se;
+    let value = match optics.reflectance {
+        Reflectance::Lambert => matte,
+        Reflectance::Glossy {
+            strength,
+            shininess,
+        } => {
+            let half = [l[0], l[1], l[2] + 1.0];
+            let hn = (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt();
+            let spec = |n: &[f64; 3]| {
+                ((n[0] * half[0] + n[1] * half[1] + n[2] * half[2]) / hn)
+                    .max(0.0)
+                    .powf(shininess)
+            };
+            matte + strength * (spec(n) - spec(&[0.0, 0.0, 1.0]))
+        }
+        Reflectance::Gamma(gamma) => matte.max(0.0).powf(1.0 / gamma),
+    };
+    value.max(0.0) * falloff(d, optics.falloff_mm)
+}
+
+/// A small deterministic generator (SplitMix64) so renders are reproducible everywhere.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// Seeds the generator.
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[0, 1)`.
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.uniform()
+    }
+
+    /// Standard normal (Box–Muller).
+    pub fn gaussian(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// The benchmark's and demo's built-in scenes, laid out for `optics`' frame size.
+pub fn builtin_scenes(optics: &Optics) -> Vec<(&'static str, Scene)> {
+    let (w, h) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    let ball = |cx, cy, diameter, depth| Shape::Ball {
+        cx,
+        cy,
+        diameter,
+        depth,
+    };
+    vec![
+        (
+            "sphere",
+            Scene {
+                shapes: vec![ball(w * 0.45, h * 0.55, 8.0, 1.0)],
+            },
+        ),
+        (
+            "disk",
+            Scene {
+                shapes: vec![disk(w * 0.5, h * 0.5, false)],
+            },
+        ),
+        (
+            "steep-disk",
+            Scene {
+                shapes: vec![disk(w * 0.5, h * 0.5, true)],
+            },
+        ),
+        (
+            "screw",
+            Scene {
+                shapes: vec![Shape::Screw {
+                    cx: w * 0.5,
+                    cy: h * 0.45,
+                    length: 16.0,
+                    diameter: 4.0,
+                    depth: 0.8,
+                    pitch: 1.25,
+                    angle: 0.4,
+                }],
+            },
+        ),
+        (
+            "multi",
+            Scene {
+                shapes: vec![
+                    ball(w * 0.25, h * 0.3, 5.0, 0.7),
+                    ball(w * 0.7, h * 0.35, 6.0, 0.9),
+                    ball(w * 0.5, h * 0.75, 4.0, 0.5),
+                ],
+            },
+        ),
+        (
+            "edge",
+            Scene {
+                shapes: vec![ball(0.0, h * 0.5, 8.0, 1.0)],
+            },
+        ),
+        ("none", Scene::default()),
+    ]
+}
+
+/// The 13 mm disk pressed 1 mm, centred at `(cx, cy)` mm: a raised-cosine rim
+/// of 2.5 mm (max slope 0.63), or a straight rim of slope 1.3 when `steep`.
+pub fn disk(cx: f64, cy: f64, steep: bool) -> Shape {
+    Shape::Disk {
+        cx,
+        cy,
+        diameter: 13.0,
+        depth: 1.0,
+        wall: if steep { 1.0 / 1.3 } else { 2.5 },
+        linear: steep,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flat_skin_is_balanced_in_the_middle_and_colours_follow_the_slope() {
+        let optics = Optics {
+            noise: 0.0,
+            ..Optics::standard()
+        };
+        let pair = render(&optics, &Scene::default(), 0);
+        let mid = pair.dx.get_pixel(320, 240).0;
+        assert!((mid[0] as i32 - mid[2] as i32).abs() <= 1, "{mid:?}");
+        assert_eq!(mid[1] as f64, optics.ambient);
+        // A ball's right half faces x− (blue) in the dx image, its left half x+ (red).
+        let scene = Scene {
+            shapes: vec![Shape::Ball {
+                cx: 320.0 / 15.0,
+                cy: 240.0 / 15.0,
+                diameter: 8.0,
+                depth: 1.0,
+            }],
+        };
+        let pair = render(&optics, &scene, 0);
+        let right = pair.dx.get_pixel(340, 240).0;
+        let left = pair.dx.get_pixel(300, 240).0;
+        assert!(right[2] > right[0] + 20, "{right:?}");
+        assert!(left[0] > left[2] + 20, "{left:?}");
+        let below = pair.dy.get_pixel(320, 260).0;
+        assert!(below[2] > below[0] + 20, "{below:?}");
+    }
+
+    #[test]
+    fn shapes_have_the_stated_depths() {
+        let s = disk(10.0, 10.0, true);
+        assert_eq!(s.depth(10.0, 10.0), 1.0);
+        assert!((s.depth(10.0 + 6.5 + 0.5 / 1.3, 10.0) - 0.5).abs() < 1e-9);
+        let b = Shape::Ball {
+            cx: 0.0,
+            cy: 0.0,
+            diameter: 6.0,
+            depth: 1.0,
+        };
+        assert!((b.depth(0.0, 0.0) - 1.0).abs() < 1e-12);
+        assert_eq!(b.depth(3.0, 0.0), 0.0);
+    }
+}

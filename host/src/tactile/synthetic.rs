@@ -1,0 +1,54 @@
+//! Built-in data from our renderer: ball presses for calibration and reference frames,
+//! shared by the demo, the benchmark and the tests.
+
+use image::RgbImage;
+
+use super::calibrate::CalibrationPair;
+use super::render::{Optics, Rng, Scene, Shape, render};
+
+/// Ball diameter used for the built-in calibration presses (mm).
+pub const CALIBRATION_BALL_MM: f64 = 6.0;
+
+/// `count` presses of a ball of `diameter` mm at random places (some near the frame
+/// edges), 0.5–1.3 mm deep.
+pub fn ball_presses(
+    optics: &Optics,
+    count: usize,
+    diameter: f64,
+    seed: u64,
+) -> Vec<CalibrationPair> {
+    let mut rng = Rng::new(seed);
+    let (w, h) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    let margin = diameter * 0.6;
+    (0..count)
+        .map(|k| {
+            let scene = Scene {
+                shapes: vec![Shape::Ball {
+                    cx: rng.range(margin, w - margin),
+                    cy: rng.range(margin, h - margin),
+                    diameter,
+                    depth: rng.range(0.5, 1.3).min(diameter / 2.0 * 0.9),
+                }],
+            };
+            let pair = render(optics, &scene, 1000 + k as u64);
+            CalibrationPair {
+                name: format!("press{k:02}"),
+                dx: pair.dx,
+                dy: pair.dy,
+            }
+        })
+        .collect()
+}
+
+/// No-contact dx and dy frames, averaged over 8 frames like a real capture would be.
+pub fn reference_frames(optics: &Optics) -> (RgbImage, RgbImage) {
+    let quiet = Optics {
+        noise: optics.noise / 8f64.sqrt(),
+        ..optics.clone()
+    };
+    let pair = render(&quiet, &Scene::default(), 999);
+    (pair.dx, pair.dy)
+}

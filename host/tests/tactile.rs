@@ -1,0 +1,403 @@
+//! End-to-end tests of the tactile pipeline on our renderer: calibration from ball
+//! presses, reconstruction accuracy, the skip paths, and hostile inputs.
+
+use image::RgbImage;
+use stereotac::tactile::bench::errors;
+use stereotac::tactile::calibrate::{
+    CalibrationError, CalibrationPair, CalibrationSettings, calibrate,
+};
+use stereotac::tactile::images::{ImageError, load_pairs};
+use stereotac::tactile::model::{ModelError, ModelKind, TactileModel};
+use stereotac::tactile::poisson::SolverKind;
+use stereotac::tactile::reconstruct::{ReconstructError, Reconstructor};
+use stereotac::tactile::render::{Optics, Reflectance, Scene, Shape, Spot, render};
+use stereotac::tactile::synthetic::{ball_presses, reference_frames};
+
+/// A small sensor so calibration takes well under a second.
+fn optics() -> Optics {
+    Optics::sized(320, 240)
+}
+
+fn settings(optics: &Optics) -> CalibrationSettings {
+    let mut s = CalibrationSettings {
+        px_per_mm: optics.px_per_mm,
+        ..Default::default()
+    };
+    s.mlp.epochs = 8;
+    s
+}
+
+fn calibrated(optics: &Optics) -> (TactileModel, (RgbImage, RgbImage)) {
+    let pairs = ball_presses(optics, 10, 6.0, 11);
+    let refs = reference_frames(optics);
+    let cal = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings(optics), |_| {}).unwrap();
+    (cal.model, refs)
+}
+
+fn ball(cx: f64, cy: f64, depth: f64) -> Scene {
+    Scene {
+        shapes: vec![Shape::Ball {
+            cx,
+            cy,
+            diameter: 8.0,
+            depth,
+        }],
+    }
+}
+
+fn reading(
+    optics: &Optics,
+    model: &TactileModel,
+    refs: &(RgbImage, RgbImage),
+    kind: ModelKind,
+    solver: SolverKind,
+    scene: &Scene,
+) -> f64 {
+    let pair = render(optics, scene, 3);
+    let truth = scene
+        .truth(optics.width, optics.height, optics.px_per_mm)
+        .depth;
+    let mut rec =
+        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1))).unwrap();
+    let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert!(r.depth_mm.as_slice().iter().all(|d| d.is_finite()));
+    errors(&r.depth_mm, &truth).reading_mm
+}
+
+#[test]
+fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    assert!(model.fit.lut_train_rms < 0.08, "{:?}", model.fit);
+    let scene = ball(10.0, 8.0, 1.0);
+    for kind in ModelKind::ALL {
+        for solver in SolverKind::ALL {
+            let read = reading(&optics, &model, &refs, kind, solver, &scene);
+            assert!(
+                (read - 1.0).abs() < 0.12,
+                "{kind} {solver}: read {read:.3} mm of 1.000"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_ball_on_the_frame_edge_needs_the_neumann_solver() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let scene = ball(0.0, 8.0, 1.0);
+    let neumann = reading(
+        &optics,
+        &model,
+        &refs,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        &scene,
+    );
+    let dirichlet = reading(
+        &optics,
+        &model,
+        &refs,
+        ModelKind::Lut,
+        SolverKind::Dst,
+        &scene,
+    );
+    assert!(neumann > 0.9, "dct read {neumann:.3}");
+    assert!(
+        dirichlet < 0.6,
+        "dst read {dirichlet:.3} (expected to fail at the edge)"
+    );
+}
+
+#[test]
+fn contacts_at_every_edge_and_corner_give_finite_depth() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let (w, h) = (320.0 / 15.0, 240.0 / 15.0);
+    for (cx, cy) in [
+        (0.0, 0.0),
+        (w / 2.0, 0.0),
+        (w, 0.0),
+        (w, h / 2.0),
+        (w, h),
+        (w / 2.0, h),
+        (0.0, h),
+        (0.0, h / 2.0),
+    ] {
+        let read = reading(
+            &optics,
+            &model,
+            &refs,
+            ModelKind::Lut,
+            SolverKind::Dct,
+            &ball(cx, cy, 1.0),
+        );
+        assert!(
+            read > 0.5 && read < 1.5,
+            "ball at ({cx:.1}, {cy:.1}) read {read:.3}"
+        );
+    }
+}
+
+#[test]
+fn no_contact_stops_after_detection() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let pair = render(&optics, &Scene::default(), 9);
+    for kind in ModelKind::ALL {
+        let mut rec = Reconstructor::new(
+            model.clone(),
+            kind,
+            SolverKind::Dct,
+            Some((&refs.0, &refs.1)),
+        )
+        .unwrap();
+        let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+        assert!(r.no_contact());
+        assert_eq!(r.timings.model_ms, 0.0);
+        assert_eq!(r.timings.solve_ms, 0.0);
+        assert!(r.depth_mm.as_slice().iter().all(|&d| d == 0.0));
+    }
+    // The model's own background works too when no reference frames are given.
+    let mut rec = Reconstructor::new(model, ModelKind::Lut, SolverKind::Dct, None).unwrap();
+    assert!(rec.reconstruct(&pair.dx, &pair.dy).unwrap().no_contact());
+}
+
+#[test]
+fn a_ceiling_light_spot_makes_no_phantom_bump() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let lit = Optics {
+        spot: Some(Spot {
+            x: 160.0,
+            y: 120.0,
+            radius: 18.0,
+            level: 120.0,
+        }),
+        ..optics.clone()
+    };
+    let pair = render(&lit, &Scene::default(), 4);
+    let mut rec = Reconstructor::new(
+        model.clone(),
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some((&refs.0, &refs.1)),
+    )
+    .unwrap();
+    let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+    let max = r
+        .depth_mm
+        .as_slice()
+        .iter()
+        .fold(0.0f32, |m, d| m.max(d.abs()));
+    assert!(max < 0.05, "phantom depth {max:.3} mm under a white spot");
+    // And with a ball under the spot, the ball is still read.
+    let pair = render(&lit, &ball(10.7, 8.0, 1.0), 4);
+    let truth = ball(10.7, 8.0, 1.0).truth(320, 240, 15.0).depth;
+    let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+    let read = errors(&r.depth_mm, &truth).reading_mm;
+    assert!(read > 0.7, "ball under the spot read {read:.3}");
+}
+
+#[test]
+fn robust_across_reflectance_noise_and_falloff() {
+    let base = optics();
+    let variants = [
+        Optics {
+            reflectance: Reflectance::Glossy {
+                strength: 0.3,
+                shininess: 20.0,
+            },
+            ..base.clone()
+        },
+        Optics {
+            reflectance: Reflectance::Gamma(2.2),
+            ..base.clone()
+        },
+        Optics {
+            noise: 3.0,
+            ..base.clone()
+        },
+        Optics {
+            falloff_mm: 12.0,
+            ..base.clone()
+        },
+        Optics {
+            green_leak: 0.08,
+            ambient: 25.0,
+            ..base.clone()
+        },
+    ];
+    for optics in variants {
+        let (model, refs) = calibrated(&optics);
+        let read = reading(
+            &optics,
+            &model,
+            &refs,
+            ModelKind::Lut,
+            SolverKind::Dct,
+            &ball(11.0, 7.5, 1.0),
+        );
+        assert!((read - 1.0).abs() < 0.15, "{optics:?}: read {read:.3}");
+    }
+}
+
+#[test]
+fn hostile_images_give_finite_output_or_typed_errors() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let mut rec = Reconstructor::new(
+        model.clone(),
+        ModelKind::Mlp,
+        SolverKind::Dct,
+        Some((&refs.0, &refs.1)),
+    )
+    .unwrap();
+    let black = RgbImage::new(320, 240);
+    let white = RgbImage::from_pixel(320, 240, image::Rgb([255, 255, 255]));
+    let mut noise = RgbImage::new(320, 240);
+    let mut state = 1u32;
+    for p in noise.pixels_mut() {
+        state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+        *p = image::Rgb([(state >> 24) as u8, (state >> 16) as u8, (state >> 8) as u8]);
+    }
+    for (dx, dy) in [
+        (&black, &black),
+        (&white, &white),
+        (&noise, &noise),
+        (&black, &white),
+    ] {
+        let r = rec.reconstruct(dx, dy).unwrap();
+        assert!(r.depth_mm.as_slice().iter().all(|d| d.is_finite()));
+    }
+    let small = RgbImage::new(100, 240);
+    assert!(matches!(
+        rec.reconstruct(&small, &black),
+        Err(ReconstructError::PairSize { .. })
+    ));
+    assert!(matches!(
+        rec.reconstruct(&small, &small),
+        Err(ReconstructError::ModelSize { .. })
+    ));
+    assert!(matches!(
+        Reconstructor::new(
+            model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some((&small, &small))
+        ),
+        Err(ReconstructError::ModelSize { .. })
+    ));
+    // Degenerate frame sizes run through the same code (model resized, background
+    // interpolated): 1×N and N×1 frames of noise.
+    for (w, h) in [(1usize, 57usize), (57, 1), (3, 3)] {
+        let mut m = model.clone();
+        m.width = w;
+        m.height = h;
+        let mut rec = Reconstructor::new(m, ModelKind::Lut, SolverKind::Dct, None).unwrap();
+        let img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
+            image::Rgb([(x * 37 % 256) as u8, 9, (y * 53 % 256) as u8])
+        });
+        let r = rec.reconstruct(&img, &img).unwrap();
+        assert!(
+            r.depth_mm.as_slice().iter().all(|d| d.is_finite()),
+            "{w}x{h}"
+        );
+    }
+}
+
+#[test]
+fn calibration_rejects_bad_input_with_clear_errors() {
+    let optics = optics();
+    let s = settings(&optics);
+    assert!(matches!(
+        calibrate(&[], None, &s, |_| {}),
+        Err(CalibrationError::NoPairs)
+    ));
+    let flat = render(&optics, &Scene::default(), 1);
+    let refs = reference_frames(&optics);
+    let pair = CalibrationPair {
+        name: "flat".into(),
+        dx: flat.dx.clone(),
+        dy: flat.dy.clone(),
+    };
+    let err = calibrate(
+        std::slice::from_ref(&pair),
+        Some((&refs.0, &refs.1)),
+        &s,
+        |_| {},
+    )
+    .unwrap_err();
+    assert!(
+        matches!(err, CalibrationError::NoContact(ref n) if n == "flat"),
+        "{err}"
+    );
+    assert!(matches!(
+        calibrate(std::slice::from_ref(&pair), None, &s, |_| {}),
+        Err(CalibrationError::TooFewForMedian(1))
+    ));
+    let mut odd = ball_presses(&optics, 3, 6.0, 5);
+    odd[1].dy = RgbImage::new(10, 10);
+    let err = calibrate(&odd, None, &s, |_| {}).unwrap_err();
+    assert!(err.to_string().contains("press01_dy"), "{err}");
+    // A ball much smaller than claimed is refused.
+    let presses = ball_presses(&optics, 3, 6.0, 5);
+    let tiny = CalibrationSettings {
+        ball_diameter_mm: 2.0,
+        ..s.clone()
+    };
+    assert!(matches!(
+        calibrate(&presses, Some((&refs.0, &refs.1)), &tiny, |_| {}),
+        Err(CalibrationError::ImplausibleContact { .. })
+    ));
+}
+
+#[test]
+fn model_files_round_trip_and_refuse_other_versions() {
+    let optics = optics();
+    let (model, _) = calibrated(&optics);
+    let dir = std::env::temp_dir().join(format!("stereotac-model-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("m.json");
+    model.save(&path).unwrap();
+    assert_eq!(TactileModel::load(&path).unwrap(), model);
+    let text =
+        std::fs::read_to_string(&path)
+            .unwrap()
+            .replacen("\"version\":1", "\"version\":99", 1);
+    std::fs::write(&path, text).unwrap();
+    assert!(matches!(
+        TactileModel::load(&path),
+        Err(ModelError::Version { version: 99, .. })
+    ));
+    std::fs::write(&path, "{}").unwrap();
+    assert!(matches!(
+        TactileModel::load(&path),
+        Err(ModelError::Parse { .. })
+    ));
+    assert!(matches!(
+        TactileModel::load(&dir.join("missing.json")),
+        Err(ModelError::Io { .. })
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn pair_directories_report_unpaired_and_unreadable_files() {
+    let dir = std::env::temp_dir().join(format!("stereotac-pairs-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    assert!(matches!(load_pairs(&dir), Err(ImageError::Empty { .. })));
+    let img = RgbImage::new(4, 4);
+    img.save(dir.join("a_dx.png")).unwrap();
+    assert!(matches!(load_pairs(&dir), Err(ImageError::Unpaired { .. })));
+    std::fs::write(dir.join("a_dy.png"), b"not a png").unwrap();
+    let err = load_pairs(&dir).unwrap_err();
+    assert!(
+        matches!(err, ImageError::Read { .. }) && err.to_string().contains("a_dy.png"),
+        "{err}"
+    );
+    img.save(dir.join("a_dy.png")).unwrap();
+    assert_eq!(load_pairs(&dir).unwrap().len(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
