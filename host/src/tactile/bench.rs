@@ -181,7 +181,9 @@ pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
                 }
             }
         }
-        if size_index == 0 && config.disk_placements > 0 {
+        // The disk with its rim is 18 mm across: it needs a frame of at least 20 mm.
+        let fits_disk = (w.min(h) as f64) / optics.px_per_mm >= 20.0;
+        if size_index == 0 && config.disk_placements > 0 && fits_disk {
             report.disk = disk_statistics(&optics, &model, &refs, config.disk_placements, progress);
         }
     }

@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
 use super::model::{
-    AxisModel, Background, FitReport, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining,
-    ModelKind, Sample, TactileModel,
+    AxisModel, Background, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp,
+    MlpTraining, ModelKind, Sample, TactileModel, colour_features,
 };
 
 /// A fitted (or given) contact circle, in pixels.
@@ -289,7 +289,7 @@ pub fn calibrate(
         let lut = Lut::fit(
             &train,
             settings.lut_bins,
-            3.0,
+            LUT_MAX_COLOUR,
             settings.lut_cells.0,
             settings.lut_cells.1,
         );
@@ -568,6 +568,7 @@ fn samples(
             };
             let i = y * w + x;
             let position = [x as f32 / w as f32, y as f32 / h as f32];
+            let mut colour = [f32::NAN; 4];
             for (axis, (img, reference)) in [(&pair.dx, &refs.dx), (&pair.dy, &refs.dy)]
                 .into_iter()
                 .enumerate()
@@ -575,6 +576,11 @@ fn samples(
                 if let Some((r, b)) =
                     reference.normalise(filter, i, img.get_pixel(x as u32, y as u32).0)
                 {
+                    (colour[2 * axis], colour[2 * axis + 1]) = (r, b);
+                }
+            }
+            for (axis, f) in colour_features(colour).into_iter().enumerate() {
+                if let Some([r, b]) = f {
                     out[axis].push(Sample {
                         features: [r, b, position[0], position[1]],
                         target: slopes[axis] as f32,

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::grid::Grid;
-use super::model::{ModelKind, TactileModel};
+use super::model::{ModelKind, TactileModel, colour_features};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
 
@@ -248,8 +248,10 @@ impl Reconstructor {
             self.features.clear();
             self.targets.clear();
             for (k, c) in colour.iter().enumerate() {
-                let (r, b) = (c[2 * axis], c[2 * axis + 1]);
-                if mask[k] && !r.is_nan() {
+                if !mask[k] {
+                    continue;
+                }
+                if let Some([r, b]) = colour_features(*c)[axis] {
                     let (rx, ry) = (k % roi.width, k / roi.width);
                     let xn = (roi.x + rx) as f32 * inv_w;
                     let yn = (roi.y + ry) as f32 * inv_h;

@@ -10,7 +10,7 @@ use super::render::{Optics, Rng, Scene, Shape, render};
 pub const CALIBRATION_BALL_MM: f64 = 6.0;
 
 /// `count` presses of a ball of `diameter` mm at random places (some near the frame
-/// edges), 0.5–1.3 mm deep.
+/// edges), 0.5–1.5 mm deep.
 pub fn ball_presses(
     optics: &Optics,
     count: usize,
@@ -30,7 +30,7 @@ pub fn ball_presses(
                     cx: rng.range(margin, w - margin),
                     cy: rng.range(margin, h - margin),
                     diameter,
-                    depth: rng.range(0.5, 1.3).min(diameter / 2.0 * 0.9),
+                    depth: rng.range(0.5, 1.5).min(diameter / 2.0 * 0.9),
                 }],
             };
             let pair = render(optics, &scene, 1000 + k as u64);

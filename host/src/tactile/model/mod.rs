@@ -1,5 +1,6 @@
-//! Gradient models: from the normalised LED colour `(r, b)` of one phase image and the
-//! pixel's position `(x, y)` (both in [0, 1]) to the slope along that phase's axis.
+//! Gradient models: from the normalised LED colour `(r, b)` of one phase image (made
+//! independent of the other axis' slope by [`colour_features`]) and the pixel's position
+//! `(x, y)` (both in [0, 1]) to the slope along that phase's axis.
 //!
 //! [`TactileModel`] is what calibration writes and reconstruction reads: one
 //! [`AxisModel`] per phase (each with a lookup table and an MLP), the colour filter and
@@ -21,6 +22,31 @@ pub use mlp::{Mlp, MlpTraining};
 
 use super::colour::{ColourFilter, Reference};
 use super::contact::{ContactParams, References};
+
+/// Colour range covered by the lookup table (cross-normalised units, flat skin = 1).
+pub const LUT_MAX_COLOUR: f32 = 4.0;
+
+/// Model colour inputs of both phases from one pixel's normalised colours
+/// `[r_dx, b_dx, r_dy, b_dy]` (NaN where the colour filter rejected that phase).
+///
+/// Each phase's colour is multiplied by the other phase's `2 / (r + b)`. For matte skin
+/// `r + b` of a phase is `2 / |n|` whatever the slope along that phase's axis, so this
+/// removes the dependence on the slope along the *other* axis (`|n| = √(1 + p² + q²)`).
+/// Without it, a colour in which one LED is shadowed (steep walls) is ambiguous and a
+/// model reads steep walls shallow. When the other phase is rejected the factor is 1.
+pub fn colour_features(c: [f32; 4]) -> [Option<[f32; 2]>; 2] {
+    let brightness = |r: f32, b: f32| {
+        let s = r + b;
+        if s.is_finite() && s > 0.0 {
+            (2.0 / s).clamp(0.5, 3.0)
+        } else {
+            1.0
+        }
+    };
+    let (sx, sy) = (brightness(c[0], c[1]), brightness(c[2], c[3]));
+    let phase = |r: f32, b: f32, s: f32| (!r.is_nan() && !b.is_nan()).then_some([r * s, b * s]);
+    [phase(c[0], c[1], sy), phase(c[2], c[3], sx)]
+}
 
 /// One training example: features `[r, b, x, y]` and the true slope.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -13,7 +13,8 @@
 //!   (the surface is mirrored there). The result is defined up to a constant, which is
 //!   fixed so that the median of the border ring is zero. Right when a contact reaches
 //!   the frame edge.
-//! * [`SolverKind::Dst`], Dirichlet boundary: `z = 0` just outside the domain. Right when
+//! * [`SolverKind::Dst`], Dirichlet boundary: `z = 0` half a pixel outside the domain
+//!   (the surface is mirrored with opposite sign there). Right when
 //!   the domain's border is known to be flat and undeformed; wrong (too shallow) when a
 //!   contact crosses it.
 //!
@@ -29,7 +30,7 @@ use std::str::FromStr;
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
 
-pub use transforms::{DctII, DstI, Real, Scratch, next_smooth};
+pub use transforms::{DctII, DstII, Real, Scratch, next_smooth};
 
 use super::grid::{Grid, transpose};
 
@@ -39,7 +40,7 @@ use super::grid::{Grid, transpose};
 pub enum SolverKind {
     /// Neumann boundary, DCT-II.
     Dct,
-    /// Dirichlet boundary, DST-I.
+    /// Dirichlet boundary, DST-II.
     Dst,
 }
 
@@ -59,8 +60,7 @@ impl SolverKind {
     pub fn good_length(self, n: usize) -> usize {
         match self {
             SolverKind::Dct => next_smooth(n),
-            // DST-I of length N runs a real FFT of length 2(N+1).
-            SolverKind::Dst => next_smooth(n + 1) - 1,
+            SolverKind::Dst => next_smooth(n),
         }
     }
 }
@@ -136,16 +136,27 @@ pub fn divergence<T: Real>(kind: SolverKind, p: &Grid<T>, q: &Grid<T>, out: &mut
             left = right;
         }
     }
-    for x in 0..w {
-        let mut up = edge(q.get(x, 0));
-        for y in 0..h {
-            let down = if y + 1 < h {
-                (q.get(x, y) + q.get(x, y + 1)) * half
-            } else {
-                edge(q.get(x, y))
-            };
-            out[y * w + x] = out[y * w + x] + down - up;
-            up = down;
+    // y fluxes row by row (contiguous): flux below row y is (q[y] + q[y+1]) / 2.
+    for y in 0..h {
+        let o = &mut out[y * w..(y + 1) * w];
+        let here = q.row(y);
+        if y + 1 < h {
+            for ((o, a), b) in o.iter_mut().zip(here).zip(q.row(y + 1)) {
+                *o = *o + (*a + *b) * half;
+            }
+        } else {
+            for (o, a) in o.iter_mut().zip(here) {
+                *o = *o + edge(*a);
+            }
+        }
+        if y > 0 {
+            for ((o, a), b) in o.iter_mut().zip(q.row(y - 1)).zip(here) {
+                *o = *o - (*a + *b) * half;
+            }
+        } else {
+            for (o, a) in o.iter_mut().zip(here) {
+                *o = *o - edge(*a);
+            }
         }
     }
 }
@@ -155,7 +166,7 @@ pub fn divergence<T: Real>(kind: SolverKind, p: &Grid<T>, q: &Grid<T>, out: &mut
 pub struct PoissonSolver<T: Real> {
     planner: RealFftPlanner<T>,
     dct: HashMap<usize, DctII<T>>,
-    dst: HashMap<usize, DstI<T>>,
+    dst: HashMap<usize, DstII<T>>,
     eigen: HashMap<(SolverKind, usize), Vec<T>>,
     scratch: Scratch<T>,
     work: Vec<T>,
@@ -204,7 +215,7 @@ impl<T: Real> PoissonSolver<T> {
                         self.dst.clear();
                     }
                     let planner = &mut self.planner;
-                    self.dst.entry(n).or_insert_with(|| DstI::new(planner, n));
+                    self.dst.entry(n).or_insert_with(|| DstII::new(planner, n));
                 }
             }
             if self.eigen.len() >= 2 * PLAN_CACHE_LIMIT && !self.eigen.contains_key(&(kind, n)) {
@@ -295,13 +306,12 @@ impl<T: Real> PoissonSolver<T> {
             }
             SolverKind::Dst => {
                 let plan = &self.dst[&len];
-                let scale = if forward {
-                    T::one()
-                } else {
-                    T::from(2.0 / (len as f64 + 1.0)).expect("fits")
-                };
                 for row in data.chunks_exact_mut(len) {
-                    plan.forward_scaled(row, scale, &mut self.scratch);
+                    if forward {
+                        plan.forward(row, &mut self.scratch);
+                    } else {
+                        plan.inverse(row, &mut self.scratch);
+                    }
                 }
             }
         }
@@ -314,7 +324,7 @@ fn laplacian_eigenvalues<T: Real>(kind: SolverKind, n: usize) -> Vec<T> {
         .map(|k| {
             let theta = match kind {
                 SolverKind::Dct => std::f64::consts::PI * k as f64 / n as f64,
-                SolverKind::Dst => std::f64::consts::PI * (k + 1) as f64 / (n + 1) as f64,
+                SolverKind::Dst => std::f64::consts::PI * (k + 1) as f64 / n as f64,
             };
             T::from(2.0 * theta.cos() - 2.0).expect("fits")
         })

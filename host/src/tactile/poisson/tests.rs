@@ -74,12 +74,18 @@ fn neumann_solver_inverts_the_discrete_laplacian_exactly() {
 fn dirichlet_solver_inverts_the_discrete_laplacian_exactly() {
     let (w, h) = (29, 40);
     let z = Grid::from_fn(w, h, |x, y| ((x * 13 + y * 7) % 19) as f64 / 5.0 - 1.0);
+    // Zero half a pixel outside: the first outside pixel mirrors the border with
+    // opposite sign.
     let at = |x: isize, y: isize| {
-        if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
-            0.0
+        let sign = if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+            -1.0
         } else {
-            z.get(x as usize, y as usize)
-        }
+            1.0
+        };
+        sign * z.get(
+            x.clamp(0, w as isize - 1) as usize,
+            y.clamp(0, h as isize - 1) as usize,
+        )
     };
     let mut f: Vec<f64> = (0..w * h)
         .map(|i| {
