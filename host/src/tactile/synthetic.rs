@@ -22,7 +22,7 @@ pub fn ball_presses(
         optics.width as f64 / optics.px_per_mm,
         optics.height as f64 / optics.px_per_mm,
     );
-    let margin = diameter * 0.6;
+    let margin = diameter * 0.2;
     (0..count)
         .map(|k| {
             let scene = Scene {

@@ -1,5 +1,5 @@
 //! A small multilayer perceptron from `(r, b, x, y)` to slope: three hidden ReLU layers,
-//! trained in Rust with Adam on mean squared error.
+//! trained in Rust with Adam (decoupled weight decay) on mean squared error.
 //!
 //! Inference runs in blocks of pixels with activations laid out neuron-major
 //! (`[neuron][pixel]`), so each weight multiplies a contiguous run of pixels and the
@@ -48,6 +48,10 @@ pub struct MlpTraining {
     pub batch: usize,
     /// Initial learning rate (decays to a tenth by the last epoch).
     pub learning_rate: f32,
+    /// Decoupled (AdamW) weight decay. With a dozen ball presses the net otherwise learns
+    /// where the presses were (x, y) instead of the colour law: held-out slope RMS 0.058
+    /// without, 0.035 with 0.3 (15 epochs; more epochs overfit further).
+    pub weight_decay: f32,
     /// Initialisation and shuffling seed.
     pub seed: u64,
 }
@@ -56,9 +60,10 @@ impl Default for MlpTraining {
     fn default() -> Self {
         Self {
             hidden: [16, 16, 16],
-            epochs: 30,
+            epochs: 15,
             batch: 128,
             learning_rate: 3e-3,
+            weight_decay: 0.3,
             seed: 7,
         }
     }
@@ -159,7 +164,7 @@ impl Mlp {
                     }
                 }
                 let scale = 1.0 / batch.len() as f32;
-                adam.step(&mut layers, &grads, lr, scale);
+                adam.step(&mut layers, &grads, lr, scale, settings.weight_decay);
             }
             progress(epoch + 1, (sq / samples.len() as f64).sqrt() as f32);
         }
@@ -271,7 +276,7 @@ impl Adam {
         }
     }
 
-    fn step(&mut self, layers: &mut [Layer], grads: &[Layer], lr: f32, scale: f32) {
+    fn step(&mut self, layers: &mut [Layer], grads: &[Layer], lr: f32, scale: f32, decay: f32) {
         const B1: f32 = 0.9;
         const B2: f32 = 0.999;
         const EPS: f32 = 1e-8;
@@ -284,6 +289,10 @@ impl Adam {
             .zip(&mut self.m)
             .zip(&mut self.v)
         {
+            // Decoupled weight decay (AdamW) on the weights, not the biases.
+            for w in layer.weights.iter_mut() {
+                *w -= lr * decay * *w;
+            }
             let params = layer.weights.iter_mut().chain(layer.bias.iter_mut());
             let gs = g.weights.iter().chain(&g.bias);
             let ms = m.weights.iter_mut().chain(m.bias.iter_mut());
