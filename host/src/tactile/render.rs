@@ -247,7 +247,16 @@ impl Optics {
         Self::sized(640, 480)
     }
 
-    /// The standard optics at another size (same px/mm).
+    /// The standard skin seen by a camera of another resolution: px/mm scales with the
+    /// width (1280×960 → 30 px/mm), so scenes keep their size in mm.
+    pub fn resolution(width: usize, height: usize) -> Self {
+        Self {
+            px_per_mm: 15.0 * width as f64 / 640.0,
+            ..Self::sized(width, height)
+        }
+    }
+
+    /// The standard optics at another size (same px/mm, so a larger or smaller skin).
     pub fn sized(width: usize, height: usize) -> Self {
         Self {
             width,

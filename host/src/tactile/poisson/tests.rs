@@ -223,3 +223,82 @@ proptest! {
         prop_assert!(diff <= 1e-4 * peak.max(1.0), "f32 vs f64 {} (peak {})", diff, peak);
     }
 }
+
+/// Σ over interior pixel pairs of (z difference − half-pixel slope)²: the functional the
+/// Neumann solver minimises.
+fn gradient_residual(z: &Grid<f64>, p: &Grid<f64>, q: &Grid<f64>) -> f64 {
+    let (w, h) = (z.width(), z.height());
+    let mut r = 0.0;
+    for y in 0..h {
+        for x in 0..w {
+            if x + 1 < w {
+                r +=
+                    (z.get(x + 1, y) - z.get(x, y) - 0.5 * (p.get(x, y) + p.get(x + 1, y))).powi(2);
+            }
+            if y + 1 < h {
+                r +=
+                    (z.get(x, y + 1) - z.get(x, y) - 0.5 * (q.get(x, y) + q.get(x, y + 1))).powi(2);
+            }
+        }
+    }
+    r
+}
+
+#[test]
+fn a_non_integrable_field_gives_the_least_squares_surface() {
+    // A pure rotation (p, q) = (−y, x)·s: no surface has this gradient. The Neumann
+    // solution must be finite and fit no worse than any other surface; we check it against
+    // the flat one and against small perturbations of itself.
+    let (w, h) = (64, 48);
+    let s = 0.01;
+    let p = Grid::from_fn(w, h, |_, y| -(y as f64 - 24.0) * s);
+    let q = Grid::from_fn(w, h, |x, _| (x as f64 - 32.0) * s);
+    let z = PoissonSolver::new()
+        .integrate(SolverKind::Dct, &p, &q)
+        .unwrap();
+    assert!(z.as_slice().iter().all(|v| v.is_finite()));
+    let best = gradient_residual(&z, &p, &q);
+    assert!(best < gradient_residual(&Grid::filled(w, h, 0.0), &p, &q));
+    for (i, bump) in [(100usize, 0.05f64), (1500, -0.05), (3000, 0.02)] {
+        let mut other = z.clone();
+        other.as_mut_slice()[i] += bump;
+        assert!(
+            gradient_residual(&other, &p, &q) > best,
+            "perturbing pixel {i} fits better"
+        );
+    }
+    let z = PoissonSolver::new()
+        .integrate(SolverKind::Dst, &p, &q)
+        .unwrap();
+    let worst = z.as_slice().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        worst.is_finite() && worst < s * (w + h) as f64 * 10.0,
+        "dst |z| up to {worst}"
+    );
+}
+
+#[test]
+fn one_sanitised_spike_stays_local() {
+    // Fact from the reference implementation: an unbounded 1e3 spike bends depth 300+ px
+    // away. Clamped to the steepest real slope it must not.
+    let (w, h) = (320, 240);
+    let mut p = Grid::filled(w, h, 0.0f32);
+    let q = Grid::filled(w, h, 0.0f32);
+    p.set(160, 120, 1e3);
+    let mut clamped = p.clone();
+    crate::tactile::sanitize::sanitize(clamped.as_mut_slice(), 3.0);
+    let mut solver = PoissonSolver::<f32>::new();
+    let raw = solver.integrate(SolverKind::Dct, &p, &q).unwrap();
+    let fixed = solver.integrate(SolverKind::Dct, &clamped, &q).unwrap();
+    let far = |z: &Grid<f32>| (0..w).map(|x| z.get(x, 0).abs()).fold(0.0f32, f32::max);
+    assert!(
+        far(&raw) > 1.0,
+        "the unclamped spike reaches the border ({})",
+        far(&raw)
+    );
+    assert!(
+        far(&fixed) < 0.01,
+        "the clamped spike stays local ({})",
+        far(&fixed)
+    );
+}
