@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
+use crate::progress::bar;
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use stereotac::client::Client;
 use stereotac::sim::SimulatedSensor;
 use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, calibrate};
@@ -21,17 +21,6 @@ use stereotac_protocol::{Event, Mode, Phase, PhaseEvent, Request, TriggerOutcome
 const PRESSES: usize = 16;
 /// Simulated camera: frame timestamp = trigger edge + this latency (µs).
 const CAMERA_LATENCY_US: u64 = 150;
-
-fn bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:>24} [{bar:30}] {pos}/{len} {elapsed}")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
 
 /// One simulated camera frame: when it was exposed, and what lit it.
 struct Frame {

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 mod demo;
 mod demo_tactile;
+mod progress;
 mod tactile_cli;
 
 use stereotac::tactile::model::ModelKind;

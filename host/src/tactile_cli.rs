@@ -3,8 +3,8 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use crate::progress::bar;
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
 use stereotac::tactile::bench::{self, BenchConfig};
 use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, Circle, calibrate};
 use stereotac::tactile::images::{load_pairs, load_rgb};
@@ -12,17 +12,6 @@ use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::output;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
-
-fn bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:>28} [{bar:30}] {pos}/{len} {elapsed}")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
-}
 
 fn references(
     dx: &Option<PathBuf>,

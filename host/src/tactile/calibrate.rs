@@ -566,19 +566,8 @@ fn samples(
             } else {
                 continue;
             };
-            let i = y * w + x;
             let position = [x as f32 / w as f32, y as f32 / h as f32];
-            let mut colour = [f32::NAN; 4];
-            for (axis, (img, reference)) in [(&pair.dx, &refs.dx), (&pair.dy, &refs.dy)]
-                .into_iter()
-                .enumerate()
-            {
-                if let Some((r, b)) =
-                    reference.normalise(filter, i, img.get_pixel(x as u32, y as u32).0)
-                {
-                    (colour[2 * axis], colour[2 * axis + 1]) = (r, b);
-                }
-            }
+            let (colour, _) = contact::pixel_colours(refs, filter, &pair.dx, &pair.dy, x, y);
             for (axis, f) in colour_features(colour).into_iter().enumerate() {
                 if let Some([r, b]) = f {
                     out[axis].push(Sample {

@@ -89,8 +89,31 @@ impl Roi {
     }
 }
 
-/// How far pixel `i` is from flat skin: `Σ |colour − 1|` over both phases; rejected
-/// pixels count as flat.
+/// Normalised colours `[r_dx, b_dx, r_dy, b_dy]` of pixel `(x, y)` (NaN where the colour
+/// filter rejects that phase) and how far they are from flat skin: `Σ |colour − 1|` over
+/// the accepted phases (a rejected phase counts as flat).
+#[inline]
+pub fn pixel_colours(
+    refs: &References,
+    filter: &ColourFilter,
+    dx: &RgbImage,
+    dy: &RgbImage,
+    x: usize,
+    y: usize,
+) -> ([f32; 4], f32) {
+    let i = y * refs.dx.width() + x;
+    let mut colour = [f32::NAN; 4];
+    let mut deviation = 0.0;
+    for (phase, (img, reference)) in [(dx, &refs.dx), (dy, &refs.dy)].into_iter().enumerate() {
+        if let Some((r, b)) = reference.normalise(filter, i, img.get_pixel(x as u32, y as u32).0) {
+            (colour[2 * phase], colour[2 * phase + 1]) = (r, b);
+            deviation += (r - 1.0).abs() + (b - 1.0).abs();
+        }
+    }
+    (colour, deviation)
+}
+
+/// How far pixel `(x, y)` is from flat skin (see [`pixel_colours`]).
 #[inline]
 pub fn deviation(
     refs: &References,
@@ -100,21 +123,7 @@ pub fn deviation(
     x: usize,
     y: usize,
 ) -> f32 {
-    let i = y * refs.dx.width() + x;
-    let mut d = 0.0;
-    if let Some((r, b)) = refs
-        .dx
-        .normalise(filter, i, dx.get_pixel(x as u32, y as u32).0)
-    {
-        d += (r - 1.0).abs() + (b - 1.0).abs();
-    }
-    if let Some((r, b)) = refs
-        .dy
-        .normalise(filter, i, dy.get_pixel(x as u32, y as u32).0)
-    {
-        d += (r - 1.0).abs() + (b - 1.0).abs();
-    }
-    d
+    pixel_colours(refs, filter, dx, dy, x, y).1
 }
 
 /// Finds the regions of interest around contacts; empty when nothing touches the skin.

@@ -210,29 +210,9 @@ impl Reconstructor {
             let y = roi.y + ry;
             for rx in 0..roi.width {
                 let x = roi.x + rx;
-                let i = y * w + x;
-                let c = &mut colour[ry * roi.width + rx];
-                let mut dev = 0.0;
-                if let Some((r, b)) =
-                    self.refs
-                        .dx
-                        .normalise(&filter, i, dx.get_pixel(x as u32, y as u32).0)
-                {
-                    (c[0], c[1]) = (r, b);
-                    dev += (r - 1.0).abs() + (b - 1.0).abs();
-                } else {
-                    out.rejected_pixels += 1;
-                }
-                if let Some((r, b)) =
-                    self.refs
-                        .dy
-                        .normalise(&filter, i, dy.get_pixel(x as u32, y as u32).0)
-                {
-                    (c[2], c[3]) = (r, b);
-                    dev += (r - 1.0).abs() + (b - 1.0).abs();
-                } else {
-                    out.rejected_pixels += 1;
-                }
+                let (c, dev) = contact::pixel_colours(&self.refs, &filter, dx, dy, x, y);
+                out.rejected_pixels += c.iter().step_by(2).filter(|v| v.is_nan()).count();
+                colour[ry * roi.width + rx] = c;
                 mask[ry * roi.width + rx] = dev > params.threshold;
             }
         }
