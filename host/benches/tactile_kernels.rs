@@ -3,29 +3,16 @@
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use realfft::RealFftPlanner;
-use realfft::num_complex::Complex;
+use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
-use stereotac::tactile::grid::{Grid, transpose};
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
 use stereotac::tactile::poisson::{PoissonSolver, SolverKind};
 use stereotac::tactile::render::Rng;
 
-fn slopes(w: usize, h: usize) -> (Grid<f32>, Grid<f32>) {
-    (
-        Grid::from_fn(w, h, |x, y| {
-            (x as f32 * 0.05).sin() * (y as f32 * 0.03).cos() * 0.3
-        }),
-        Grid::from_fn(w, h, |x, y| {
-            (x as f32 * 0.02).cos() * (y as f32 * 0.07).sin() * 0.3
-        }),
-    )
-}
-
 fn poisson(c: &mut Criterion) {
     let mut g = c.benchmark_group("poisson");
     for (w, h) in [(640usize, 480usize), (300, 300), (1280, 960)] {
-        let (p, q) = slopes(w, h);
+        let (p, q) = smooth_slopes(w, h);
         let mut solver = PoissonSolver::<f32>::new();
         for kind in SolverKind::ALL {
             g.bench_with_input(
@@ -35,27 +22,11 @@ fn poisson(c: &mut Criterion) {
             );
         }
         // Reference: one forward real 2-D FFT of the same size.
-        let rows = RealFftPlanner::<f32>::new().plan_fft_forward(w);
-        let cols = rustfft::FftPlanner::<f32>::new().plan_fft_forward(h);
-        let half = w / 2 + 1;
-        let mut input = p.as_slice().to_vec();
-        let mut spec = vec![Complex::<f32>::default(); half * h];
-        let mut t = spec.clone();
-        let mut sr = rows.make_scratch_vec();
-        let mut sc = vec![Complex::default(); cols.get_inplace_scratch_len()];
+        let mut fft = Fft2d::new(w, h);
         g.bench_with_input(
             BenchmarkId::new("fft2d", format!("{w}x{h}")),
             &(),
-            |b, _| {
-                b.iter(|| {
-                    input.copy_from_slice(p.as_slice());
-                    for (row, out) in input.chunks_exact_mut(w).zip(spec.chunks_exact_mut(half)) {
-                        rows.process_with_scratch(row, out, &mut sr).unwrap();
-                    }
-                    transpose(&spec, &mut t, half, h);
-                    cols.process_with_scratch(&mut t, &mut sc);
-                })
-            },
+            |b, _| b.iter(|| fft.run(p.as_slice()).len()),
         );
     }
     g.finish();

@@ -11,9 +11,6 @@ mod demo_tactile;
 mod progress;
 mod tactile_cli;
 
-use stereotac::tactile::model::ModelKind;
-use stereotac::tactile::poisson::SolverKind;
-
 /// stereotac: visuotactile sensor toolkit (firmware link, tactile and stereo depth).
 #[derive(Debug, Parser)]
 #[command(version, about, long_about = None)]
@@ -44,59 +41,9 @@ enum Command {
         no_tactile: bool,
     },
     /// Calibrate the tactile model from ball presses: DIR holds NAME_dx.png / NAME_dy.png.
-    Calibrate {
-        /// Directory of pairs.
-        dir: PathBuf,
-        /// Diameter of the calibration ball.
-        #[arg(long)]
-        ball_diameter_mm: f64,
-        /// Image scale.
-        #[arg(long, default_value_t = 15.0)]
-        px_per_mm: f64,
-        /// No-contact dx frame (otherwise the per-pixel median of the pairs).
-        #[arg(long, requires = "ref_dy")]
-        ref_dx: Option<PathBuf>,
-        /// No-contact dy frame.
-        #[arg(long, requires = "ref_dx")]
-        ref_dy: Option<PathBuf>,
-        /// JSON file of contact circles to use instead of fitted ones:
-        /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
-        #[arg(long)]
-        overrides: Option<PathBuf>,
-        /// Model file to write.
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Calibrate(tactile_cli::CalibrateArgs),
     /// Reconstruct the depth of one dx/dy pair into depth.npy, PNGs, PLY and summary.json.
-    Reconstruct {
-        /// Model file from `calibrate`.
-        #[arg(long)]
-        model: PathBuf,
-        /// dx image (strips 1 and 3 lit).
-        #[arg(long)]
-        dx: PathBuf,
-        /// dy image (strips 2 and 4 lit).
-        #[arg(long)]
-        dy: PathBuf,
-        /// No-contact dx frame (otherwise the model's background).
-        #[arg(long, requires = "ref_dy")]
-        ref_dx: Option<PathBuf>,
-        /// No-contact dy frame.
-        #[arg(long, requires = "ref_dx")]
-        ref_dy: Option<PathBuf>,
-        /// Output directory.
-        #[arg(long)]
-        out_dir: PathBuf,
-        /// Poisson solver: dct (Neumann, default) or dst (Dirichlet).
-        #[arg(long, default_value = "dct")]
-        solver: SolverKind,
-        /// Gradient model: lut (default) or mlp.
-        #[arg(long = "model-kind", default_value = "lut")]
-        model_kind: ModelKind,
-        /// Print the summary as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Reconstruct(tactile_cli::ReconstructArgs),
     /// Benchmarks on built-in synthetic data.
     Bench {
         #[command(subcommand)]
@@ -158,44 +105,8 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             (!no_tactile).then_some(out.as_path()),
         ),
-        Command::Calibrate {
-            dir,
-            ball_diameter_mm,
-            px_per_mm,
-            ref_dx,
-            ref_dy,
-            overrides,
-            out,
-        } => tactile_cli::calibrate_cmd(tactile_cli::CalibrateArgs {
-            dir,
-            ball_diameter_mm,
-            px_per_mm,
-            ref_dx,
-            ref_dy,
-            overrides,
-            out,
-        }),
-        Command::Reconstruct {
-            model,
-            dx,
-            dy,
-            ref_dx,
-            ref_dy,
-            out_dir,
-            solver,
-            model_kind,
-            json,
-        } => tactile_cli::reconstruct_cmd(tactile_cli::ReconstructArgs {
-            model,
-            dx,
-            dy,
-            ref_dx,
-            ref_dy,
-            out_dir,
-            solver,
-            model_kind,
-            json,
-        }),
+        Command::Calibrate(args) => tactile_cli::calibrate_cmd(args),
+        Command::Reconstruct(args) => tactile_cli::reconstruct_cmd(args),
         Command::Bench {
             what:
                 BenchWhat::Tactile {

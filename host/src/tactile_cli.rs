@@ -25,13 +25,28 @@ fn references(
 }
 
 /// `stereotac calibrate`.
+#[derive(Debug, clap::Args)]
 pub struct CalibrateArgs {
+    /// Directory of pairs.
     pub dir: PathBuf,
+    /// Diameter of the calibration ball.
+    #[arg(long)]
     pub ball_diameter_mm: f64,
+    /// Image scale.
+    #[arg(long, default_value_t = 15.0)]
     pub px_per_mm: f64,
+    /// No-contact dx frame (otherwise the per-pixel median of the pairs).
+    #[arg(long, requires = "ref_dy")]
     pub ref_dx: Option<PathBuf>,
+    /// No-contact dy frame.
+    #[arg(long, requires = "ref_dx")]
     pub ref_dy: Option<PathBuf>,
+    /// JSON file of contact circles to use instead of fitted ones:
+    /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
+    #[arg(long)]
     pub overrides: Option<PathBuf>,
+    /// Model file to write.
+    #[arg(long)]
     pub out: PathBuf,
 }
 
@@ -110,15 +125,34 @@ pub fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
 }
 
 /// `stereotac reconstruct`.
+#[derive(Debug, clap::Args)]
 pub struct ReconstructArgs {
+    /// Model file from `calibrate`.
+    #[arg(long)]
     pub model: PathBuf,
+    /// dx image (strips 1 and 3 lit).
+    #[arg(long)]
     pub dx: PathBuf,
+    /// dy image (strips 2 and 4 lit).
+    #[arg(long)]
     pub dy: PathBuf,
+    /// No-contact dx frame (otherwise the model's background).
+    #[arg(long, requires = "ref_dy")]
     pub ref_dx: Option<PathBuf>,
+    /// No-contact dy frame.
+    #[arg(long, requires = "ref_dx")]
     pub ref_dy: Option<PathBuf>,
+    /// Output directory.
+    #[arg(long)]
     pub out_dir: PathBuf,
+    /// Poisson solver: dct (Neumann, default) or dst (Dirichlet).
+    #[arg(long, default_value = "dct")]
     pub solver: SolverKind,
+    /// Gradient model: lut (default) or mlp.
+    #[arg(long = "model-kind", default_value = "lut")]
     pub model_kind: ModelKind,
+    /// Print the summary as JSON.
+    #[arg(long)]
     pub json: bool,
 }
 

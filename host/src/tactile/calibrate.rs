@@ -468,34 +468,12 @@ fn solve3(m: [[f64; 3]; 3], v: [f64; 3]) -> Option<[f64; 3]> {
 }
 
 fn keep_largest_component(mask: &mut [bool], w: usize, h: usize) {
-    let mut label = vec![0u32; mask.len()];
-    let mut sizes = vec![0usize];
-    let mut stack = Vec::new();
-    for start in 0..mask.len() {
-        if !mask[start] || label[start] != 0 {
-            continue;
-        }
-        let id = sizes.len() as u32;
-        sizes.push(0);
-        label[start] = id;
-        stack.push(start);
-        while let Some(i) = stack.pop() {
-            sizes[id as usize] += 1;
-            let (x, y) = (i % w, i / w);
-            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                    let j = ny * w + nx;
-                    if mask[j] && label[j] == 0 {
-                        label[j] = id;
-                        stack.push(j);
-                    }
-                }
-            }
-        }
-    }
-    let best = (1..sizes.len()).max_by_key(|&i| sizes[i]).unwrap_or(0) as u32;
-    for (m, l) in mask.iter_mut().zip(&label) {
-        *m = *l == best && best != 0;
+    let (labels, components) = contact::label_components(mask, w, h);
+    let best = (0..components.len())
+        .max_by_key(|&k| components[k].cells)
+        .map_or(0, |k| k as u32 + 1);
+    for (m, l) in mask.iter_mut().zip(&labels) {
+        *m = best != 0 && *l == best;
     }
 }
 

@@ -55,18 +55,14 @@ impl Reference {
     /// Reference from a no-contact frame of the same phase.
     pub fn from_image(image: &RgbImage) -> Self {
         let (w, h) = image.dimensions();
-        let mut r = Self {
-            width: w as usize,
-            height: h as usize,
-            inv_red: Vec::with_capacity((w * h) as usize),
-            inv_blue: Vec::with_capacity((w * h) as usize),
-            green: Vec::with_capacity((w * h) as usize),
-        };
-        for px in image.pixels() {
-            let [red, green, blue] = px.0.map(f32::from);
-            r.push(red - green, blue - green, green);
-        }
-        r
+        Self::from_planes(
+            w as usize,
+            h as usize,
+            image.pixels().map(|px| {
+                let [red, green, blue] = px.0.map(f32::from);
+                [red - green, blue - green, green]
+            }),
+        )
     }
 
     /// Reference from per-pixel LED light (`red`, `blue` after ambient removal, and green).

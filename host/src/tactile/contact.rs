@@ -154,7 +154,8 @@ pub fn find_regions(
     if !any {
         return Vec::new();
     }
-    let mut regions: Vec<Roi> = components(&mut marked, gw, gh)
+    let mut regions: Vec<Roi> = label_components(&marked, gw, gh)
+        .1
         .into_iter()
         .filter(|c| c.cells >= params.min_cells)
         .map(|c| {
@@ -209,23 +210,28 @@ fn merge_overlapping(regions: &mut Vec<Roi>) {
     }
 }
 
-struct Component {
-    x0: usize,
-    y0: usize,
-    x1: usize,
-    y1: usize,
-    cells: usize,
+pub(crate) struct Component {
+    /// Bounding box, inclusive.
+    pub x0: usize,
+    pub y0: usize,
+    pub x1: usize,
+    pub y1: usize,
+    /// Number of cells.
+    pub cells: usize,
 }
 
-/// 8-connected components of `marked` (consumed: cells are cleared as they are visited).
-fn components(marked: &mut [bool], w: usize, h: usize) -> Vec<Component> {
+/// 8-connected components of `mask` (`w × h`): a label per cell (0 = unset, `k + 1` =
+/// component `k`) and each component's bounding box and size.
+pub(crate) fn label_components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, Vec<Component>) {
+    let mut labels = vec![0u32; mask.len()];
     let mut out = Vec::new();
     let mut stack = Vec::new();
-    for start in 0..marked.len() {
-        if !marked[start] {
+    for start in 0..mask.len() {
+        if !mask[start] || labels[start] != 0 {
             continue;
         }
-        marked[start] = false;
+        let id = out.len() as u32 + 1;
+        labels[start] = id;
         stack.push(start);
         let mut c = Component {
             x0: usize::MAX,
@@ -244,8 +250,8 @@ fn components(marked: &mut [bool], w: usize, h: usize) -> Vec<Component> {
             for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
                 for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
                     let j = ny * w + nx;
-                    if marked[j] {
-                        marked[j] = false;
+                    if mask[j] && labels[j] == 0 {
+                        labels[j] = id;
                         stack.push(j);
                     }
                 }
@@ -253,7 +259,7 @@ fn components(marked: &mut [bool], w: usize, h: usize) -> Vec<Component> {
         }
         out.push(c);
     }
-    out
+    (labels, out)
 }
 
 /// Grows a `w × h` mask by `r` pixels (square structuring element), in place.

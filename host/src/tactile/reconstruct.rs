@@ -168,25 +168,22 @@ impl Reconstructor {
         let filter = self.model.filter;
         let params = self.model.contact;
         let regions = contact::find_regions(dx, dy, &self.refs, &filter, &params, self.solver_kind);
-        let detected = Instant::now();
-        let mut timings = StageTimings {
-            detect_ms: ms(start, detected),
-            ..Default::default()
-        };
         let mut out = Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),
             contact_mask: Grid::filled(w, h, false),
-            regions,
+            regions: Vec::new(),
             rejected_pixels: 0,
             sanitized_slopes: 0,
-            timings,
+            timings: StageTimings {
+                detect_ms: ms(start, Instant::now()),
+                ..Default::default()
+            },
         };
-        let regions = out.regions.clone();
         for roi in &regions {
-            self.region(dx, dy, roi, &mut out, &mut timings)?;
+            self.region(dx, dy, roi, &mut out)?;
         }
-        timings.total_ms = ms(start, Instant::now());
-        out.timings = timings;
+        out.regions = regions;
+        out.timings.total_ms = ms(start, Instant::now());
         Ok(out)
     }
 
@@ -196,7 +193,6 @@ impl Reconstructor {
         dy: &RgbImage,
         roi: &Roi,
         out: &mut Reconstruction,
-        timings: &mut StageTimings,
     ) -> Result<(), ReconstructError> {
         let t0 = Instant::now();
         let (w, h) = (self.model.width, self.model.height);
@@ -218,7 +214,7 @@ impl Reconstructor {
         }
         contact::dilate(&mut mask, roi.width, roi.height, params.dilate_px);
         let t1 = Instant::now();
-        timings.colour_ms += ms(t0, t1);
+        out.timings.colour_ms += ms(t0, t1);
 
         // Slopes from the model on touched, accepted pixels; zero elsewhere.
         let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
@@ -253,7 +249,7 @@ impl Reconstructor {
             }
         }
         let t2 = Instant::now();
-        timings.model_ms += ms(t1, t2);
+        out.timings.model_ms += ms(t1, t2);
 
         let fixed = sanitize(p.as_mut_slice(), self.max_slope);
         let fixed_q = sanitize(q.as_mut_slice(), self.max_slope);
@@ -277,7 +273,7 @@ impl Reconstructor {
             }
         }
         debug_assert!(roi.x + roi.width <= w && roi.y + roi.height <= h);
-        timings.solve_ms += ms(t2, Instant::now());
+        out.timings.solve_ms += ms(t2, Instant::now());
         Ok(())
     }
 }

@@ -41,6 +41,16 @@ fn max_error<T: Real>(got: &Grid<T>, want: &Grid<f64>) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// `L z` on a `w × h` grid, `at(x, y)` giving z including one pixel outside.
+fn five_point_laplacian(w: usize, h: usize, at: impl Fn(isize, isize) -> f64) -> Vec<f64> {
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as isize, (i / w) as isize);
+            at(x - 1, y) + at(x + 1, y) + at(x, y - 1) + at(x, y + 1) - 4.0 * at(x, y)
+        })
+        .collect()
+}
+
 #[test]
 fn neumann_solver_inverts_the_discrete_laplacian_exactly() {
     // Analytic check of the linear solve itself: z → L z (mirror boundary) → solve → z.
@@ -52,12 +62,7 @@ fn neumann_solver_inverts_the_discrete_laplacian_exactly() {
         let y = y.clamp(0, h as isize - 1) as usize;
         z.get(x, y)
     };
-    let mut f: Vec<f64> = (0..w * h)
-        .map(|i| {
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            at(x - 1, y) + at(x + 1, y) + at(x, y - 1) + at(x, y + 1) - 4.0 * at(x, y)
-        })
-        .collect();
+    let mut f = five_point_laplacian(w, h, at);
     let mut solver = PoissonSolver::<f64>::new();
     solver.prepare(SolverKind::Dct, w, h);
     solver.solve_in_place(SolverKind::Dct, &mut f, w, h);
@@ -87,12 +92,7 @@ fn dirichlet_solver_inverts_the_discrete_laplacian_exactly() {
             y.clamp(0, h as isize - 1) as usize,
         )
     };
-    let mut f: Vec<f64> = (0..w * h)
-        .map(|i| {
-            let (x, y) = ((i % w) as isize, (i / w) as isize);
-            at(x - 1, y) + at(x + 1, y) + at(x, y - 1) + at(x, y + 1) - 4.0 * at(x, y)
-        })
-        .collect();
+    let mut f = five_point_laplacian(w, h, at);
     let mut solver = PoissonSolver::<f64>::new();
     solver.prepare(SolverKind::Dst, w, h);
     solver.solve_in_place(SolverKind::Dst, &mut f, w, h);
