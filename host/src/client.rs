@@ -1,10 +1,8 @@
-//! A protocol client over any byte link: numbered requests matched to their replies,
-//! the version-checked handshake, and events with loss detection.
-//!
-//! [`Link`] is deliberately small (send bytes, receive bytes) so that the in-memory
-//! simulated sensor, USB and the emulated RP2040 can all sit behind it.
+//! A protocol client over any [`Transport`]: numbered requests matched to their replies,
+//! the version-checked handshake, time-sync pings, and events with loss detection.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac_protocol::{
@@ -12,45 +10,15 @@ use stereotac_protocol::{
     PROTOCOL_VERSION, Request, RequestId, Response, decode, encode, peek_protocol_version,
 };
 
-use crate::sim::SimulatedSensor;
-
-/// Why the link failed.
-#[derive(Debug, thiserror::Error)]
-pub enum LinkError {
-    /// The device went away.
-    #[error("device disconnected")]
-    Disconnected,
-    /// Another I/O failure.
-    #[error("link I/O error: {0}")]
-    Io(String),
-}
-
-/// A byte pipe to a device.
-pub trait Link {
-    /// Send bytes to the device.
-    fn send(&mut self, bytes: &[u8]) -> Result<(), LinkError>;
-    /// Bytes the device sent, waiting at most `timeout` for the first; may be empty.
-    fn receive(&mut self, timeout: Duration) -> Result<Vec<u8>, LinkError>;
-}
-
-/// The simulated sensor is a link whose device time stands still while the host talks.
-impl Link for SimulatedSensor {
-    fn send(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
-        self.write(bytes);
-        Ok(())
-    }
-
-    fn receive(&mut self, _timeout: Duration) -> Result<Vec<u8>, LinkError> {
-        Ok(self.read())
-    }
-}
+use crate::clock::{HostClock, HostMicros, MonotonicClock, TimeSample};
+use crate::transport::{Transport, TransportError};
 
 /// Why a request failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ClientError {
-    /// The link failed.
+    /// The transport failed.
     #[error(transparent)]
-    Link(#[from] LinkError),
+    Transport(#[from] TransportError),
     /// The device refused the request.
     #[error("device refused the request: {0}")]
     Device(#[from] DeviceError),
@@ -74,47 +42,106 @@ pub enum ClientError {
     UnexpectedReply(Box<Response>),
 }
 
-/// A protocol session over a [`Link`].
+/// What the host counted on a link; kept across reconnects by [`crate::device::Sensor`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct LinkCounters {
+    /// Events received.
+    pub events: u64,
+    /// Events lost (gaps in the device's event sequence numbers).
+    pub lost_events: u64,
+    /// Frames that failed their checksum or did not decode.
+    pub bad_frames: u64,
+    /// Requests that got no reply in time.
+    pub timeouts: u64,
+}
+
+/// A protocol session over a [`Transport`].
 #[derive(Debug)]
-pub struct Client<L> {
-    link: L,
+pub struct Client<T> {
+    transport: T,
+    clock: Arc<dyn HostClock>,
     decoder: FrameDecoder,
     next_id: RequestId,
     events: VecDeque<(u32, Event)>,
     last_event_seq: Option<u32>,
-    lost_events: u64,
-    bad_frames: u64,
+    counters: LinkCounters,
     timeout: Duration,
 }
 
-impl<L: Link> Client<L> {
-    /// A client with a 1 s reply timeout.
-    pub fn new(link: L) -> Self {
+impl<T: Transport> Client<T> {
+    /// A client on the system's monotonic clock with a 1 s reply timeout.
+    pub fn new(transport: T) -> Self {
+        Self::with_clock(transport, Arc::new(MonotonicClock::new()))
+    }
+
+    /// A client whose timestamps and timeouts use `clock`.
+    pub fn with_clock(transport: T, clock: Arc<dyn HostClock>) -> Self {
         Self {
-            link,
+            transport,
+            clock,
             decoder: FrameDecoder::new(),
             next_id: 1,
             events: VecDeque::new(),
             last_event_seq: None,
-            lost_events: 0,
-            bad_frames: 0,
+            counters: LinkCounters::default(),
             timeout: Duration::from_secs(1),
         }
     }
 
-    /// The link, e.g. to advance a simulated device's clock.
-    pub fn link_mut(&mut self) -> &mut L {
-        &mut self.link
+    /// Change the reply timeout.
+    pub fn set_timeout(&mut self, timeout: Duration) {
+        self.timeout = timeout;
+    }
+
+    /// The transport, e.g. to advance a simulated device's clock.
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
+    /// The host clock.
+    pub fn clock(&self) -> &Arc<dyn HostClock> {
+        &self.clock
+    }
+
+    /// Host time now.
+    pub fn now_us(&self) -> HostMicros {
+        self.clock.now_us()
+    }
+
+    /// What this client counted.
+    pub fn counters(&self) -> LinkCounters {
+        self.counters
+    }
+
+    /// Continue counting from `counters` (after a reconnect).
+    pub fn set_counters(&mut self, counters: LinkCounters) {
+        self.counters = counters;
     }
 
     /// Events lost so far (gaps in the device's event sequence numbers).
     pub fn lost_events(&self) -> u64 {
-        self.lost_events
+        self.counters.lost_events
     }
 
     /// Frames that failed their checksum or did not decode.
     pub fn bad_frames(&self) -> u64 {
-        self.bad_frames
+        self.counters.bad_frames
+    }
+
+    /// One clock-sync ping: host time before sending, the device's clock, host time
+    /// after the reply.
+    pub fn time_sync(&mut self) -> Result<TimeSample, ClientError> {
+        let host_send_us = self.clock.now_us();
+        let reply = self.request(Request::TimeSync)?;
+        let host_recv_us = self.clock.now_us();
+        match reply {
+            Response::Time(device_us) => Ok(TimeSample {
+                host_send_us,
+                device_us,
+                host_recv_us,
+            }),
+            other => Err(ClientError::UnexpectedReply(Box::new(other))),
+        }
     }
 
     /// Handshake: read the device's info and refuse another protocol version.
@@ -131,15 +158,17 @@ impl<L: Link> Client<L> {
         self.next_id = self.next_id.wrapping_add(1);
         let mut buf = [0u8; MAX_FRAME];
         let frame = encode(&HostMessage { id, request }, &mut buf)
-            .map_err(|e| LinkError::Io(e.to_string()))?;
-        self.link.send(frame)?;
-        let deadline = std::time::Instant::now() + self.timeout;
+            .map_err(|e| TransportError::Io(e.to_string()))?;
+        self.transport.send(frame)?;
+        let deadline = self.clock.now_us() + self.timeout.as_micros() as u64;
         loop {
-            let bytes = self.link.receive(self.timeout)?;
+            let left = deadline.saturating_sub(self.clock.now_us());
+            let bytes = self.transport.receive(Duration::from_micros(left))?;
             if let Some(result) = self.ingest(&bytes, Some(id))? {
                 return result.map_err(ClientError::Device);
             }
-            if std::time::Instant::now() >= deadline {
+            if self.clock.now_us() >= deadline {
+                self.counters.timeouts += 1;
                 return Err(ClientError::Timeout(self.timeout));
             }
         }
@@ -147,7 +176,13 @@ impl<L: Link> Client<L> {
 
     /// Read what the device sent and return the events received so far.
     pub fn poll_events(&mut self) -> Result<Vec<(u32, Event)>, ClientError> {
-        let bytes = self.link.receive(Duration::ZERO)?;
+        self.wait_events(Duration::ZERO)
+    }
+
+    /// Wait at most `timeout` for the device to send something; return the events
+    /// received so far.
+    pub fn wait_events(&mut self, timeout: Duration) -> Result<Vec<(u32, Event)>, ClientError> {
+        let bytes = self.transport.receive(timeout)?;
         self.ingest(&bytes, None)?;
         Ok(self.events.drain(..).collect())
     }
@@ -164,7 +199,7 @@ impl<L: Link> Client<L> {
             bytes = rest;
             let Some(frame) = frame else { continue };
             let Ok(payload) = frame else {
-                self.bad_frames += 1;
+                self.counters.bad_frames += 1;
                 continue;
             };
             let message = match decode::<DeviceMessage>(payload) {
@@ -179,7 +214,7 @@ impl<L: Link> Client<L> {
                             device,
                         });
                     }
-                    self.bad_frames += 1;
+                    self.counters.bad_frames += 1;
                     continue;
                 }
             };
@@ -201,10 +236,11 @@ impl<L: Link> Client<L> {
                         // A backwards jump is a device restart, not a loss.
                         let gap = seq.wrapping_sub(last).wrapping_sub(1);
                         if gap < u32::MAX / 2 {
-                            self.lost_events += u64::from(gap);
+                            self.counters.lost_events += u64::from(gap);
                         }
                     }
                     self.last_event_seq = Some(seq);
+                    self.counters.events += 1;
                     self.events.push_back((seq, event));
                 }
             }

@@ -59,12 +59,12 @@ pub fn run(
         "phase", "kind", "scheduled µs", "LED write µs", "latched µs", "trigger µs", "trigger#"
     );
     let mut shown = 0;
-    let mut t = client.link_mut().now_us();
+    let mut t = client.transport_mut().now_us();
     let mut previous_edge: Option<u64> = None;
     let mut periods = Vec::new();
     while shown < phases {
         t += u64::from(period_us);
-        client.link_mut().advance_to(t);
+        client.transport_mut().advance_to(t);
         for (_, event) in client.poll_events()? {
             let Event::Phase(p) = event else { continue };
             if shown == phases {

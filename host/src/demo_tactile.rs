@@ -38,7 +38,7 @@ fn capture_labelled_frames(
     client.request(Request::SetMode(Mode::Gradient))?;
     client.request(Request::Start)?;
     let mut events: Vec<PhaseEvent> = Vec::new();
-    let mut t = client.link_mut().now_us();
+    let mut t = client.transport_mut().now_us();
     let mut polls = 0u32;
     while events.len() < 2 * pairs + 1 {
         t += 50_000;
@@ -47,7 +47,7 @@ fn capture_labelled_frames(
             // Keep the host-silence watchdog (5 s) fed, as a real client does.
             client.request(Request::GetStatus)?;
         }
-        client.link_mut().advance_to(t);
+        client.transport_mut().advance_to(t);
         for (_, e) in client.poll_events()? {
             if let Event::Phase(p) = e {
                 events.push(p);

@@ -12,6 +12,9 @@
 #![warn(missing_docs)]
 
 pub mod client;
+pub mod clock;
+pub mod device;
 pub mod sim;
 pub mod tactile;
+pub mod transport;
 pub mod uf2;

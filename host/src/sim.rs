@@ -11,7 +11,9 @@ use std::collections::VecDeque;
 
 use stereotac_firmware::sequencer::{WS2812_RESET_US, led_write_us};
 use stereotac_firmware::{Controller, Effect, Identity, MAX_LEDS_PER_STRIP};
-use stereotac_protocol::{Capabilities, DeviceMessage, FrameDecoder, MAX_FRAME, encode};
+use stereotac_protocol::{
+    Capabilities, DeviceMessage, FrameDecoder, MAX_FRAME, PhaseEvent, encode,
+};
 
 /// Wake-up latency of the simulated LED task after a phase boundary, µs.
 pub const SIM_WRITE_LATENCY_US: u64 = 3;
@@ -19,6 +21,18 @@ pub const SIM_WRITE_LATENCY_US: u64 = 3;
 pub const SIM_HEARTBEAT_US: u64 = 1_000_000;
 /// Supervisor tick of the simulated board, µs.
 pub const SIM_SUPERVISOR_TICK_US: u64 = 100_000;
+
+/// A change of what the strips show, on the device clock.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LedChange {
+    /// A phase ran: its LED write, latch and trigger.
+    Phase(PhaseEvent),
+    /// The sequence stopped: strips dark from `at_us`.
+    Dark {
+        /// Device time, µs.
+        at_us: u64,
+    },
+}
 
 /// A simulated sensor (see the module documentation).
 #[derive(Debug)]
@@ -33,6 +47,8 @@ pub struct SimulatedSensor {
     event_queue_limit: Option<usize>,
     queued_events: usize,
     bootloader_requested: bool,
+    /// What the LEDs really did, whether the host heard of it or not.
+    led_log: Vec<LedChange>,
 }
 
 impl SimulatedSensor {
@@ -57,6 +73,7 @@ impl SimulatedSensor {
             event_queue_limit: None,
             queued_events: 0,
             bootloader_requested: false,
+            led_log: Vec::new(),
         }
     }
 
@@ -76,13 +93,32 @@ impl SimulatedSensor {
         self.event_queue_limit = frames;
     }
 
+    /// Take what the LEDs did since the last call, whether the host heard of it or not:
+    /// the ground truth for simulated cameras.
+    pub fn take_led_log(&mut self) -> Vec<LedChange> {
+        std::mem::take(&mut self.led_log)
+    }
+
+    fn note_if_stopped(&mut self, was_running: bool) {
+        if was_running && !self.controller.is_running() {
+            self.led_log.push(LedChange::Dark { at_us: self.now_us });
+        }
+    }
+
+    /// Whether the sequence runs.
+    pub fn is_running(&self) -> bool {
+        self.controller.is_running()
+    }
+
     /// Bytes from the host arrive at the current device time.
     pub fn write(&mut self, mut bytes: &[u8]) {
         while !bytes.is_empty() {
             let (frame, rest) = self.decoder.feed(bytes);
             bytes = rest;
             let Some(frame) = frame else { continue };
+            let was_running = self.controller.is_running();
             let (message, effect) = self.controller.handle_frame(frame, self.now_us);
+            self.note_if_stopped(was_running);
             match message {
                 DeviceMessage::Reply { .. } => self.send(&message),
                 DeviceMessage::Event { .. } => self.post_event(&message),
@@ -115,17 +151,21 @@ impl SimulatedSensor {
                     let write_start = at;
                     let armed_at = write_start + write_us;
                     let latched = write_start + write_us + latch_us;
-                    let (_, message) =
+                    let (event, message) =
                         self.controller
                             .finish(&plan, write_start, latched, armed_at);
-                    self.now_us = armed_at;
+                    self.led_log.push(LedChange::Phase(event));
+                    // The LED task waits for the write; the device clock (and USB) do not.
+                    self.now_us = at;
                     self.post_event(&message);
                 }
                 _ if tick_at <= t_us => {
                     self.now_us = self.now_us.max(tick_at);
                     self.next_tick_us += SIM_SUPERVISOR_TICK_US;
                     self.ticks += 1;
+                    let was_running = self.controller.is_running();
                     if let Some(fault) = self.controller.check_host_timeout(self.now_us) {
+                        self.note_if_stopped(was_running);
                         self.post_event(&fault);
                     }
                     if self

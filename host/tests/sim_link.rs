@@ -2,8 +2,9 @@
 
 use std::time::Duration;
 
-use stereotac::client::{Client, ClientError, Link, LinkError};
+use stereotac::client::{Client, ClientError};
 use stereotac::sim::SimulatedSensor;
+use stereotac::transport::{Transport, TransportError};
 use stereotac_protocol::*;
 
 #[test]
@@ -15,7 +16,7 @@ fn handshake_and_gradient_sequence_through_the_simulated_sensor() {
     client.request(Request::SetHostTimeout(0)).unwrap(); // this host stays silent
     client.request(Request::SetMode(Mode::Gradient)).unwrap();
     client.request(Request::Start).unwrap();
-    client.link_mut().advance_to(10_100_000);
+    client.transport_mut().advance_to(10_100_000);
     let phases: Vec<PhaseEvent> = client
         .poll_events()
         .unwrap()
@@ -42,7 +43,7 @@ fn a_silent_host_gets_the_leds_switched_off_with_a_fault() {
     let mut client = Client::new(SimulatedSensor::new([9; 8]));
     client.request(Request::SetMode(Mode::Gradient)).unwrap();
     client.request(Request::Start).unwrap();
-    client.link_mut().advance_to(10_000_000);
+    client.transport_mut().advance_to(10_000_000);
     let events = client.poll_events().unwrap();
     let phases = events
         .iter()
@@ -84,11 +85,11 @@ fn a_host_that_does_not_read_loses_events_visibly() {
     client.request(Request::SetMode(Mode::Vision)).unwrap();
     client.request(Request::Start).unwrap();
     client.poll_events().unwrap();
-    client.link_mut().set_event_queue_limit(Some(16));
-    client.link_mut().advance_to(20_000_000); // ~80 phases + 20 heartbeats, queue holds 16
+    client.transport_mut().set_event_queue_limit(Some(16));
+    client.transport_mut().advance_to(20_000_000); // ~80 phases + 20 heartbeats, queue holds 16
     let events = client.poll_events().unwrap();
     assert_eq!(events.len(), 16);
-    client.link_mut().advance_to(20_300_000);
+    client.transport_mut().advance_to(20_300_000);
     client.poll_events().unwrap();
     let Response::Status(status) = client.request(Request::GetStatus).unwrap() else {
         panic!()
@@ -102,8 +103,8 @@ struct FutureDevice {
     pending: Vec<u8>,
 }
 
-impl Link for FutureDevice {
-    fn send(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+impl Transport for FutureDevice {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
         let mut decoder = FrameDecoder::<MAX_FRAME>::new();
         let (frame, _) = decoder.feed(bytes);
         let request: HostMessage = decode(frame.unwrap().unwrap()).unwrap();
@@ -116,7 +117,7 @@ impl Link for FutureDevice {
         Ok(())
     }
 
-    fn receive(&mut self, _: Duration) -> Result<Vec<u8>, LinkError> {
+    fn receive(&mut self, _: Duration) -> Result<Vec<u8>, TransportError> {
         Ok(std::mem::take(&mut self.pending))
     }
 }

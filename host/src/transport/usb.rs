@@ -1,0 +1,277 @@
+//! USB transport through nusb (pure Rust; no libusb needed).
+//!
+//! The sensor enumerates with [`USB_VID`]/[`USB_PID`] and a vendor-class interface
+//! (class 0xFF, subclass [`USB_SUBCLASS`]) holding one bulk OUT and one bulk IN endpoint;
+//! its serial number is the RP2040 flash unique id in upper-case hex. Several sensors can
+//! be open at once: each is selected by serial number.
+
+use std::io::{BufRead, Write};
+use std::time::Duration;
+
+use nusb::MaybeFuture;
+use nusb::descriptors::TransferType;
+use nusb::transfer::{Bulk, Direction, In, Out};
+use stereotac_protocol::{USB_PID, USB_SUBCLASS, USB_VID};
+
+use super::{Transport, TransportError};
+
+/// Where the udev rules live, for the permission-denied hint.
+pub const UDEV_RULES: &str = "udev/99-stereotac.rules";
+
+/// A sensor seen on the bus (not opened).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct UsbSensor {
+    /// USB serial number (the board id in hex).
+    pub serial: String,
+    /// Bus and address, e.g. `1-4` / `3:12`.
+    pub path: String,
+    /// Product string.
+    pub product: Option<String>,
+    /// Device release number (bcdDevice).
+    pub release: u16,
+}
+
+/// Why a sensor could not be found or opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// No sensor (with that serial number) on the bus.
+    #[error("{}", not_found_message(.serial.as_deref(), .present))]
+    NotFound {
+        /// The serial asked for, if any.
+        serial: Option<String>,
+        /// Serial numbers of the sensors that are present.
+        present: Vec<String>,
+    },
+    /// Several sensors and no serial number to choose.
+    #[error("{} sensors attached ({}); choose one with --serial", .0.len(), .0.join(", "))]
+    Ambiguous(Vec<String>),
+    /// The OS refused access.
+    #[error(
+        "permission denied opening the sensor at {path}: install the udev rules \
+         (sudo cp {UDEV_RULES} /etc/udev/rules.d/ && sudo udevadm control --reload && \
+         sudo udevadm trigger), then replug"
+    )]
+    PermissionDenied {
+        /// Bus path of the device.
+        path: String,
+    },
+    /// Another program holds the interface.
+    #[error("the sensor at {path} is in use by another program")]
+    Busy {
+        /// Bus path of the device.
+        path: String,
+    },
+    /// The device does not look like a stereotac sensor.
+    #[error("the device at {path} has no stereotac interface ({detail})")]
+    NotASensor {
+        /// Bus path.
+        path: String,
+        /// What was missing.
+        detail: String,
+    },
+    /// Another USB failure.
+    #[error("USB error: {0}")]
+    Usb(String),
+}
+
+fn not_found_message(serial: Option<&str>, present: &[String]) -> String {
+    let wanted = serial.map_or_else(
+        || format!("no stereotac sensor found (USB {USB_VID:04x}:{USB_PID:04x})"),
+        |s| format!("no stereotac sensor with serial {s}"),
+    );
+    if present.is_empty() {
+        format!("{wanted}; is it plugged in? (`lsusb` should list {USB_VID:04x}:{USB_PID:04x})")
+    } else {
+        format!("{wanted}; present: {}", present.join(", "))
+    }
+}
+
+fn usb_error(e: nusb::Error, path: &str) -> OpenError {
+    match e.kind() {
+        nusb::ErrorKind::PermissionDenied => OpenError::PermissionDenied { path: path.into() },
+        nusb::ErrorKind::Busy => OpenError::Busy { path: path.into() },
+        _ => OpenError::Usb(e.to_string()),
+    }
+}
+
+fn bus_path(info: &nusb::DeviceInfo) -> String {
+    format!("{}:{}", info.bus_id(), info.device_address())
+}
+
+fn sensors() -> Result<Vec<nusb::DeviceInfo>, OpenError> {
+    Ok(nusb::list_devices()
+        .wait()
+        .map_err(|e| OpenError::Usb(e.to_string()))?
+        .filter(|d| d.vendor_id() == USB_VID && d.product_id() == USB_PID)
+        .collect())
+}
+
+/// The sensors on the bus.
+pub fn list() -> Result<Vec<UsbSensor>, OpenError> {
+    Ok(sensors()?
+        .iter()
+        .map(|d| UsbSensor {
+            serial: d.serial_number().unwrap_or("").to_string(),
+            path: bus_path(d),
+            product: d.product_string().map(str::to_string),
+            release: d.device_version(),
+        })
+        .collect())
+}
+
+/// An open USB link to one sensor.
+pub struct UsbTransport {
+    reader: nusb::io::EndpointRead<Bulk>,
+    writer: nusb::io::EndpointWrite<Bulk>,
+    serial: String,
+}
+
+impl std::fmt::Debug for UsbTransport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("UsbTransport")
+            .field("serial", &self.serial)
+            .finish_non_exhaustive()
+    }
+}
+
+impl UsbTransport {
+    /// Open the sensor with serial number `serial`, or the only one attached.
+    pub fn open(serial: Option<&str>) -> Result<Self, OpenError> {
+        let found = sensors()?;
+        let serials: Vec<String> = found
+            .iter()
+            .map(|d| d.serial_number().unwrap_or("").to_string())
+            .collect();
+        let info = match serial {
+            Some(s) => found
+                .iter()
+                .find(|d| d.serial_number().is_some_and(|n| n.eq_ignore_ascii_case(s))),
+            None if found.len() > 1 => return Err(OpenError::Ambiguous(serials)),
+            None => found.first(),
+        };
+        let Some(info) = info else {
+            return Err(OpenError::NotFound {
+                serial: serial.map(str::to_string),
+                present: serials,
+            });
+        };
+        let path = bus_path(info);
+        let interface_number = info
+            .interfaces()
+            .find(|i| i.class() == 0xFF && i.subclass() == USB_SUBCLASS)
+            .map(|i| i.interface_number())
+            .ok_or_else(|| OpenError::NotASensor {
+                path: path.clone(),
+                detail: format!("no vendor interface with subclass {USB_SUBCLASS:#04x}"),
+            })?;
+        let device = info.open().wait().map_err(|e| usb_error(e, &path))?;
+        let (out_address, in_address) =
+            bulk_endpoints(&device, interface_number).ok_or_else(|| OpenError::NotASensor {
+                path: path.clone(),
+                detail: "the interface lacks a bulk IN/OUT endpoint pair".into(),
+            })?;
+        let interface = device
+            .claim_interface(interface_number)
+            .wait()
+            .map_err(|e| usb_error(e, &path))?;
+        let writer = interface
+            .endpoint::<Bulk, Out>(out_address)
+            .map_err(|e| usb_error(e, &path))?
+            .writer(64)
+            .with_write_timeout(Duration::from_secs(1));
+        let reader = interface
+            .endpoint::<Bulk, In>(in_address)
+            .map_err(|e| usb_error(e, &path))?
+            .reader(64)
+            .with_num_transfers(8);
+        Ok(Self {
+            reader,
+            writer,
+            serial: info.serial_number().unwrap_or("").to_string(),
+        })
+    }
+
+    /// The sensor's serial number.
+    pub fn serial(&self) -> &str {
+        &self.serial
+    }
+}
+
+/// The bulk OUT and IN endpoint addresses of the interface's first alternate setting.
+fn bulk_endpoints(device: &nusb::Device, interface_number: u8) -> Option<(u8, u8)> {
+    let config = device.active_configuration().ok()?;
+    let alt = config
+        .interface_alt_settings()
+        .find(|a| a.interface_number() == interface_number)?;
+    let bulk = |dir: Direction| {
+        alt.endpoints()
+            .find(|e| e.transfer_type() == TransferType::Bulk && e.direction() == dir)
+            .map(|e| e.address())
+    };
+    Some((bulk(Direction::Out)?, bulk(Direction::In)?))
+}
+
+fn io_error(e: std::io::Error) -> TransportError {
+    match e.kind() {
+        std::io::ErrorKind::NotConnected | std::io::ErrorKind::BrokenPipe => {
+            TransportError::Disconnected
+        }
+        _ => TransportError::Io(e.to_string()),
+    }
+}
+
+impl Transport for UsbTransport {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.writer.write_all(bytes).map_err(io_error)?;
+        // End the transfer with a short packet so the device sees it at once.
+        self.writer.submit_end();
+        self.writer.flush().map_err(io_error)
+    }
+
+    fn receive(&mut self, timeout: Duration) -> Result<Vec<u8>, TransportError> {
+        self.reader
+            .set_read_timeout(timeout.max(Duration::from_micros(1)));
+        match self.reader.fill_buf() {
+            Ok(data) => {
+                let out = data.to_vec();
+                self.reader.consume(out.len());
+                Ok(out)
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(Vec::new()),
+            Err(e) => Err(io_error(e)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_tell_the_user_what_to_do() {
+        let none = OpenError::NotFound {
+            serial: None,
+            present: vec![],
+        };
+        assert!(none.to_string().contains("1209:0001"), "{none}");
+        let other = OpenError::NotFound {
+            serial: Some("E66".into()),
+            present: vec!["ABCD".into()],
+        };
+        assert!(other.to_string().contains("E66") && other.to_string().contains("ABCD"));
+        let denied = OpenError::PermissionDenied { path: "1:5".into() };
+        assert!(denied.to_string().contains(UDEV_RULES));
+        let many = OpenError::Ambiguous(vec!["A".into(), "B".into()]);
+        assert!(many.to_string().contains("--serial"));
+    }
+
+    #[test]
+    fn listing_without_sensors_is_not_an_error() {
+        // No sensor is attached to CI machines; listing must still work (or say why).
+        match list() {
+            Ok(found) => assert!(found.iter().all(|s| !s.path.is_empty())),
+            Err(OpenError::Usb(message)) => assert!(!message.is_empty()),
+            Err(other) => panic!("unexpected {other}"),
+        }
+    }
+}
