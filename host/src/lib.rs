@@ -14,6 +14,8 @@
 pub mod client;
 pub mod clock;
 pub mod device;
+pub mod frames;
+pub mod matcher;
 pub mod sim;
 pub mod tactile;
 pub mod transport;

@@ -1,0 +1,112 @@
+//! Live capture: a sensor's phase events and a camera's frames in, labelled frames out.
+//!
+//! Each [`Capture::step`] polls the sensor (which also keeps the clock sync fresh),
+//! feeds its phases to the [`FrameMatcher`], takes what frames the camera has, and
+//! returns every frame whose light is now known, with its image. [`Capture::finish`]
+//! labels whatever is still pending, so stopping never loses a captured frame.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use super::{Frame, FrameError, FrameSource};
+use crate::device::{Sensor, SensorError, SensorEvent};
+use crate::matcher::{FrameMatcher, Label, MatchStats, MatchedFrame, MatcherConfig};
+
+/// Why a capture step failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    /// The sensor failed.
+    #[error(transparent)]
+    Sensor(#[from] SensorError),
+    /// The camera failed.
+    #[error(transparent)]
+    Frames(#[from] FrameError),
+}
+
+/// A frame with its label.
+#[derive(Debug, Clone)]
+pub struct LabelledFrame {
+    /// The frame.
+    pub frame: Frame,
+    /// Which phase lit it.
+    pub label: Label,
+}
+
+/// What one step produced.
+#[derive(Debug, Default)]
+pub struct Step {
+    /// Sensor events (phases, heartbeats, faults, reconnects).
+    pub events: Vec<SensorEvent>,
+    /// Frames labelled in this step.
+    pub frames: Vec<LabelledFrame>,
+}
+
+/// A live capture (see the module documentation).
+#[derive(Debug)]
+pub struct Capture<S> {
+    source: S,
+    matcher: FrameMatcher,
+    waiting: VecDeque<Frame>,
+}
+
+impl<S: FrameSource> Capture<S> {
+    /// Capture from `source`, labelling with `config`.
+    pub fn new(source: S, mut config: MatcherConfig) -> Self {
+        config.stamp = source.stamp_ref();
+        Self {
+            source,
+            matcher: FrameMatcher::new(config),
+            waiting: VecDeque::new(),
+        }
+    }
+
+    /// The matcher's counters.
+    pub fn stats(&self) -> MatchStats {
+        self.matcher.stats()
+    }
+
+    /// The frame source.
+    pub fn source(&self) -> &S {
+        &self.source
+    }
+
+    /// Poll the sensor for at most `wait`, take the camera's frames, label what can be.
+    pub fn step(&mut self, sensor: &mut Sensor, wait: Duration) -> Result<Step, CaptureError> {
+        let events = sensor.poll(wait)?;
+        for event in &events {
+            if let SensorEvent::Phase(p) = event {
+                self.matcher.add_phase(*p);
+            }
+        }
+        while let Some(frame) = self.source.next_frame(Duration::ZERO)? {
+            self.matcher.add_frame(frame.stamp);
+            self.waiting.push_back(frame);
+        }
+        let decided = self.matcher.ready();
+        Ok(Step {
+            events,
+            frames: self.attach(decided),
+        })
+    }
+
+    /// Label every frame still pending (end of capture).
+    pub fn finish(&mut self) -> Vec<LabelledFrame> {
+        let decided = self.matcher.finish();
+        self.attach(decided)
+    }
+
+    /// Pair decided frames with their images (decisions come in arrival order).
+    fn attach(&mut self, decided: Vec<MatchedFrame>) -> Vec<LabelledFrame> {
+        decided
+            .into_iter()
+            .filter_map(|m| {
+                let frame = self.waiting.pop_front()?;
+                debug_assert_eq!(frame.stamp.sequence, m.frame.sequence);
+                Some(LabelledFrame {
+                    frame,
+                    label: m.label,
+                })
+            })
+            .collect()
+    }
+}

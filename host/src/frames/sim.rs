@@ -1,0 +1,218 @@
+//! A simulated camera: renders whatever the LEDs really showed during each exposure.
+//!
+//! It reads the loopback's ground truth ([`LedTimeline`]) and integrates the light over
+//! the exposure: an exposure inside one steady phase gives that phase's image exactly;
+//! one across an LED change gives the time-weighted blend, which is what a real sensor
+//! integrates and what the matcher must reject. Triggered (one frame per trigger edge,
+//! after a latency) and free-running (fixed frame rate) cameras are both modelled, and
+//! dropped frames can be injected.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use image::RgbImage;
+use stereotac_protocol::Phase;
+
+use super::{Frame, FrameError, FrameSource};
+use crate::clock::HostClock;
+use crate::matcher::{FrameStamp, StampRef};
+use crate::tactile::render::{Optics, Scene, render};
+use crate::transport::loopback::LedTimeline;
+
+/// How the simulated camera is clocked.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SimClocking {
+    /// One exposure per trigger edge, starting `latency_us` after it.
+    Triggered {
+        /// Edge-to-exposure latency, µs.
+        latency_us: f64,
+    },
+    /// Exposures every `period_us` from `first_us` (host clock).
+    FreeRunning {
+        /// Frame period, µs.
+        period_us: f64,
+        /// Start of the first exposure, host µs.
+        first_us: f64,
+    },
+}
+
+/// The images of each lighting phase (rendered once).
+#[derive(Debug, Clone)]
+pub struct PhaseImages {
+    dark: RgbImage,
+    all: RgbImage,
+    dx: RgbImage,
+    dy: RgbImage,
+}
+
+impl PhaseImages {
+    /// Render `scene` under every phase with `optics`. Dark is the world seen through
+    /// the skin (a dim texture); All is both gradient pairs' light together.
+    pub fn render(optics: &Optics, scene: &Scene) -> Self {
+        let pair = render(optics, scene, 0);
+        let (w, h) = (optics.width as u32, optics.height as u32);
+        let dark = RgbImage::from_fn(w, h, |x, y| {
+            let v = (((x / 16 + y / 16) % 2) * 40 + 20 + (x * 7 + y * 13) % 17) as u8;
+            image::Rgb([v, v, v])
+        });
+        let all = RgbImage::from_fn(w, h, |x, y| {
+            let (a, b) = (pair.dx.get_pixel(x, y).0, pair.dy.get_pixel(x, y).0);
+            image::Rgb(std::array::from_fn(|c| a[c].saturating_add(b[c] / 2)))
+        });
+        Self {
+            dark,
+            all,
+            dx: pair.dx,
+            dy: pair.dy,
+        }
+    }
+
+    /// The image of one phase.
+    pub fn of(&self, phase: Phase) -> &RgbImage {
+        match phase {
+            Phase::Dark => &self.dark,
+            Phase::All => &self.all,
+            Phase::Dx => &self.dx,
+            Phase::Dy => &self.dy,
+        }
+    }
+
+    /// Time-weighted blend of phases' images.
+    fn blend(&self, light: &[(Phase, f64)]) -> RgbImage {
+        if let [(phase, _)] = light {
+            return self.of(*phase).clone();
+        }
+        let total: f64 = light.iter().map(|l| l.1).sum();
+        let (w, h) = self.dark.dimensions();
+        RgbImage::from_fn(w, h, |x, y| {
+            let mut acc = [0.0f64; 3];
+            for (phase, us) in light {
+                let p = self.of(*phase).get_pixel(x, y).0;
+                for c in 0..3 {
+                    acc[c] += f64::from(p[c]) * us / total;
+                }
+            }
+            image::Rgb(acc.map(|v| v.round().clamp(0.0, 255.0) as u8))
+        })
+    }
+}
+
+/// The simulated camera (see the module documentation).
+#[derive(Debug)]
+pub struct SimulatedCamera {
+    timeline: Arc<Mutex<LedTimeline>>,
+    clock: Arc<dyn HostClock>,
+    clocking: SimClocking,
+    exposure_us: f64,
+    images: PhaseImages,
+    sequence: u64,
+    /// Triggered: how many trigger edges were consumed; free-running: frames taken.
+    cursor: usize,
+    drop_every: Option<u64>,
+}
+
+impl SimulatedCamera {
+    /// A camera on the loopback's LED truth.
+    pub fn new(
+        timeline: Arc<Mutex<LedTimeline>>,
+        clock: Arc<dyn HostClock>,
+        clocking: SimClocking,
+        exposure_us: f64,
+        images: PhaseImages,
+    ) -> Self {
+        Self {
+            timeline,
+            clock,
+            clocking,
+            exposure_us,
+            images,
+            sequence: 0,
+            cursor: 0,
+            drop_every: None,
+        }
+    }
+
+    /// Drop every `n`th frame (the sequence number still advances, as a camera's does).
+    pub fn drop_every(&mut self, n: u64) {
+        self.drop_every = Some(n.max(2));
+    }
+
+    /// Start of the next exposure, if the truth already holds it.
+    fn next_start(&self, timeline: &LedTimeline) -> Option<f64> {
+        match self.clocking {
+            SimClocking::Triggered { latency_us } => timeline
+                .spans()
+                .iter()
+                .filter_map(|s| s.trigger)
+                .nth(self.cursor)
+                .map(|(_, edge)| edge + latency_us),
+            SimClocking::FreeRunning {
+                period_us,
+                first_us,
+            } => Some(first_us + self.cursor as f64 * period_us),
+        }
+    }
+
+    /// The next frame if its exposure is over and the LED truth covers it.
+    fn take_ready(&mut self) -> Option<Frame> {
+        loop {
+            let timeline = self.timeline.lock().unwrap_or_else(|e| e.into_inner());
+            let start = self.next_start(&timeline)?;
+            let end = start + self.exposure_us;
+            if end > timeline.known_until_us() || end > self.clock.now_us() as f64 {
+                return None;
+            }
+            let light = timeline.exposure(start, end);
+            drop(timeline);
+            self.cursor += 1;
+            let sequence = self.sequence;
+            self.sequence += 1;
+            if self.drop_every.is_some_and(|n| (sequence + 1).is_multiple_of(n)) {
+                continue;
+            }
+            return Some(Frame {
+                stamp: FrameStamp {
+                    sequence,
+                    timestamp_us: start,
+                    exposure_us: self.exposure_us,
+                },
+                image: self.images.blend(&light),
+            });
+        }
+    }
+}
+
+impl FrameSource for SimulatedCamera {
+    fn next_frame(&mut self, timeout: Duration) -> Result<Option<Frame>, FrameError> {
+        let deadline = self.clock.now_us() + timeout.as_micros() as u64;
+        loop {
+            if let Some(frame) = self.take_ready() {
+                return Ok(Some(frame));
+            }
+            // A virtual clock only moves when the sensor is polled: return and let it.
+            let now = self.clock.now_us();
+            if self.clock.is_virtual() || now >= deadline {
+                return Ok(None);
+            }
+            self.clock.sleep_until((now + 1000).min(deadline));
+        }
+    }
+
+    fn stamp_ref(&self) -> StampRef {
+        StampRef::ExposureStart
+    }
+
+    fn describe(&self) -> String {
+        match self.clocking {
+            SimClocking::Triggered { latency_us } => format!(
+                "simulated camera (triggered, latency {latency_us} µs, exposure {} µs)",
+                self.exposure_us
+            ),
+            SimClocking::FreeRunning { period_us, .. } => format!(
+                "simulated camera (free-running at {:.1} fps, exposure {} µs)",
+                1e6 / period_us,
+                self.exposure_us
+            ),
+        }
+    }
+}
