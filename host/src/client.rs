@@ -21,7 +21,7 @@ pub enum ClientError {
     Transport(#[from] TransportError),
     /// The device refused the request.
     #[error("device refused the request: {0}")]
-    Device(#[from] DeviceError),
+    Device(DeviceError),
     /// The device speaks another protocol version.
     #[error(
         "protocol version mismatch: this host speaks v{host}, the device speaks v{device}; \
@@ -40,6 +40,12 @@ pub enum ClientError {
     /// A reply of the wrong kind.
     #[error("unexpected reply: {0:?}")]
     UnexpectedReply(Box<Response>),
+}
+
+impl From<DeviceError> for ClientError {
+    fn from(e: DeviceError) -> Self {
+        Self::Device(e)
+    }
 }
 
 /// What the host counted on a link; kept across reconnects by [`crate::device::Sensor`].

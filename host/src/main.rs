@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 mod demo;
 mod demo_tactile;
+mod link_cli;
 mod progress;
 mod tactile_cli;
 
@@ -17,6 +18,8 @@ mod tactile_cli;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    #[command(flatten)]
+    device: link_cli::DeviceArgs,
 }
 
 #[derive(Debug, Subcommand)]
@@ -39,6 +42,40 @@ enum Command {
         /// Skip the tactile part (calibration and reconstruction).
         #[arg(long)]
         no_tactile: bool,
+    },
+    /// List attached sensors (serial number, firmware version, bus path).
+    Devices {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Handshake details, configuration, device counters and clock sync of one sensor.
+    Info {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run the lighting sequence and print phase events with host-clock timestamps,
+    /// clock-sync uncertainty and drop counters (Ctrl-C stops).
+    Stream {
+        #[command(flatten)]
+        sequence: link_cli::SequenceArgs,
+        /// One JSON object per line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
+    /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
+    Record(link_cli::RecordArgs),
+    /// Change colours, brightness, timing, LED count, power budget or mode.
+    Set(link_cli::SetArgs),
+    /// Reboot the sensor into its USB bootloader and copy a UF2 file onto the boot drive.
+    Flash {
+        /// The UF2 file (from `stereotac firmware-image ELF --uf2 OUT`).
+        file: PathBuf,
+        /// How long to wait for the boot drive, seconds.
+        #[arg(long, default_value_t = 15)]
+        wait_s: u64,
     },
     /// Calibrate the tactile model from ball presses: DIR holds NAME_dx.png / NAME_dy.png.
     Calibrate(tactile_cli::CalibrateArgs),
@@ -105,6 +142,12 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             (!no_tactile).then_some(out.as_path()),
         ),
+        Command::Devices { json } => link_cli::devices(&cli.device, json),
+        Command::Info { json } => link_cli::info(&cli.device, json),
+        Command::Stream { sequence, json } => link_cli::stream(&cli.device, &sequence, json),
+        Command::Record(args) => link_cli::record(&cli.device, &args),
+        Command::Set(args) => link_cli::set(&cli.device, &args),
+        Command::Flash { file, wait_s } => link_cli::flash(&cli.device, &file, wait_s),
         Command::Calibrate(args) => tactile_cli::calibrate_cmd(args),
         Command::Reconstruct(args) => tactile_cli::reconstruct_cmd(args),
         Command::Bench {

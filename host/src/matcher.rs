@@ -11,8 +11,8 @@
 //!   labelled with that phase.
 //!
 //! A frame is never mislabelled: an exposure that overlaps an LED change is
-//! [`Label::Straddles`]; one that falls where a phase event was lost is
-//! [`Label::EventMissing`]; a triggered frame with no matching edge is
+//! [`Label::Straddles`]; one that falls where a phase event was lost, or in the phase
+//! before it (whose end is then unknown), is [`Label::EventMissing`]; a triggered frame with no matching edge is
 //! [`Label::NoTrigger`]. Dropped frames show as gaps in the camera's sequence numbers and,
 //! for triggered cameras, as triggers no frame answered; dropped events as gaps in the
 //! phase index. Every interval is widened by a guard for the clock-sync uncertainty.
@@ -368,7 +368,11 @@ mod tests {
         HostPhase {
             event: PhaseEvent {
                 index: k,
-                phase: if k.is_multiple_of(2) { Phase::Dx } else { Phase::Dy },
+                phase: if k.is_multiple_of(2) {
+                    Phase::Dx
+                } else {
+                    Phase::Dy
+                },
                 scheduled_us: 0,
                 write_start_us: 0,
                 latched_us: 0,
@@ -421,7 +425,11 @@ mod tests {
         assert_eq!(out.len(), 20);
         for (k, f) in out.iter().enumerate().take(19) {
             let k = k as u32;
-            let want = if k.is_multiple_of(2) { Phase::Dx } else { Phase::Dy };
+            let want = if k.is_multiple_of(2) {
+                Phase::Dx
+            } else {
+                Phase::Dy
+            };
             assert_eq!(
                 f.label,
                 Label::Phase {
@@ -471,7 +479,14 @@ mod tests {
         assert_eq!(s.labelled, 25);
         for f in &out {
             if let Label::Phase { index, phase, .. } = f.label {
-                assert_eq!(phase, if index.is_multiple_of(2) { Phase::Dx } else { Phase::Dy });
+                assert_eq!(
+                    phase,
+                    if index.is_multiple_of(2) {
+                        Phase::Dx
+                    } else {
+                        Phase::Dy
+                    }
+                );
                 assert!(index != 17 && index != 11);
             }
         }

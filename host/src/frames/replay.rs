@@ -41,9 +41,9 @@ fn frame_file(sequence: u64) -> String {
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FrameError + '_ {
-    move |source| FrameError::Io {
+    move |error| FrameError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     }
 }
 

@@ -167,7 +167,10 @@ impl SimulatedCamera {
             self.cursor += 1;
             let sequence = self.sequence;
             self.sequence += 1;
-            if self.drop_every.is_some_and(|n| (sequence + 1).is_multiple_of(n)) {
+            if self
+                .drop_every
+                .is_some_and(|n| (sequence + 1).is_multiple_of(n))
+            {
                 continue;
             }
             return Some(Frame {

@@ -1,0 +1,625 @@
+//! CLI front-ends of the host link: `devices`, `info`, `stream`, `record`, `set`, `flash`.
+//!
+//! Every command talks to a sensor through [`Sensor`]: over USB by default, or with
+//! `--sim` to the in-process simulated sensor (the firmware's own command handling
+//! behind the loopback's USB timing and a drifting clock, in real time).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
+use stereotac::clock::{HostClock, MonotonicClock};
+use stereotac::device::{Connector, Sensor, SensorConfig, SensorEvent, hex};
+use stereotac::frames::capture::Capture;
+use stereotac::frames::replay::Recorder;
+use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
+use stereotac::matcher::{CameraSync, Label, MatchedFrame, MatcherConfig, phase_str};
+use stereotac::tactile::render::{Optics, builtin_scenes};
+use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig};
+use stereotac::transport::usb::{self, UsbTransport};
+use stereotac_protocol::{
+    Config, Mode, Request, Response, Rgb, Strip, StripSettings, Timing, TriggerOutcome,
+};
+
+/// Board id of the simulated sensor.
+const SIM_BOARD: [u8; 8] = *b"SIMSENSR";
+
+/// Which sensor to talk to.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DeviceArgs {
+    /// Serial number of the sensor (required when several are attached).
+    #[arg(long, global = true)]
+    pub serial: Option<String>,
+    /// Talk to the built-in simulated sensor instead of USB hardware.
+    #[arg(long, global = true)]
+    pub sim: bool,
+}
+
+/// Lighting modes on the command line.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum ModeArg {
+    /// Strips dark, no triggers.
+    Off,
+    /// LEDs dark, cameras triggered: stereo vision.
+    Vision,
+    /// All strips lit: contact shape.
+    Contact,
+    /// dx/dy alternating: photometric stereo.
+    Gradient,
+    /// dark, dx, dy: vision and gradients together.
+    Interleaved,
+}
+
+impl From<ModeArg> for Mode {
+    fn from(m: ModeArg) -> Self {
+        match m {
+            ModeArg::Off => Mode::Off,
+            ModeArg::Vision => Mode::Vision,
+            ModeArg::Contact => Mode::ContactShape,
+            ModeArg::Gradient => Mode::Gradient,
+            ModeArg::Interleaved => Mode::Interleaved,
+        }
+    }
+}
+
+/// An open sensor, plus the simulation's LED truth when it is simulated.
+struct Opened {
+    sensor: Sensor,
+    timeline: Option<Arc<std::sync::Mutex<LedTimeline>>>,
+}
+
+fn open(device: &DeviceArgs) -> Result<Opened> {
+    let clock: Arc<dyn HostClock> = Arc::new(MonotonicClock::new());
+    let (connector, timeline): (Connector, _) = if device.sim {
+        let link = Loopback::new(
+            SIM_BOARD,
+            Arc::clone(&clock),
+            LoopbackConfig {
+                drift_ppm: 25.0,
+                boot_at_us: clock.now_us(),
+                seed: clock.now_us(),
+                ..LoopbackConfig::default()
+            },
+        );
+        let timeline = link.timeline();
+        let mut link = Some(link);
+        let connector: Connector = Box::new(move || {
+            link.take()
+                .map(|l| Box::new(l) as _)
+                .ok_or(usb::OpenError::NotFound {
+                    serial: None,
+                    present: vec![],
+                })
+        });
+        (connector, Some(timeline))
+    } else {
+        let serial = device.serial.clone();
+        let connector: Connector =
+            Box::new(move || Ok(Box::new(UsbTransport::open(serial.as_deref())?) as _));
+        (connector, None)
+    };
+    let sensor = Sensor::connect(connector, clock, SensorConfig::default())
+        .context("connecting to the sensor")?;
+    Ok(Opened { sensor, timeline })
+}
+
+/// Stop on Ctrl-C: the flag turns true.
+fn interrupt_flag() -> Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = Arc::clone(&flag);
+    ctrlc::set_handler(move || f.store(true, Ordering::SeqCst)).context("installing Ctrl-C")?;
+    Ok(flag)
+}
+
+fn version(info: &stereotac_protocol::DeviceInfo) -> String {
+    let v = info.firmware_version;
+    format!(
+        "{}.{}.{} ({}{})",
+        v.major,
+        v.minor,
+        v.patch,
+        &hex(&info.git_hash)[..10].to_lowercase(),
+        if info.git_dirty { "+dirty" } else { "" }
+    )
+}
+
+/// `stereotac devices`.
+pub fn devices(device: &DeviceArgs, json: bool) -> Result<()> {
+    let mut rows = Vec::new();
+    if device.sim {
+        let opened = open(device)?;
+        let info = *opened.sensor.info();
+        rows.push(serde_json::json!({
+            "serial": hex(&info.board_id), "path": "sim", "firmware": version(&info),
+            "protocol": info.protocol_version,
+        }));
+    } else {
+        for found in usb::list().context("listing USB devices")? {
+            // Ask each one for its version; report (not fail) if it cannot be opened.
+            let firmware = match open(&DeviceArgs {
+                serial: Some(found.serial.clone()),
+                sim: false,
+            }) {
+                Ok(o) => version(o.sensor.info()),
+                Err(e) => format!("unavailable: {e:#}"),
+            };
+            rows.push(serde_json::json!({
+                "serial": found.serial, "path": found.path, "firmware": firmware,
+                "product": found.product,
+            }));
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else if rows.is_empty() {
+        println!(
+            "no stereotac sensor found (USB {:04x}:{:04x}); try --sim for the simulated one",
+            stereotac_protocol::USB_VID,
+            stereotac_protocol::USB_PID
+        );
+    } else {
+        println!("{:<18} {:<10} firmware", "serial", "path");
+        for r in &rows {
+            println!(
+                "{:<18} {:<10} {}",
+                r["serial"].as_str().unwrap_or(""),
+                r["path"].as_str().unwrap_or(""),
+                r["firmware"].as_str().unwrap_or("")
+            );
+        }
+    }
+    Ok(())
+}
+
+fn config(sensor: &mut Sensor) -> Result<Config> {
+    match sensor.request(Request::GetConfig)? {
+        Response::Config(c) => Ok(c),
+        other => bail!("unexpected reply {other:?}"),
+    }
+}
+
+/// `stereotac info`.
+pub fn info(device: &DeviceArgs, json: bool) -> Result<()> {
+    let mut opened = open(device)?;
+    let sensor = &mut opened.sensor;
+    let info = *sensor.info();
+    let status = sensor.status()?;
+    let config = config(sensor)?;
+    let fit = sensor.clock_fit().copied();
+    if json {
+        let value = serde_json::json!({
+            "serial": hex(&info.board_id),
+            "protocol": info.protocol_version,
+            "firmware": version(&info),
+            "leds_per_strip": info.leds_per_strip,
+            "max_leds_per_strip": info.max_leds_per_strip,
+            "capabilities": info.capabilities.0,
+            "status": format!("{status:?}"),
+            "config": format!("{config:?}"),
+            "clock": fit.map(|f| serde_json::json!({
+                "drift_ppm": f.drift_ppm(), "uncertainty_us": f.uncertainty_us,
+                "min_rtt_us": f.min_rtt_us, "pings": f.samples })),
+            "host_counters": sensor.counters(),
+        });
+        println!("{}", serde_json::to_string_pretty(&value)?);
+        return Ok(());
+    }
+    println!(
+        "sensor {}: protocol v{}, firmware {}, {} strips x {} LEDs (max {}), timer {} Hz, capabilities {:#x}",
+        hex(&info.board_id),
+        info.protocol_version,
+        version(&info),
+        info.strips,
+        info.leds_per_strip,
+        info.max_leds_per_strip,
+        info.timer_hz,
+        info.capabilities.0
+    );
+    println!(
+        "mode {:?}, period {} µs, trigger pulse {} µs, settle {} µs, power budget {} mA (scale {}/255), host timeout {} ms",
+        config.mode,
+        config.timing.phase_period_us,
+        config.timing.trigger_pulse_us,
+        config.timing.led_settle_us,
+        config.power_budget_ma,
+        config.power_scale,
+        config.host_timeout_ms
+    );
+    for s in config.strips {
+        println!(
+            "  strip {:?}: colour #{:02x}{:02x}{:02x}, brightness {}",
+            s.strip, s.colour.r, s.colour.g, s.colour.b, s.brightness
+        );
+    }
+    println!(
+        "device counters: uptime {:.3} s, phases {}, triggers {}, overruns {}, events dropped {}, frames received {}, rejected {}, requests rejected {}, host timeouts {}",
+        status.uptime_us as f64 / 1e6,
+        status.phases,
+        status.triggers,
+        status.overruns,
+        status.events_dropped,
+        status.frames_received,
+        status.frames_rejected,
+        status.requests_rejected,
+        status.host_timeouts
+    );
+    if let Some(f) = fit {
+        println!(
+            "clock sync: {} pings, min round trip {} µs, drift {:+.1} ppm, uncertainty ±{:.1} µs",
+            f.samples,
+            f.min_rtt_us,
+            f.drift_ppm(),
+            f.uncertainty_us
+        );
+    }
+    Ok(())
+}
+
+/// `stereotac stream` and `stereotac record` share the sequence settings.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SequenceArgs {
+    /// Lighting mode.
+    #[arg(long, value_enum, default_value_t = ModeArg::Gradient)]
+    pub mode: ModeArg,
+    /// Phase period in milliseconds (250: dx and dy alternate at 4 Hz).
+    #[arg(long, default_value_t = 250)]
+    pub period_ms: u32,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+}
+
+fn start(sensor: &mut Sensor, seq: &SequenceArgs) -> Result<()> {
+    if seq.period_ms == 0 {
+        bail!("--period-ms must be at least 1");
+    }
+    let timing = Timing {
+        phase_period_us: seq.period_ms.saturating_mul(1000),
+        ..config(sensor)?.timing
+    };
+    sensor
+        .request(Request::SetTiming(timing))
+        .context("setting the period")?;
+    sensor.request(Request::SetMode(seq.mode.into()))?;
+    sensor
+        .request(Request::Start)
+        .context("starting the sequence")?;
+    Ok(())
+}
+
+fn deadline(sensor: &Sensor, seq: &SequenceArgs) -> Result<Option<u64>> {
+    match seq.duration_s {
+        Some(s) if !(s.is_finite() && s > 0.0) => bail!("--duration-s must be positive"),
+        Some(s) => Ok(Some(sensor.clock().now_us() + (s * 1e6) as u64)),
+        None => Ok(None),
+    }
+}
+
+/// Print a line; `false` once stdout is gone (e.g. piped into `head`).
+fn emit(line: std::fmt::Arguments<'_>) -> bool {
+    use std::io::Write;
+    writeln!(std::io::stdout().lock(), "{line}").is_ok()
+}
+
+/// `stereotac stream`.
+pub fn stream(device: &DeviceArgs, seq: &SequenceArgs, json: bool) -> Result<()> {
+    let stop = interrupt_flag()?;
+    let mut opened = open(device)?;
+    let sensor = &mut opened.sensor;
+    start(sensor, seq)?;
+    let end = deadline(sensor, seq)?;
+    if !json {
+        emit(format_args!(
+            "{:>6} {:>5} {:>16} {:>16} {:>8} {:>10} {:>7}",
+            "phase", "kind", "trigger host µs", "trigger dev µs", "trigger#", "±sync µs", "lost"
+        ));
+    }
+    while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
+        for event in sensor.poll(Duration::from_millis(50))? {
+            let lost = sensor.counters().link.lost_events;
+            match event {
+                SensorEvent::Phase(p) => {
+                    let (trigger, dev) = match p.event.trigger {
+                        TriggerOutcome::Fired { index, edge_us } => (Some(index), Some(edge_us)),
+                        TriggerOutcome::Overrun { .. } => (None, None),
+                    };
+                    let host = p.trigger.map(|t| t.1);
+                    let shown = if json {
+                        emit(format_args!(
+                            "{}",
+                            serde_json::json!({"event": "phase", "index": p.event.index,
+                            "phase": phase_str(p.event.phase), "trigger": trigger,
+                            "trigger_device_us": dev, "trigger_host_us": host,
+                            "latched_host_us": p.latched_us, "sync_uncertainty_us": p.uncertainty_us,
+                            "lost_events": lost})
+                        ))
+                    } else {
+                        emit(format_args!(
+                            "{:>6} {:>5} {:>16} {:>16} {:>8} {:>10.1} {:>7}",
+                            p.event.index,
+                            phase_str(p.event.phase),
+                            host.map_or("overrun".into(), |h| format!("{h:.1}")),
+                            dev.map_or("-".into(), |d| d.to_string()),
+                            trigger.map_or("-".into(), |t| t.to_string()),
+                            p.uncertainty_us,
+                            lost
+                        ))
+                    };
+                    if !shown {
+                        stop.store(true, Ordering::SeqCst);
+                    }
+                }
+                SensorEvent::Heartbeat(s) if json => {
+                    if !emit(format_args!(
+                        "{}",
+                        serde_json::json!({"event": "heartbeat", "phases": s.phases,
+                            "triggers": s.triggers, "overruns": s.overruns,
+                            "events_dropped": s.events_dropped})
+                    )) {
+                        stop.store(true, Ordering::SeqCst);
+                    }
+                }
+                SensorEvent::Heartbeat(_) => {}
+                SensorEvent::Fault(f, at) => {
+                    eprintln!("fault {:?} at host {at:.0} µs", f.kind)
+                }
+                SensorEvent::Reconnected { attempts } => {
+                    eprintln!("reconnected after {attempts} attempts")
+                }
+            }
+        }
+    }
+    sensor.request(Request::Stop)?;
+    let c = sensor.counters();
+    let status = sensor.status()?;
+    eprintln!(
+        "stopped: {} events, {} lost, {} bad frames, {} reconnects; device: {} phases, {} triggers, {} overruns, {} events dropped",
+        c.link.events,
+        c.link.lost_events,
+        c.link.bad_frames,
+        c.reconnects,
+        status.phases,
+        status.triggers,
+        status.overruns,
+        status.events_dropped
+    );
+    Ok(())
+}
+
+/// `stereotac record`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RecordArgs {
+    /// Output directory (must not hold a recording already).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Camera: `sim` (the simulated camera; needs --sim) or a V4L2 device.
+    #[arg(long, default_value = "sim")]
+    pub camera: String,
+    /// Exposure of the simulated camera, µs.
+    #[arg(long, default_value_t = 8000.0)]
+    pub exposure_us: f64,
+    /// Sequence settings.
+    #[command(flatten)]
+    pub sequence: SequenceArgs,
+}
+
+/// `stereotac record`.
+pub fn record(device: &DeviceArgs, args: &RecordArgs) -> Result<()> {
+    let stop = interrupt_flag()?;
+    if args.camera != "sim" {
+        bail!(
+            "camera {}: V4L2 capture is not in this build yet; record with the simulated camera (--sim --camera sim) or replay a recording",
+            args.camera
+        );
+    }
+    let mut opened = open(device)?;
+    let Some(timeline) = opened.timeline.take() else {
+        bail!("--camera sim renders the simulated sensor's LEDs: add --sim");
+    };
+    if !(args.exposure_us.is_finite() && args.exposure_us > 0.0) {
+        bail!("--exposure-us must be positive");
+    }
+    let sensor = &mut opened.sensor;
+    let optics = Optics::sized(320, 240);
+    let scene = builtin_scenes(&optics).swap_remove(0).1;
+    let latency_us = 40.0;
+    let camera = SimulatedCamera::new(
+        timeline,
+        Arc::clone(sensor.clock()),
+        SimClocking::Triggered { latency_us },
+        args.exposure_us,
+        PhaseImages::render(&optics, &scene),
+    );
+    let mut recorder = Recorder::create(&args.out)
+        .with_context(|| format!("starting a recording in {}", args.out.display()))?;
+    let mut capture = Capture::new(
+        camera,
+        MatcherConfig {
+            sync: CameraSync::Triggered {
+                latency_us,
+                tolerance_us: 500.0,
+            },
+            ..MatcherConfig::default()
+        },
+    );
+    start(sensor, &args.sequence)?;
+    let end = deadline(sensor, &args.sequence)?;
+    let progress = crate::progress::spinner("recording");
+    let mut write = |frames: Vec<stereotac::frames::capture::LabelledFrame>| -> Result<()> {
+        for f in frames {
+            recorder.write_image(&f.frame)?;
+            recorder.write_label(&MatchedFrame {
+                frame: f.frame.stamp,
+                label: f.label,
+            })?;
+            if let Label::Phase { index, phase, .. } = f.label {
+                progress.set_message(format!("phase {index} ({})", phase_str(phase)));
+            }
+            progress.inc(1);
+        }
+        Ok(())
+    };
+    while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
+        let step = capture.step(sensor, Duration::from_millis(20))?;
+        write(step.frames)?;
+    }
+    // Ctrl-C or the end: stop the LEDs, then label and write every captured frame.
+    let stopped = sensor.request(Request::Stop);
+    write(capture.finish())?;
+    recorder.flush()?;
+    progress.finish_and_clear();
+    stopped?;
+    let s = capture.stats();
+    let (images, lines) = recorder.counts();
+    println!(
+        "recorded {images} frames ({lines} index lines) in {}: {} labelled, {} straddling, {} with a lost event, {} without trigger, {} unresolved; {} frames dropped, {} events lost",
+        args.out.display(),
+        s.labelled,
+        s.straddling,
+        s.event_missing,
+        s.no_trigger,
+        s.unresolved,
+        s.dropped_frames,
+        s.dropped_events
+    );
+    Ok(())
+}
+
+/// `stereotac set`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SetArgs {
+    /// Lighting mode (takes effect at the next phase).
+    #[arg(long, value_enum)]
+    pub mode: Option<ModeArg>,
+    /// Phase period, ms.
+    #[arg(long)]
+    pub period_ms: Option<u32>,
+    /// Trigger pulse width, µs.
+    #[arg(long)]
+    pub pulse_us: Option<u32>,
+    /// LED settle time before the trigger, µs.
+    #[arg(long)]
+    pub settle_us: Option<u32>,
+    /// Strip to colour (1-4) with --colour / --brightness.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=4))]
+    pub strip: Option<u8>,
+    /// Strip colour as RRGGBB hex.
+    #[arg(long, requires = "strip", value_parser = parse_colour)]
+    pub colour: Option<Rgb>,
+    /// Strip brightness 0-255.
+    #[arg(long, requires = "strip")]
+    pub brightness: Option<u8>,
+    /// WS2812 pixels per strip.
+    #[arg(long)]
+    pub leds: Option<u16>,
+    /// LED current budget, mA.
+    #[arg(long)]
+    pub budget_ma: Option<u16>,
+    /// Host-silence timeout, ms (0 disables).
+    #[arg(long)]
+    pub host_timeout_ms: Option<u32>,
+}
+
+fn parse_colour(s: &str) -> Result<Rgb, String> {
+    let s = s.trim_start_matches('#');
+    let v = u32::from_str_radix(s, 16)
+        .ok()
+        .filter(|_| s.len() == 6)
+        .ok_or_else(|| format!("{s:?} is not a RRGGBB hex colour"))?;
+    Ok(Rgb::new((v >> 16) as u8, (v >> 8) as u8, v as u8))
+}
+
+/// `stereotac set`.
+pub fn set(device: &DeviceArgs, args: &SetArgs) -> Result<()> {
+    let mut opened = open(device)?;
+    let sensor = &mut opened.sensor;
+    let current = config(sensor)?;
+    let mut requests = Vec::new();
+    if args.period_ms.is_some() || args.pulse_us.is_some() || args.settle_us.is_some() {
+        requests.push(Request::SetTiming(Timing {
+            phase_period_us: args
+                .period_ms
+                .map_or(current.timing.phase_period_us, |ms| ms.saturating_mul(1000)),
+            trigger_pulse_us: args.pulse_us.unwrap_or(current.timing.trigger_pulse_us),
+            led_settle_us: args.settle_us.unwrap_or(current.timing.led_settle_us),
+        }));
+    }
+    if let Some(n) = args.strip {
+        let strip = Strip::ALL[usize::from(n - 1)];
+        let was = current.strips[strip.index()];
+        requests.push(Request::SetStrip(StripSettings {
+            strip,
+            colour: args.colour.unwrap_or(was.colour),
+            brightness: args.brightness.unwrap_or(was.brightness),
+        }));
+    }
+    requests.extend(args.leds.map(Request::SetLedCount));
+    requests.extend(args.budget_ma.map(Request::SetPowerBudget));
+    requests.extend(args.host_timeout_ms.map(Request::SetHostTimeout));
+    requests.extend(args.mode.map(|m| Request::SetMode(m.into())));
+    if requests.is_empty() {
+        bail!("nothing to set: see `stereotac set --help`");
+    }
+    for request in requests {
+        sensor
+            .request(request)
+            .with_context(|| format!("{request:?}"))?;
+        println!("ok: {request:?}");
+    }
+    Ok(())
+}
+
+/// Where an RP2040 boot drive (label RPI-RP2) gets mounted.
+fn boot_drive() -> Option<PathBuf> {
+    let user = std::env::var("USER").unwrap_or_default();
+    let candidates = [
+        PathBuf::from(format!("/media/{user}/RPI-RP2")),
+        PathBuf::from(format!("/run/media/{user}/RPI-RP2")),
+        PathBuf::from("/media/RPI-RP2"),
+        PathBuf::from("/Volumes/RPI-RP2"),
+    ];
+    candidates
+        .into_iter()
+        .find(|p| p.join("INFO_UF2.TXT").exists())
+}
+
+/// `stereotac flash`.
+pub fn flash(device: &DeviceArgs, file: &Path, wait_s: u64) -> Result<()> {
+    let data = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+    if data.len() < 512 || data.len() % 512 != 0 || data[..4] != [0x55, 0x46, 0x32, 0x0A] {
+        bail!(
+            "{} is not a UF2 file (make one with `stereotac firmware-image ELF --uf2 OUT`)",
+            file.display()
+        );
+    }
+    let mut opened = open(device)?;
+    opened
+        .sensor
+        .request(Request::EnterBootloader)
+        .context("asking the sensor to enter its USB bootloader")?;
+    println!("sensor acknowledged; waiting up to {wait_s} s for the RPI-RP2 drive…");
+    let clock = MonotonicClock::new();
+    let until = clock.now_us() + wait_s * 1_000_000;
+    while clock.now_us() < until {
+        if let Some(drive) = boot_drive() {
+            let target = drive.join("stereotac-firmware.uf2");
+            std::fs::write(&target, &data)
+                .with_context(|| format!("writing {}", target.display()))?;
+            println!(
+                "wrote {} ({} blocks) to {}; the sensor reboots into the new firmware",
+                file.display(),
+                data.len() / 512,
+                drive.display()
+            );
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    bail!(
+        "the RPI-RP2 drive did not appear (not mounted automatically?). Mount it and copy the file yourself:\n  cp {} /path/to/RPI-RP2/",
+        file.display()
+    )
+}

@@ -1,0 +1,100 @@
+//! The `stereotac` binary's link commands, end to end against the simulated sensor.
+
+use std::process::Command;
+
+fn stereotac(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(args)
+        .output()
+        .expect("run stereotac");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn help_documents_every_subcommand() {
+    let (ok, help, _) = stereotac(&["--help"]);
+    assert!(ok);
+    for sub in [
+        "devices",
+        "info",
+        "stream",
+        "record",
+        "set",
+        "flash",
+        "demo",
+        "calibrate",
+        "reconstruct",
+        "bench",
+        "firmware-image",
+    ] {
+        assert!(
+            help.contains(&format!("  {sub} ")),
+            "{sub} missing from:\n{help}"
+        );
+        let (ok, text, _) = stereotac(&[sub, "--help"]);
+        assert!(ok && text.contains("Usage:"), "{sub} --help");
+    }
+}
+
+#[test]
+fn info_stream_set_and_record_against_the_simulated_sensor() {
+    let (ok, info, err) = stereotac(&["--sim", "info"]);
+    assert!(ok, "{err}");
+    assert!(
+        info.contains("protocol v1") && info.contains("clock sync"),
+        "{info}"
+    );
+
+    let (ok, lines, err) = stereotac(&["--sim", "stream", "--duration-s", "1.1", "--json"]);
+    assert!(ok, "{err}");
+    let phases: Vec<serde_json::Value> = lines
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .filter(|v: &serde_json::Value| v["event"] == "phase")
+        .collect();
+    assert!(phases.len() >= 4, "{lines}");
+    assert_eq!(phases[0]["phase"], "dx");
+    assert_eq!(phases[1]["phase"], "dy");
+    assert!(err.contains("0 lost"), "{err}");
+
+    let (ok, _, err) = stereotac(&["--sim", "set", "--strip", "2", "--colour", "zz0000"]);
+    assert!(!ok && err.contains("RRGGBB"), "{err}");
+    let (ok, _, err) = stereotac(&["--sim", "set", "--leds", "0"]);
+    assert!(!ok && err.contains("invalid value for LED count"), "{err}");
+    let (ok, out, err) = stereotac(&["--sim", "set", "--period-ms", "100", "--mode", "vision"]);
+    assert!(ok && out.contains("SetMode(Vision)"), "{err}");
+
+    let dir = std::env::temp_dir().join(format!("stereotac-cli-rec-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = dir.to_str().unwrap();
+    let (ok, out, err) = stereotac(&["--sim", "record", "--out", d, "--duration-s", "1.6"]);
+    assert!(ok, "{err}");
+    assert!(out.contains("0 frames dropped"), "{out}");
+    let index = std::fs::read_to_string(dir.join("index.jsonl")).unwrap();
+    let n = index.lines().count();
+    assert!(n >= 5, "{index}");
+    assert_eq!(
+        std::fs::read_dir(&dir).unwrap().count(),
+        n + 1,
+        "one PNG per index line"
+    );
+    let (ok, _, err) = stereotac(&["--sim", "record", "--out", d, "--duration-s", "1"]);
+    assert!(
+        !ok && err.contains("File exists"),
+        "never overwrites: {err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn flash_refuses_a_file_that_is_not_uf2() {
+    let path = std::env::temp_dir().join(format!("not-uf2-{}.bin", std::process::id()));
+    std::fs::write(&path, [0u8; 1024]).unwrap();
+    let (ok, _, err) = stereotac(&["--sim", "flash", path.to_str().unwrap()]);
+    assert!(!ok && err.contains("not a UF2 file"), "{err}");
+    std::fs::remove_file(&path).unwrap();
+}
