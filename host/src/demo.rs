@@ -104,13 +104,8 @@ pub fn run(
         );
     }
     println!(
-        "counters: phases {}, triggers {}, overruns {}, events dropped {}, frames received {}, rejected {}; host saw {} lost events",
-        status.phases,
-        status.triggers,
-        status.overruns,
-        status.events_dropped,
-        status.frames_received,
-        status.frames_rejected,
+        "counters: {}; host saw {} lost events",
+        stereotac::device::status_line(&status),
         client.lost_events()
     );
     if let Some(out) = tactile_out {

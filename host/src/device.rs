@@ -161,6 +161,22 @@ impl std::fmt::Debug for Sensor {
     }
 }
 
+/// The device's counters in one line, for logs and the CLI.
+pub fn status_line(s: &Status) -> String {
+    format!(
+        "uptime {:.3} s, phases {}, triggers {}, overruns {}, events dropped {}, frames received {}, rejected {}, requests rejected {}, host timeouts {}",
+        s.uptime_us as f64 / 1e6,
+        s.phases,
+        s.triggers,
+        s.overruns,
+        s.events_dropped,
+        s.frames_received,
+        s.frames_rejected,
+        s.requests_rejected,
+        s.host_timeouts
+    )
+}
+
 /// Upper-case hex, as the USB serial number.
 pub fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02X}")).collect()

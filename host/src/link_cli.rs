@@ -12,7 +12,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use stereotac::clock::{HostClock, MonotonicClock};
-use stereotac::device::{Connector, Sensor, SensorConfig, SensorEvent, hex};
+use stereotac::device::{Connector, Sensor, SensorConfig, SensorEvent, hex, status_line};
 use stereotac::frames::capture::Capture;
 use stereotac::frames::replay::Recorder;
 use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
@@ -234,18 +234,7 @@ pub fn info(device: &DeviceArgs, json: bool) -> Result<()> {
             s.strip, s.colour.r, s.colour.g, s.colour.b, s.brightness
         );
     }
-    println!(
-        "device counters: uptime {:.3} s, phases {}, triggers {}, overruns {}, events dropped {}, frames received {}, rejected {}, requests rejected {}, host timeouts {}",
-        status.uptime_us as f64 / 1e6,
-        status.phases,
-        status.triggers,
-        status.overruns,
-        status.events_dropped,
-        status.frames_received,
-        status.frames_rejected,
-        status.requests_rejected,
-        status.host_timeouts
-    );
+    println!("device counters: {}", status_line(&status));
     if let Some(f) = fit {
         println!(
             "clock sync: {} pings, min round trip {} µs, drift {:+.1} ppm, uncertainty ±{:.1} µs",
@@ -376,15 +365,12 @@ pub fn stream(device: &DeviceArgs, seq: &SequenceArgs, json: bool) -> Result<()>
     let c = sensor.counters();
     let status = sensor.status()?;
     eprintln!(
-        "stopped: {} events, {} lost, {} bad frames, {} reconnects; device: {} phases, {} triggers, {} overruns, {} events dropped",
+        "stopped: {} events, {} lost, {} bad frames, {} reconnects; device: {}",
         c.link.events,
         c.link.lost_events,
         c.link.bad_frames,
         c.reconnects,
-        status.phases,
-        status.triggers,
-        status.overruns,
-        status.events_dropped
+        status_line(&status)
     );
     Ok(())
 }

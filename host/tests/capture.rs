@@ -15,6 +15,15 @@ use stereotac::tactile::render::{Optics, builtin_scenes};
 use stereotac::transport::loopback::{Loopback, LoopbackConfig};
 use stereotac_protocol::{Mode, Phase, Request};
 
+/// A triggered camera 40 µs after the edge, and the matcher that expects it.
+const TRIGGERED: (SimClocking, CameraSync) = (
+    SimClocking::Triggered { latency_us: 40.0 },
+    CameraSync::Triggered {
+        latency_us: 40.0,
+        tolerance_us: 300.0,
+    },
+);
+
 fn images() -> PhaseImages {
     let optics = Optics::sized(64, 48);
     let scenes = builtin_scenes(&optics);
@@ -27,7 +36,7 @@ struct Run {
     images: PhaseImages,
 }
 
-fn run(mode: Mode, clocking: SimClocking, sync: CameraSync, drop_every: Option<u64>) -> Run {
+fn run(mode: Mode, (clocking, sync): (SimClocking, CameraSync), drop_every: Option<u64>) -> Run {
     let clock = VirtualClock::starting_at(5_000_000);
     let link = Loopback::new(
         [3; 8],
@@ -83,15 +92,7 @@ fn run(mode: Mode, clocking: SimClocking, sync: CameraSync, drop_every: Option<u
 
 #[test]
 fn triggered_frames_are_labelled_with_the_light_they_saw() {
-    let r = run(
-        Mode::Interleaved,
-        SimClocking::Triggered { latency_us: 40.0 },
-        CameraSync::Triggered {
-            latency_us: 40.0,
-            tolerance_us: 300.0,
-        },
-        None,
-    );
+    let r = run(Mode::Interleaved, TRIGGERED, None);
     assert!(r.frames.len() >= 30, "{}", r.frames.len());
     let mut triggers = Vec::new();
     for f in &r.frames {
@@ -123,15 +124,7 @@ fn triggered_frames_are_labelled_with_the_light_they_saw() {
 
 #[test]
 fn dropped_triggered_frames_are_counted() {
-    let r = run(
-        Mode::Gradient,
-        SimClocking::Triggered { latency_us: 40.0 },
-        CameraSync::Triggered {
-            latency_us: 40.0,
-            tolerance_us: 300.0,
-        },
-        Some(5),
-    );
+    let r = run(Mode::Gradient, TRIGGERED, Some(5));
     let taken = r.frames.len() as u64;
     assert!(r.stats.dropped_frames >= 5, "{:?}", r.stats);
     assert_eq!(r.stats.dropped_frames, (taken + r.stats.dropped_frames) / 5);
@@ -141,11 +134,13 @@ fn dropped_triggered_frames_are_counted() {
 fn free_running_frames_across_an_led_change_are_rejected_never_mislabelled() {
     let r = run(
         Mode::Gradient,
-        SimClocking::FreeRunning {
-            period_us: 33_333.0,
-            first_us: 5_010_000.0,
-        },
-        CameraSync::FreeRunning,
+        (
+            SimClocking::FreeRunning {
+                period_us: 33_333.0,
+                first_us: 5_010_000.0,
+            },
+            CameraSync::FreeRunning,
+        ),
         None,
     );
     let mut straddling = 0;
@@ -168,15 +163,7 @@ fn free_running_frames_across_an_led_change_are_rejected_never_mislabelled() {
 
 #[test]
 fn a_recording_replays_frame_for_frame() {
-    let r = run(
-        Mode::Gradient,
-        SimClocking::Triggered { latency_us: 40.0 },
-        CameraSync::Triggered {
-            latency_us: 40.0,
-            tolerance_us: 300.0,
-        },
-        None,
-    );
+    let r = run(Mode::Gradient, TRIGGERED, None);
     let dir = std::env::temp_dir().join(format!("stereotac-replay-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let mut recorder = Recorder::create(&dir).unwrap();
