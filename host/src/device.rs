@@ -11,7 +11,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac_protocol::{
-    DeviceInfo, DeviceMicros, Event, Fault, PhaseEvent, Request, Response, Status, TriggerOutcome,
+    Config, DeviceInfo, DeviceMicros, Event, Fault, PhaseEvent, Request, Response, Status,
+    TriggerOutcome,
 };
 
 use crate::client::{Client, ClientError, LinkCounters};
@@ -105,6 +106,22 @@ pub struct HostPhase {
     pub trigger: Option<(u32, f64)>,
     /// Clock-sync uncertainty when mapped, µs.
     pub uncertainty_us: f64,
+}
+
+impl HostPhase {
+    /// `event` with its device times put on the host clock by `map`.
+    pub fn map(event: PhaseEvent, map: impl Fn(DeviceMicros) -> f64, uncertainty_us: f64) -> Self {
+        Self {
+            event,
+            write_start_us: map(event.write_start_us),
+            latched_us: map(event.latched_us),
+            trigger: match event.trigger {
+                TriggerOutcome::Fired { index, edge_us } => Some((index, map(edge_us))),
+                TriggerOutcome::Overrun { .. } => None,
+            },
+            uncertainty_us,
+        }
+    }
 }
 
 /// Something the sensor reported, with host times where it carries device times.
@@ -317,16 +334,7 @@ impl Sensor {
         let uncertainty_us = fit.map_or(f64::INFINITY, |f| f.uncertainty_us);
         for (_, event) in raw {
             out.push(match event {
-                Event::Phase(p) => SensorEvent::Phase(HostPhase {
-                    event: p,
-                    write_start_us: map(p.write_start_us),
-                    latched_us: map(p.latched_us),
-                    trigger: match p.trigger {
-                        TriggerOutcome::Fired { index, edge_us } => Some((index, map(edge_us))),
-                        TriggerOutcome::Overrun { .. } => None,
-                    },
-                    uncertainty_us,
-                }),
+                Event::Phase(p) => SensorEvent::Phase(HostPhase::map(p, map, uncertainty_us)),
                 Event::Heartbeat(s) => SensorEvent::Heartbeat(s),
                 Event::Fault(f) => SensorEvent::Fault(f, map(f.at_us)),
             });
@@ -404,6 +412,14 @@ impl Sensor {
         }
         self.sync_burst()?;
         Ok(())
+    }
+
+    /// The device's configuration.
+    pub fn config(&mut self) -> Result<Config, SensorError> {
+        match self.request(Request::GetConfig)? {
+            Response::Config(c) => Ok(c),
+            other => Err(ClientError::UnexpectedReply(Box::new(other)).into()),
+        }
     }
 
     /// The device's status.

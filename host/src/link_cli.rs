@@ -20,9 +20,7 @@ use stereotac::matcher::{CameraSync, Label, MatchedFrame, MatcherConfig, phase_s
 use stereotac::tactile::render::{Optics, builtin_scenes};
 use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig};
 use stereotac::transport::usb::{self, UsbTransport};
-use stereotac_protocol::{
-    Config, Mode, Request, Response, Rgb, Strip, StripSettings, Timing, TriggerOutcome,
-};
+use stereotac_protocol::{Mode, Request, Rgb, Strip, StripSettings, Timing, TriggerOutcome};
 
 /// Board id of the simulated sensor.
 const SIM_BOARD: [u8; 8] = *b"SIMSENSR";
@@ -174,20 +172,13 @@ pub fn devices(device: &DeviceArgs, json: bool) -> Result<()> {
     Ok(())
 }
 
-fn config(sensor: &mut Sensor) -> Result<Config> {
-    match sensor.request(Request::GetConfig)? {
-        Response::Config(c) => Ok(c),
-        other => bail!("unexpected reply {other:?}"),
-    }
-}
-
 /// `stereotac info`.
 pub fn info(device: &DeviceArgs, json: bool) -> Result<()> {
     let mut opened = open(device)?;
     let sensor = &mut opened.sensor;
     let info = *sensor.info();
     let status = sensor.status()?;
-    let config = config(sensor)?;
+    let config = sensor.config()?;
     let fit = sensor.clock_fit().copied();
     if json {
         let value = serde_json::json!({
@@ -267,7 +258,7 @@ fn start(sensor: &mut Sensor, seq: &SequenceArgs) -> Result<()> {
     }
     let timing = Timing {
         phase_period_us: seq.period_ms.saturating_mul(1000),
-        ..config(sensor)?.timing
+        ..sensor.config()?.timing
     };
     sensor
         .request(Request::SetTiming(timing))
@@ -522,7 +513,7 @@ fn parse_colour(s: &str) -> Result<Rgb, String> {
 pub fn set(device: &DeviceArgs, args: &SetArgs) -> Result<()> {
     let mut opened = open(device)?;
     let sensor = &mut opened.sensor;
-    let current = config(sensor)?;
+    let current = sensor.config()?;
     let mut requests = Vec::new();
     if args.period_ms.is_some() || args.pulse_us.is_some() || args.settle_us.is_some() {
         requests.push(Request::SetTiming(Timing {

@@ -300,8 +300,10 @@ impl FrameMatcher {
         } = self.config.sync
         {
             let edge_time = start - latency_us;
-            let best = self
-                .phases
+            // A phase's edge lies between its latch and the next phase's write, so the
+            // nearest edge belongs to one of the phases around the latch before it.
+            let k = self.phases.partition_point(|p| p.latched_us <= edge_time);
+            let best = self.phases[k.saturating_sub(2)..(k + 1).min(self.phases.len())]
                 .iter()
                 .filter_map(|p| p.trigger)
                 .min_by(|a, b| (a.1 - edge_time).abs().total_cmp(&(b.1 - edge_time).abs()));

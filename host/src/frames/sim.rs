@@ -106,7 +106,8 @@ pub struct SimulatedCamera {
     exposure_us: f64,
     images: PhaseImages,
     sequence: u64,
-    /// Triggered: how many trigger edges were consumed; free-running: frames taken.
+    /// Triggered: the timeline span after the last one whose trigger was taken;
+    /// free-running: frames taken.
     cursor: usize,
     drop_every: Option<u64>,
 }
@@ -137,19 +138,21 @@ impl SimulatedCamera {
         self.drop_every = Some(n.max(2));
     }
 
-    /// Start of the next exposure, if the truth already holds it.
-    fn next_start(&self, timeline: &LedTimeline) -> Option<f64> {
+    /// Start of the next exposure, and the cursor after it, if the truth holds it.
+    fn next_start(&self, timeline: &LedTimeline) -> Option<(f64, usize)> {
         match self.clocking {
-            SimClocking::Triggered { latency_us } => timeline
-                .spans()
+            SimClocking::Triggered { latency_us } => timeline.spans()
+                [self.cursor.min(timeline.spans().len())..]
                 .iter()
-                .filter_map(|s| s.trigger)
-                .nth(self.cursor)
-                .map(|(_, edge)| edge + latency_us),
+                .enumerate()
+                .find_map(|(i, s)| {
+                    s.trigger
+                        .map(|(_, edge)| (edge + latency_us, self.cursor + i + 1))
+                }),
             SimClocking::FreeRunning {
                 period_us,
                 first_us,
-            } => Some(first_us + self.cursor as f64 * period_us),
+            } => Some((first_us + self.cursor as f64 * period_us, self.cursor + 1)),
         }
     }
 
@@ -157,14 +160,14 @@ impl SimulatedCamera {
     fn take_ready(&mut self) -> Option<Frame> {
         loop {
             let timeline = self.timeline.lock().unwrap_or_else(|e| e.into_inner());
-            let start = self.next_start(&timeline)?;
+            let (start, cursor) = self.next_start(&timeline)?;
             let end = start + self.exposure_us;
             if end > timeline.known_until_us() || end > self.clock.now_us() as f64 {
                 return None;
             }
             let light = timeline.exposure(start, end);
             drop(timeline);
-            self.cursor += 1;
+            self.cursor = cursor;
             let sequence = self.sequence;
             self.sequence += 1;
             if self

@@ -22,10 +22,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use stereotac_protocol::{Phase, TriggerOutcome};
+use stereotac_protocol::Phase;
 
 use super::{Transport, TransportError};
 use crate::clock::{HostClock, HostMicros};
+use crate::device::HostPhase;
 use crate::sim::{LedChange, SimulatedSensor};
 use crate::tactile::render::Rng;
 
@@ -295,18 +296,17 @@ impl Loopback {
         let spans: Vec<LitSpan> = changes
             .iter()
             .map(|change| match *change {
-                LedChange::Phase(p) => LitSpan {
-                    phase: p.phase,
-                    write_start_us: self.host_time(p.write_start_us),
-                    from_us: self.host_time(p.latched_us),
-                    trigger: match p.trigger {
-                        TriggerOutcome::Fired { index, edge_us } => {
-                            Some((index, self.host_time(edge_us)))
-                        }
-                        TriggerOutcome::Overrun { .. } => None,
-                    },
-                    phase_index: Some(p.index),
-                },
+                LedChange::Phase(p) => {
+                    // The truth is exact: no sync uncertainty.
+                    let host = HostPhase::map(p, |d| self.host_time(d), 0.0);
+                    LitSpan {
+                        phase: p.phase,
+                        write_start_us: host.write_start_us,
+                        from_us: host.latched_us,
+                        trigger: host.trigger,
+                        phase_index: Some(p.index),
+                    }
+                }
                 LedChange::Dark { at_us } => LitSpan {
                     phase: Phase::Dark,
                     write_start_us: self.host_time(at_us),
