@@ -109,7 +109,7 @@ pub fn run(
         client.lost_events()
     );
     if let Some(out) = tactile_out {
-        crate::demo_tactile::run(&mut client, out)?;
+        crate::demo_tactile::run(out)?;
     }
     Ok(())
 }

@@ -1,113 +1,174 @@
-//! The tactile half of `stereotac demo`: gradient frames captured at the simulated
-//! sensor's trigger edges and labelled by its phase events, calibration on simulated
-//! ball presses, then reconstruction of a few objects with accuracy, timings and files.
+//! The tactile half of `stereotac demo`: for each object, a dx/dy frame pair from a
+//! simulated camera triggered by the simulated sensor, through the host path a real
+//! sensor uses (loopback USB, clock sync, frame/LED matcher); calibration on simulated
+//! ball presses; then reconstruction from the captured frames with accuracy, timings
+//! and files.
 
 use std::path::Path;
 
+use std::sync::Arc;
+use std::time::Duration;
+
 use crate::progress::bar;
 use anyhow::{Context, Result, bail};
-use stereotac::client::Client;
-use stereotac::sim::SimulatedSensor;
+use stereotac::clock::{HostClock, VirtualClock};
+use stereotac::device::{Connector, Sensor, SensorConfig};
+use stereotac::frames::capture::{Capture, LabelledFrame};
+use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
+use stereotac::matcher::{CameraSync, Label, MatcherConfig};
 use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, calibrate};
 use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::output;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
-use stereotac::tactile::render::{Optics, Scene, builtin_scenes, render};
+use stereotac::tactile::render::{Optics, Scene, builtin_scenes};
 use stereotac::tactile::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
-use stereotac_protocol::{Event, Mode, Phase, PhaseEvent, Request, TriggerOutcome};
+use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig};
+use stereotac::transport::usb::OpenError;
+use stereotac_protocol::{Mode, Phase, Request};
 
 /// Presses rendered for the demo's calibration.
 const PRESSES: usize = 16;
-/// Simulated camera: frame timestamp = trigger edge + this latency (µs).
-const CAMERA_LATENCY_US: u64 = 150;
+/// Simulated camera: exposure starts this long after the trigger edge (µs).
+const CAMERA_LATENCY_US: f64 = 150.0;
+/// Simulated camera exposure (µs).
+const EXPOSURE_US: f64 = 8000.0;
+/// Give up on a dx/dy pair after this much simulated time (µs).
+const PAIR_TIMEOUT_US: u64 = 10_000_000;
 
-/// One simulated camera frame: when it was exposed, and what lit it.
-struct Frame {
-    timestamp_us: u64,
-    phase: Phase,
-    trigger: u32,
+/// A dx/dy pair of camera frames, labelled by the matcher.
+struct Pair {
+    dx: LabelledFrame,
+    dy: LabelledFrame,
 }
 
-/// Runs gradient mode for `pairs` dx/dy pairs and returns camera frames labelled with the
-/// phase whose trigger edge precedes each frame's timestamp by the camera latency.
-fn capture_labelled_frames(
-    client: &mut Client<SimulatedSensor>,
-    pairs: usize,
-) -> Result<Vec<Frame>> {
-    client.request(Request::SetMode(Mode::Gradient))?;
-    client.request(Request::Start)?;
-    let mut events: Vec<PhaseEvent> = Vec::new();
-    let mut t = client.transport_mut().now_us();
-    let mut polls = 0u32;
-    while events.len() < 2 * pairs + 1 {
-        t += 50_000;
-        polls += 1;
-        if polls.is_multiple_of(20) {
-            // Keep the host-silence watchdog (5 s) fed, as a real client does.
-            client.request(Request::GetStatus)?;
-        }
-        client.transport_mut().advance_to(t);
-        for (_, e) in client.poll_events()? {
-            if let Event::Phase(p) = e {
-                events.push(p);
+/// The simulated sensor behind the loopback USB link (virtual clock, drifting device
+/// clock), connected through the same [`Sensor`] code a real sensor uses.
+fn connect_simulated() -> Result<(Sensor, Arc<std::sync::Mutex<LedTimeline>>)> {
+    let clock: Arc<dyn HostClock> = Arc::new(VirtualClock::starting_at(1_000_000));
+    let link = Loopback::new(
+        *b"SIMULATD",
+        Arc::clone(&clock),
+        LoopbackConfig {
+            drift_ppm: 30.0,
+            ..LoopbackConfig::default()
+        },
+    );
+    let timeline = link.timeline();
+    let mut link = Some(link);
+    let connector: Connector = Box::new(move || {
+        link.take()
+            .map(|l| Box::new(l) as _)
+            .ok_or(OpenError::NotFound {
+                serial: None,
+                present: vec![],
+            })
+    });
+    let sensor = Sensor::connect(connector, clock, SensorConfig::default())?;
+    Ok((sensor, timeline))
+}
+
+/// With the camera's current scene pressed into the skin, capture until the matcher has
+/// labelled a dx frame followed by a dy frame.
+fn capture_pair(sensor: &mut Sensor, capture: &mut Capture<SimulatedCamera>) -> Result<Pair> {
+    let pressed_at = sensor.clock().now_us();
+    let give_up = pressed_at + PAIR_TIMEOUT_US;
+    let mut dx: Option<LabelledFrame> = None;
+    while sensor.clock().now_us() < give_up {
+        for frame in capture.step(sensor, Duration::from_millis(20))?.frames {
+            if frame.frame.stamp.timestamp_us < pressed_at as f64 {
+                continue; // exposed before this object was pressed
+            }
+            match (frame.label, dx.take()) {
+                (
+                    Label::Phase {
+                        phase: Phase::Dx, ..
+                    },
+                    _,
+                ) => dx = Some(frame),
+                (
+                    Label::Phase {
+                        phase: Phase::Dy, ..
+                    },
+                    Some(first),
+                ) => {
+                    return Ok(Pair {
+                        dx: first,
+                        dy: frame,
+                    });
+                }
+                // A dy without its dx, or a frame the matcher could not label: start over.
+                _ => {}
             }
         }
     }
-    client.request(Request::Stop)?;
-    // The camera sees the trigger edges; the host only knows frame timestamps. Match each
-    // frame to the phase event whose edge is CAMERA_LATENCY_US before it.
-    let frames: Vec<u64> = events
-        .iter()
-        .filter_map(|p| match p.trigger {
-            TriggerOutcome::Fired { edge_us, .. } => Some(edge_us + CAMERA_LATENCY_US),
-            TriggerOutcome::Overrun { .. } => None,
-        })
-        .collect();
-    let mut labelled = Vec::new();
-    for ts in frames {
-        let matched = events.iter().find_map(|p| match p.trigger {
-            TriggerOutcome::Fired { index, edge_us } if edge_us + CAMERA_LATENCY_US == ts => {
-                Some((p.phase, index))
-            }
-            _ => None,
-        });
-        let Some((phase, trigger)) = matched else {
-            bail!("frame at {ts} µs matches no trigger");
-        };
-        labelled.push(Frame {
-            timestamp_us: ts,
-            phase,
-            trigger,
-        });
-    }
-    Ok(labelled)
+    bail!(
+        "no labelled dx/dy pair within {} s",
+        PAIR_TIMEOUT_US / 1_000_000
+    )
 }
 
-pub fn run(client: &mut Client<SimulatedSensor>, out: &Path) -> Result<()> {
+/// `#trigger@ms` of a labelled frame.
+fn frame_tag(f: &LabelledFrame) -> String {
+    let trigger = match f.label {
+        Label::Phase {
+            trigger: Some(t), ..
+        } => t.to_string(),
+        _ => "-".into(),
+    };
+    format!("#{trigger}@{:.0}", f.frame.stamp.timestamp_us / 1000.0)
+}
+
+pub fn run(out: &Path) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let optics = Optics::standard();
     let scenes: Vec<(&str, Scene)> = builtin_scenes(&optics);
     println!("\n--- tactile: photometric stereo on the simulated skin ---");
-    let frames = capture_labelled_frames(client, scenes.len())?;
-    // Consecutive (dx, dy) frames form one pair.
-    let pairs: Vec<(&Frame, &Frame)> = frames
-        .windows(2)
-        .filter(|w| w[0].phase == Phase::Dx && w[1].phase == Phase::Dy)
-        .map(|w| (&w[0], &w[1]))
-        .collect();
-    println!(
-        "captured {} frames at trigger edges + {CAMERA_LATENCY_US} µs, labelled by phase events: {} dx/dy pairs",
-        frames.len(),
-        pairs.len()
+    // The host path of a real sensor: loopback USB, clock sync, triggered camera, matcher.
+    let (mut sensor, timeline) = connect_simulated()?;
+    sensor.request(Request::SetMode(Mode::Gradient))?;
+    sensor.request(Request::Start)?;
+    let camera = SimulatedCamera::new(
+        timeline,
+        Arc::clone(sensor.clock()),
+        SimClocking::Triggered {
+            latency_us: CAMERA_LATENCY_US,
+        },
+        EXPOSURE_US,
+        PhaseImages::render(&optics, &scenes[0].1),
     );
-    if pairs.len() < scenes.len() {
-        bail!(
-            "only {} dx/dy pairs for {} objects",
-            pairs.len(),
-            scenes.len()
-        );
+    let mut capture = Capture::new(
+        camera,
+        MatcherConfig {
+            sync: CameraSync::Triggered {
+                latency_us: CAMERA_LATENCY_US,
+                tolerance_us: 300.0,
+            },
+            ..MatcherConfig::default()
+        },
+    );
+    let progress = bar(scenes.len() as u64, "capturing");
+    let mut pairs = Vec::new();
+    for (_, scene) in &scenes {
+        // Press the next object; the frames after the switch show it.
+        capture
+            .source_mut()
+            .set_images(PhaseImages::render(&optics, scene));
+        pairs.push(capture_pair(&mut sensor, &mut capture)?);
+        progress.inc(1);
     }
+    sensor.request(Request::Stop)?;
+    progress.finish_and_clear();
+    let stats = capture.stats();
+    let labelled = stats.labelled;
+    let rejected = stats.straddling + stats.event_missing + stats.no_trigger;
+    let fit = sensor.clock_fit();
+    println!(
+        "captured {} dx/dy pairs from a camera triggered by the sensor (exposure {EXPOSURE_US} µs starting {CAMERA_LATENCY_US} µs after each edge): {labelled} frames labelled by the matcher, {rejected} rejected; clock sync ±{:.1} µs, device drift {:+.1} ppm",
+        pairs.len(),
+        fit.map_or(f64::NAN, |f| f.uncertainty_us),
+        fit.map_or(f64::NAN, |f| f.drift_ppm()),
+    );
 
     let presses = ball_presses(&optics, PRESSES, CALIBRATION_BALL_MM, 42);
     let refs = reference_frames(&optics);
@@ -145,10 +206,9 @@ pub fn run(client: &mut Client<SimulatedSensor>, out: &Path) -> Result<()> {
         "\n{:<11} {:>10} {:>10} | {:>9} {:>9} {:>9} | {:>8}",
         "object", "dx frame", "dy frame", "true mm", "read mm", "rms mm", "time ms"
     );
-    for ((name, scene), (fx, fy)) in scenes.iter().zip(&pairs) {
-        // The simulated camera renders whatever the labelled phase lit.
-        let image = render(&optics, scene, u64::from(fx.trigger));
-        let r = reconstructor.reconstruct(&image.dx, &image.dy)?;
+    for ((name, scene), pair) in scenes.iter().zip(&pairs) {
+        // Reconstruct from the frames the camera delivered, as labelled by the matcher.
+        let r = reconstructor.reconstruct(&pair.dx.frame.image, &pair.dy.frame.image)?;
         let truth = scene
             .truth(optics.width, optics.height, optics.px_per_mm)
             .depth;
@@ -157,8 +217,8 @@ pub fn run(client: &mut Client<SimulatedSensor>, out: &Path) -> Result<()> {
         println!(
             "{:<11} {:>10} {:>10} | {:>9.3} {:>9.3} {:>9.4} | {:>8.2}",
             name,
-            format!("#{}@{}", fx.trigger, fx.timestamp_us / 1000),
-            format!("#{}@{}", fy.trigger, fy.timestamp_us / 1000),
+            frame_tag(&pair.dx),
+            frame_tag(&pair.dy),
             e.true_peak_mm,
             e.reading_mm,
             e.rms_mm,

@@ -27,7 +27,32 @@ const PING_DITHER_US: u64 = 1000;
 pub type BoxedTransport = Box<dyn Transport + Send>;
 
 /// Opens (and reopens) the transport to one sensor.
-pub type Connector = Box<dyn FnMut() -> Result<BoxedTransport, OpenError> + Send>;
+///
+/// Any `FnMut() -> Result<BoxedTransport, OpenError>` closure is a `Connect`; a USB
+/// connector ([`crate::transport::usb::UsbConnector`]) also wakes the reconnect loop as
+/// soon as the operating system reports the sensor back (hotplug) instead of sleeping
+/// through the whole backoff delay.
+pub trait Connect: Send {
+    /// Open the transport.
+    fn open(&mut self) -> Result<BoxedTransport, OpenError>;
+    /// Wait before the next reconnect attempt: until `deadline` (host µs), or earlier
+    /// when the device is known to be back. The default sleeps on `clock`.
+    fn wait_for_device(&mut self, clock: &dyn HostClock, deadline: HostMicros) {
+        clock.sleep_until(deadline);
+    }
+}
+
+impl<F> Connect for F
+where
+    F: FnMut() -> Result<BoxedTransport, OpenError> + Send,
+{
+    fn open(&mut self) -> Result<BoxedTransport, OpenError> {
+        self()
+    }
+}
+
+/// A boxed [`Connect`].
+pub type Connector = Box<dyn Connect>;
 
 /// Why a sensor operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -207,7 +232,7 @@ impl Sensor {
         clock: Arc<dyn HostClock>,
         config: SensorConfig,
     ) -> Result<Self, SensorError> {
-        let transport = connector()?;
+        let transport = connector.open()?;
         let mut client = Client::with_clock(transport, clock);
         let info = client.handshake()?;
         let mut sensor = Self {
@@ -365,9 +390,10 @@ impl Sensor {
         let mut delay = self.config.backoff_initial;
         let mut attempts = 0u32;
         loop {
-            clock.sleep_until(clock.now_us() + delay.as_micros() as u64);
+            let deadline = clock.now_us() + delay.as_micros() as u64;
+            self.connector.wait_for_device(&*clock, deadline);
             attempts += 1;
-            let error = match (self.connector)() {
+            let error = match self.connector.open() {
                 Ok(transport) => match self.resume(transport) {
                     Ok(()) => {
                         self.reconnects += 1;

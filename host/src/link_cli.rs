@@ -16,10 +16,10 @@ use stereotac::device::{Connector, Sensor, SensorConfig, SensorEvent, hex, statu
 use stereotac::frames::capture::Capture;
 use stereotac::frames::replay::Recorder;
 use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
-use stereotac::matcher::{CameraSync, Label, MatchedFrame, MatcherConfig, phase_str};
+use stereotac::matcher::{CameraSync, MatchedFrame, MatcherConfig, phase_str};
 use stereotac::tactile::render::{Optics, builtin_scenes};
 use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig};
-use stereotac::transport::usb::{self, UsbTransport};
+use stereotac::transport::usb;
 use stereotac_protocol::{Mode, Request, Rgb, Strip, StripSettings, Timing, TriggerOutcome};
 
 /// Board id of the simulated sensor.
@@ -34,6 +34,45 @@ pub struct DeviceArgs {
     /// Talk to the built-in simulated sensor instead of USB hardware.
     #[arg(long, global = true)]
     pub sim: bool,
+    /// Use libusb instead of the built-in pure-Rust USB stack (needs a build with
+    /// `--features libusb`).
+    #[arg(long, global = true, conflicts_with = "sim")]
+    pub libusb: bool,
+}
+
+/// The connector `--serial`/`--libusb` ask for.
+fn usb_connector(device: &DeviceArgs) -> Result<Connector> {
+    if device.libusb {
+        return libusb_connector(device.serial.clone());
+    }
+    Ok(Box::new(usb::UsbConnector::new(device.serial.clone())))
+}
+
+#[cfg(feature = "libusb")]
+fn libusb_connector(serial: Option<String>) -> Result<Connector> {
+    Ok(Box::new(
+        stereotac::transport::libusb::LibusbConnector::new(serial),
+    ))
+}
+
+#[cfg(not(feature = "libusb"))]
+fn libusb_connector(_serial: Option<String>) -> Result<Connector> {
+    bail!(NO_LIBUSB)
+}
+
+#[cfg(not(feature = "libusb"))]
+const NO_LIBUSB: &str = "this build has no libusb backend; rebuild with `--features libusb` \
+    (needs libusb-1.0-0-dev and pkg-config), or drop --libusb to use the built-in USB stack";
+
+/// The sensors on the bus, through the backend `--libusb` asks for.
+fn list_sensors(device: &DeviceArgs) -> Result<Vec<usb::UsbSensor>> {
+    if device.libusb {
+        #[cfg(feature = "libusb")]
+        return stereotac::transport::libusb::list().context("listing USB devices (libusb)");
+        #[cfg(not(feature = "libusb"))]
+        bail!(NO_LIBUSB);
+    }
+    usb::list().context("listing USB devices")
 }
 
 /// Lighting modes on the command line.
@@ -94,10 +133,7 @@ fn open(device: &DeviceArgs) -> Result<Opened> {
         });
         (connector, Some(timeline))
     } else {
-        let serial = device.serial.clone();
-        let connector: Connector =
-            Box::new(move || Ok(Box::new(UsbTransport::open(serial.as_deref())?) as _));
-        (connector, None)
+        (usb_connector(device)?, None)
     };
     let sensor = Sensor::connect(connector, clock, SensorConfig::default())
         .context("connecting to the sensor")?;
@@ -124,6 +160,35 @@ fn version(info: &stereotac_protocol::DeviceInfo) -> String {
     )
 }
 
+/// `stereotac devices --watch`: print sensor arrivals and departures until Ctrl-C.
+pub fn watch_devices(json: bool) -> Result<()> {
+    let stop = interrupt_flag()?;
+    let mut watch = usb::watch().context("watching the USB bus for sensors")?;
+    eprintln!("watching for stereotac sensors (Ctrl-C stops)");
+    while !stop.load(Ordering::SeqCst) {
+        let Some(event) = watch.next(std::time::Instant::now() + Duration::from_millis(200)) else {
+            continue;
+        };
+        if json {
+            let line = serde_json::to_string(&event)?;
+            if !emit(format_args!("{line}")) {
+                break;
+            }
+        } else {
+            let printed = match event {
+                usb::Hotplug::Arrived(s) => {
+                    emit(format_args!("arrived  {:<18} {}", s.serial, s.path))
+                }
+                usb::Hotplug::Left { id } => emit(format_args!("left     (USB device {id})")),
+            };
+            if !printed {
+                break;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// `stereotac devices`.
 pub fn devices(device: &DeviceArgs, json: bool) -> Result<()> {
     let mut rows = Vec::new();
@@ -135,11 +200,11 @@ pub fn devices(device: &DeviceArgs, json: bool) -> Result<()> {
             "protocol": info.protocol_version,
         }));
     } else {
-        for found in usb::list().context("listing USB devices")? {
+        for found in list_sensors(device)? {
             // Ask each one for its version; report (not fail) if it cannot be opened.
             let firmware = match open(&DeviceArgs {
                 serial: Some(found.serial.clone()),
-                sim: false,
+                ..device.clone()
             }) {
                 Ok(o) => version(o.sensor.info()),
                 Err(e) => format!("unavailable: {e:#}"),
@@ -369,99 +434,215 @@ pub fn stream(device: &DeviceArgs, seq: &SequenceArgs, json: bool) -> Result<()>
 /// `stereotac record`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RecordArgs {
-    /// Output directory (must not hold a recording already).
+    /// Output directory (must not hold a recording already). With several cameras each
+    /// records into DIR/cam0, DIR/cam1, ...
     #[arg(long)]
     pub out: PathBuf,
-    /// Camera: `sim` (the simulated camera; needs --sim) or a V4L2 device.
-    #[arg(long, default_value = "sim")]
-    pub camera: String,
-    /// Exposure of the simulated camera, µs.
+    /// Camera: `sim` (the simulated camera; needs --sim) or a V4L2 device such as
+    /// /dev/video0 (needs a build with `--features v4l2`). Repeat for several cameras.
+    #[arg(long = "camera", default_value = "sim")]
+    pub cameras: Vec<String>,
+    /// Exposure time, µs: the simulated camera's, and the one assumed for a V4L2 camera
+    /// that does not report its own.
     #[arg(long, default_value_t = 8000.0)]
     pub exposure_us: f64,
+    /// The cameras run on their own clock instead of the sensor's trigger output.
+    #[arg(long)]
+    pub free_running: bool,
+    /// Delay from the trigger edge to the start of the exposure, µs (triggered cameras).
+    #[arg(long, default_value_t = 40.0)]
+    pub trigger_latency_us: f64,
+    /// Frame size to ask V4L2 cameras for, WxH (default: the camera's current size).
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
     /// Sequence settings.
     #[command(flatten)]
     pub sequence: SequenceArgs,
 }
 
-/// `stereotac record`.
-pub fn record(device: &DeviceArgs, args: &RecordArgs) -> Result<()> {
-    let stop = interrupt_flag()?;
-    if args.camera != "sim" {
-        bail!(
-            "camera {}: V4L2 capture is not in this build yet; record with the simulated camera (--sim --camera sim) or replay a recording",
-            args.camera
-        );
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    s.split_once(['x', 'X'])
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .filter(|&(w, h)| w > 0 && h > 0)
+        .ok_or_else(|| format!("{s:?} is not a size like 640x480"))
+}
+
+/// Open one `--camera`.
+fn open_camera(
+    name: &str,
+    args: &RecordArgs,
+    opened: &Opened,
+) -> Result<Box<dyn stereotac::frames::FrameSource>> {
+    if name == "sim" {
+        let Some(timeline) = opened.timeline.clone() else {
+            bail!("--camera sim renders the simulated sensor's LEDs: add --sim");
+        };
+        let optics = Optics::sized(320, 240);
+        let scene = builtin_scenes(&optics).swap_remove(0).1;
+        let clocking = if args.free_running {
+            SimClocking::FreeRunning {
+                period_us: 33_333.0,
+                first_us: opened.sensor.clock().now_us() as f64,
+            }
+        } else {
+            SimClocking::Triggered {
+                latency_us: args.trigger_latency_us,
+            }
+        };
+        return Ok(Box::new(SimulatedCamera::new(
+            timeline,
+            Arc::clone(opened.sensor.clock()),
+            clocking,
+            args.exposure_us,
+            PhaseImages::render(&optics, &scene),
+        )));
     }
-    let mut opened = open(device)?;
-    let Some(timeline) = opened.timeline.take() else {
-        bail!("--camera sim renders the simulated sensor's LEDs: add --sim");
-    };
-    if !(args.exposure_us.is_finite() && args.exposure_us > 0.0) {
-        bail!("--exposure-us must be positive");
-    }
-    let sensor = &mut opened.sensor;
-    let optics = Optics::sized(320, 240);
-    let scene = builtin_scenes(&optics).swap_remove(0).1;
-    let latency_us = 40.0;
-    let camera = SimulatedCamera::new(
-        timeline,
-        Arc::clone(sensor.clock()),
-        SimClocking::Triggered { latency_us },
-        args.exposure_us,
-        PhaseImages::render(&optics, &scene),
-    );
-    let mut recorder = Recorder::create(&args.out)
-        .with_context(|| format!("starting a recording in {}", args.out.display()))?;
-    let mut capture = Capture::new(
-        camera,
-        MatcherConfig {
-            sync: CameraSync::Triggered {
-                latency_us,
-                tolerance_us: 500.0,
-            },
-            ..MatcherConfig::default()
+    open_v4l2(name, args)
+}
+
+#[cfg(all(feature = "v4l2", target_os = "linux"))]
+fn open_v4l2(name: &str, args: &RecordArgs) -> Result<Box<dyn stereotac::frames::FrameSource>> {
+    use stereotac::frames::v4l2::{V4l2Camera, V4l2Settings};
+    let camera = V4l2Camera::open(
+        Path::new(name),
+        &V4l2Settings {
+            size: args.size,
+            exposure_us: args.exposure_us,
+            ..V4l2Settings::default()
         },
-    );
-    start(sensor, &args.sequence)?;
-    let end = deadline(sensor, &args.sequence)?;
-    let progress = crate::progress::spinner("recording");
-    let mut write = |frames: Vec<stereotac::frames::capture::LabelledFrame>| -> Result<()> {
+    )?;
+    Ok(Box::new(camera))
+}
+
+#[cfg(not(all(feature = "v4l2", target_os = "linux")))]
+fn open_v4l2(name: &str, _args: &RecordArgs) -> Result<Box<dyn stereotac::frames::FrameSource>> {
+    Err(no_v4l2(name))
+}
+
+/// Refuse V4L2 cameras in a build without V4L2, before anything is connected.
+fn check_cameras(cameras: &[String]) -> Result<()> {
+    match cameras.iter().find(|c| *c != "sim") {
+        Some(name) if !cfg!(all(feature = "v4l2", target_os = "linux")) => Err(no_v4l2(name)),
+        _ => Ok(()),
+    }
+}
+
+fn no_v4l2(name: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "camera {name}: this build has no V4L2 capture; rebuild with `--features v4l2` \
+         (Linux; needs libclang-dev), or use --sim --camera sim"
+    )
+}
+
+/// One camera's capture and its recording.
+struct CameraRecording {
+    capture: Capture<Box<dyn stereotac::frames::FrameSource>>,
+    recorder: Recorder,
+    dir: PathBuf,
+}
+
+impl CameraRecording {
+    /// Write labelled frames: images first, then their index lines.
+    fn write(&mut self, frames: Vec<stereotac::frames::capture::LabelledFrame>) -> Result<u64> {
+        let n = frames.len() as u64;
         for f in frames {
-            recorder.write_image(&f.frame)?;
-            recorder.write_label(&MatchedFrame {
+            self.recorder.write_image(&f.frame)?;
+            self.recorder.write_label(&MatchedFrame {
                 frame: f.frame.stamp,
                 label: f.label,
             })?;
-            if let Label::Phase { index, phase, .. } = f.label {
-                progress.set_message(format!("phase {index} ({})", phase_str(phase)));
-            }
-            progress.inc(1);
         }
-        Ok(())
+        Ok(n)
+    }
+}
+
+/// `stereotac record`.
+pub fn record(device: &DeviceArgs, args: &RecordArgs) -> Result<()> {
+    let stop = interrupt_flag()?;
+    if !(args.exposure_us.is_finite() && args.exposure_us > 0.0) {
+        bail!("--exposure-us must be positive");
+    }
+    if !(args.trigger_latency_us.is_finite() && args.trigger_latency_us >= 0.0) {
+        bail!("--trigger-latency-us must be zero or positive");
+    }
+    check_cameras(&args.cameras)?;
+    let mut opened = open(device)?;
+    let sync = if args.free_running {
+        CameraSync::FreeRunning
+    } else {
+        CameraSync::Triggered {
+            latency_us: args.trigger_latency_us,
+            tolerance_us: 500.0,
+        }
     };
+    let mut cameras = Vec::new();
+    for (i, name) in args.cameras.iter().enumerate() {
+        let source = open_camera(name, args, &opened)?;
+        let dir = if args.cameras.len() == 1 {
+            args.out.clone()
+        } else {
+            args.out.join(format!("cam{i}"))
+        };
+        eprintln!("camera {i}: {} -> {}", source.describe(), dir.display());
+        let recorder = Recorder::create(&dir)
+            .with_context(|| format!("starting a recording in {}", dir.display()))?;
+        let capture = Capture::new(
+            source,
+            MatcherConfig {
+                sync,
+                ..MatcherConfig::default()
+            },
+        );
+        cameras.push(CameraRecording {
+            capture,
+            recorder,
+            dir,
+        });
+    }
+    let sensor = &mut opened.sensor;
+    start(sensor, &args.sequence)?;
+    let end = deadline(sensor, &args.sequence)?;
+    let progress = crate::progress::spinner("recording");
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        let step = capture.step(sensor, Duration::from_millis(20))?;
-        write(step.frames)?;
+        let events = sensor.poll(Duration::from_millis(20))?;
+        for event in &events {
+            if let SensorEvent::Phase(p) = event {
+                progress.set_message(format!(
+                    "phase {} ({})",
+                    p.event.index,
+                    phase_str(p.event.phase)
+                ));
+            }
+        }
+        for camera in &mut cameras {
+            let frames = camera.capture.absorb(&events)?;
+            progress.inc(camera.write(frames)?);
+        }
     }
     // Ctrl-C or the end: stop the LEDs, then label and write every captured frame.
     let stopped = sensor.request(Request::Stop);
-    write(capture.finish())?;
-    recorder.flush()?;
+    for camera in &mut cameras {
+        let frames = camera.capture.finish();
+        camera.write(frames)?;
+        camera.recorder.flush()?;
+    }
     progress.finish_and_clear();
     stopped?;
-    let s = capture.stats();
-    let (images, lines) = recorder.counts();
-    println!(
-        "recorded {images} frames ({lines} index lines) in {}: {} labelled, {} straddling, {} with a lost event, {} without trigger, {} unresolved; {} frames dropped, {} events lost",
-        args.out.display(),
-        s.labelled,
-        s.straddling,
-        s.event_missing,
-        s.no_trigger,
-        s.unresolved,
-        s.dropped_frames,
-        s.dropped_events
-    );
+    for camera in &cameras {
+        let s = camera.capture.stats();
+        let (images, lines) = camera.recorder.counts();
+        println!(
+            "recorded {images} frames ({lines} index lines) in {}: {} labelled, {} straddling, {} with a lost event, {} without trigger, {} unresolved; {} frames dropped, {} events lost",
+            camera.dir.display(),
+            s.labelled,
+            s.straddling,
+            s.event_missing,
+            s.no_trigger,
+            s.unresolved,
+            s.dropped_frames,
+            s.dropped_events
+        );
+    }
     Ok(())
 }
 

@@ -48,6 +48,10 @@ enum Command {
         /// Print JSON.
         #[arg(long)]
         json: bool,
+        /// Keep watching: print sensors as they are plugged in and devices as they leave
+        /// (Ctrl-C stops).
+        #[arg(long, conflicts_with = "sim")]
+        watch: bool,
     },
     /// Handshake details, configuration, device counters and clock sync of one sensor.
     Info {
@@ -142,7 +146,8 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             (!no_tactile).then_some(out.as_path()),
         ),
-        Command::Devices { json } => link_cli::devices(&cli.device, json),
+        Command::Devices { json, watch: true } => link_cli::watch_devices(json),
+        Command::Devices { json, watch: false } => link_cli::devices(&cli.device, json),
         Command::Info { json } => link_cli::info(&cli.device, json),
         Command::Stream { sequence, json } => link_cli::stream(&cli.device, &sequence, json),
         Command::Record(args) => link_cli::record(&cli.device, &args),

@@ -98,3 +98,68 @@ fn flash_refuses_a_file_that_is_not_uf2() {
     assert!(!ok && err.contains("not a UF2 file"), "{err}");
     std::fs::remove_file(&path).unwrap();
 }
+
+#[test]
+fn record_takes_several_cameras_into_one_directory_each() {
+    let dir = std::env::temp_dir().join(format!("stereotac-cli-two-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = dir.to_str().unwrap();
+    let args = [
+        "--sim",
+        "record",
+        "--out",
+        d,
+        "--camera",
+        "sim",
+        "--camera",
+        "sim",
+        "--duration-s",
+        "1.3",
+    ];
+    let (ok, out, err) = stereotac(&args);
+    assert!(ok, "{err}");
+    assert_eq!(out.matches("0 frames dropped").count(), 2, "{out}");
+    let lines = |cam: &str| {
+        std::fs::read_to_string(dir.join(cam).join("index.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let (a, b) = (lines("cam0"), lines("cam1"));
+    assert!(a.len() >= 4, "{a:?}");
+    assert!(
+        a[0]["phase"].is_string() && a[0]["trigger"].is_u64(),
+        "{a:?}"
+    );
+    // Both cameras answer the same triggers, so they label the same phases.
+    let labels = |v: &[serde_json::Value]| {
+        v.iter()
+            .map(|l| (l["trigger"].clone(), l["phase"].clone()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(labels(&a), labels(&b));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cameras_and_backends_this_build_lacks_are_refused_with_the_fix() {
+    if !cfg!(feature = "v4l2") {
+        let (ok, _, err) = stereotac(&[
+            "record",
+            "--out",
+            "/nonexistent/x",
+            "--camera",
+            "/dev/video0",
+        ]);
+        assert!(!ok && err.contains("--features v4l2"), "{err}");
+    }
+    if !cfg!(feature = "libusb") {
+        let (ok, _, err) = stereotac(&["--libusb", "devices"]);
+        assert!(!ok && err.contains("--features libusb"), "{err}");
+    }
+    let (ok, _, err) = stereotac(&["--sim", "--libusb", "info"]);
+    assert!(!ok && err.contains("cannot be used with"), "{err}");
+    let (ok, _, err) = stereotac(&["--sim", "record", "--out", "/tmp/x", "--size", "64"]);
+    assert!(!ok && err.contains("640x480"), "{err}");
+}

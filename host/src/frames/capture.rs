@@ -70,10 +70,23 @@ impl<S: FrameSource> Capture<S> {
         &self.source
     }
 
+    /// The frame source, to change its settings while capturing.
+    pub fn source_mut(&mut self) -> &mut S {
+        &mut self.source
+    }
+
     /// Poll the sensor for at most `wait`, take the camera's frames, label what can be.
     pub fn step(&mut self, sensor: &mut Sensor, wait: Duration) -> Result<Step, CaptureError> {
         let events = sensor.poll(wait)?;
-        for event in &events {
+        let frames = self.absorb(&events)?;
+        Ok(Step { events, frames })
+    }
+
+    /// Feed sensor events polled elsewhere (one sensor, several cameras: poll once,
+    /// then absorb the same events into each camera's capture), take the camera's
+    /// frames, label what can be.
+    pub fn absorb(&mut self, events: &[SensorEvent]) -> Result<Vec<LabelledFrame>, FrameError> {
+        for event in events {
             if let SensorEvent::Phase(p) = event {
                 self.matcher.add_phase(*p);
             }
@@ -83,10 +96,7 @@ impl<S: FrameSource> Capture<S> {
             self.waiting.push_back(frame);
         }
         let decided = self.matcher.ready();
-        Ok(Step {
-            events,
-            frames: self.attach(decided),
-        })
+        Ok(self.attach(decided))
     }
 
     /// Label every frame still pending (end of capture).

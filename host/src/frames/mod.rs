@@ -8,6 +8,8 @@
 pub mod capture;
 pub mod replay;
 pub mod sim;
+#[cfg(all(feature = "v4l2", target_os = "linux"))]
+pub mod v4l2;
 
 use std::time::Duration;
 
@@ -75,4 +77,19 @@ pub trait FrameSource {
     fn stamp_ref(&self) -> StampRef;
     /// A short description for logs.
     fn describe(&self) -> String;
+}
+
+impl<T: FrameSource + ?Sized> FrameSource for Box<T> {
+    fn next_frame(&mut self, timeout: Duration) -> Result<Option<Frame>, FrameError> {
+        (**self).next_frame(timeout)
+    }
+    fn is_finished(&self) -> bool {
+        (**self).is_finished()
+    }
+    fn stamp_ref(&self) -> StampRef {
+        (**self).stamp_ref()
+    }
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
 }

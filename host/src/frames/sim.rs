@@ -113,7 +113,8 @@ pub struct SimulatedCamera {
 }
 
 impl SimulatedCamera {
-    /// A camera on the loopback's LED truth.
+    /// A camera on the loopback's LED truth, switched on now: like a real one it answers
+    /// only the triggers that come after this moment.
     pub fn new(
         timeline: Arc<Mutex<LedTimeline>>,
         clock: Arc<dyn HostClock>,
@@ -121,6 +122,18 @@ impl SimulatedCamera {
         exposure_us: f64,
         images: PhaseImages,
     ) -> Self {
+        let cursor = match clocking {
+            SimClocking::Triggered { latency_us } => {
+                let now = clock.now_us() as f64;
+                let truth = timeline.lock().unwrap_or_else(|e| e.into_inner());
+                let spans = truth.spans();
+                spans
+                    .iter()
+                    .position(|s| s.trigger.is_some_and(|(_, edge)| edge + latency_us >= now))
+                    .unwrap_or(spans.len())
+            }
+            SimClocking::FreeRunning { .. } => 0,
+        };
         Self {
             timeline,
             clock,
@@ -128,9 +141,14 @@ impl SimulatedCamera {
             exposure_us,
             images,
             sequence: 0,
-            cursor: 0,
+            cursor,
             drop_every: None,
         }
+    }
+
+    /// Show another scene from the next frame on (an object pressed into the skin).
+    pub fn set_images(&mut self, images: PhaseImages) {
+        self.images = images;
     }
 
     /// Drop every `n`th frame (the sequence number still advances, as a camera's does).

@@ -1,11 +1,14 @@
 //! Byte pipes to a sensor.
 //!
 //! [`Transport`] is deliberately small (send bytes, receive bytes with a timeout) so that
-//! every device end fits behind it: USB through nusb ([`usb`]), the in-memory
+//! every device end fits behind it: USB through nusb ([`usb`]) or, with the `libusb`
+//! feature, through libusb (`libusb`, for platforms where nusb falls short), the in-memory
 //! [`loopback`] that runs the firmware's own command handling on a simulated clock, the
 //! bare [`SimulatedSensor`] (device time stands still while the host talks), and the
 //! emulated RP2040 of the hardware-in-loop tests.
 
+#[cfg(feature = "libusb")]
+pub mod libusb;
 pub mod loopback;
 pub mod usb;
 
