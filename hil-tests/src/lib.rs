@@ -1,6 +1,17 @@
 //! Hardware-in-loop tests of the stereotac firmware.
 //!
-//! Planned (issue "Hardware-in-loop tests"): the release firmware ELF running in an
-//! emulated RP2040 (rp2040js, driven in lock-step from Rust) in CI, and the same tests
-//! against a real sensor when `STEREOTAC_HIL=device` is set. Nothing is implemented here
-//! yet; the crate exists so the workspace has its final shape.
+//! The release firmware ELF runs in an emulated RP2040 ([`emulator`]: rp2040js driven
+//! in lock-step from Rust, see `emulator/harness.mjs`), and the host library talks to
+//! it through [`emulator::EmulatedTransport`], a [`stereotac::transport::Transport`]
+//! like USB: the tests use the same host code as a real sensor. The emulator also
+//! traces the LED and trigger pins with simulated timestamps ([`trace`]), which
+//! [`ws2812`] decodes into the colours each strip latched.
+//!
+//! `cargo test -p stereotac-hil-tests` runs the emulated tests; they build the firmware
+//! (`cargo fw`) and install the emulator (`npm ci`) on first use. See the README for
+//! running them against a real sensor (`STEREOTAC_HIL=device`).
+
+pub mod emulator;
+pub mod setup;
+pub mod trace;
+pub mod ws2812;

@@ -51,7 +51,7 @@ pub async fn sequencer() {
             let tick = trigger::next_tick_us();
             let (event, message) = shared::with(|c| c.finish(&plan, write_start, latched, tick));
             if let TriggerOutcome::Fired { edge_us, .. } = event.trigger {
-                trigger::arm(tick, edge_us, plan.pulse_us);
+                trigger::arm(edge_us, plan.pulse_us);
             }
             message
         });

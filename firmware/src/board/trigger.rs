@@ -28,9 +28,11 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Instant;
 
-/// Cycles from the delay word's push to the state machine's `pull` completing, plus the
-/// `out` and the first `jmp` (measured in emulation; see hil-tests).
-const ARM_LATENCY_CYCLES: u32 = 4;
+/// Cycles from the timer tick to the countdown's start, beyond the program's own 3
+/// (the spin loop's exit, the push, the `pull`): calibrated in the emulated RP2040
+/// (hil-tests, gradient test: edges landed 1.01-1.17 µs late with 4), to be re-checked
+/// on a real sensor with the trigger looped back.
+const ARM_LATENCY_CYCLES: u32 = 140;
 
 static TRIGGER: Mutex<CriticalSectionRawMutex, RefCell<Option<TriggerPio>>> =
     Mutex::new(RefCell::new(None));
@@ -110,21 +112,29 @@ pub fn next_tick_us() -> u64 {
     }
 }
 
-/// Schedule a pulse of `width_us` whose rising edge is at `edge_us`, given that the timer
-/// ticked to `tick_us` just now. Must be called in a critical section right after
-/// [`next_tick_us`], with `edge_us > tick_us`.
-pub fn arm(tick_us: u64, edge_us: u64, width_us: u32) {
+/// Schedule a pulse of `width_us` whose rising edge is at `edge_us` (timer µs, in the
+/// future). Call in a critical section.
+///
+/// The pulse width is pushed first (the state machine takes it and waits for the
+/// delay). The delay is computed for the next timer tick, the code spins until that
+/// tick, and pushes it at once: the countdown then starts a fixed number of cycles
+/// after the tick, whatever the caller did before (composing the phase event takes
+/// about 4 µs, which the first version counted into the edge). If `edge_us` is not
+/// after that tick the pulse fires at once; the sequencer's minimum lead prevents it.
+pub fn arm(edge_us: u64, width_us: u32) {
     TRIGGER.lock(|t| {
         let mut t = t.borrow_mut();
         let Some(t) = t.as_mut() else { return };
+        let width = width_us.saturating_mul(t.cycles_per_us).saturating_sub(1);
+        let tick_us = Instant::now().as_micros() + 1;
         let lead_us = u32::try_from(edge_us.saturating_sub(tick_us)).unwrap_or(u32::MAX);
-        // Edge = pull + 2 + (x + 1) cycles; the push itself takes ARM_LATENCY_CYCLES.
+        // Edge = push + ARM_LATENCY_CYCLES + pull + out + (x + 1) jmp cycles.
         let delay = lead_us
             .saturating_mul(t.cycles_per_us)
             .saturating_sub(3 + ARM_LATENCY_CYCLES);
-        let width = width_us.saturating_mul(t.cycles_per_us).saturating_sub(1);
         let tx = t.sm.tx();
         tx.push(width);
+        while Instant::now().as_micros() < tick_us {}
         tx.push(delay);
     });
 }
