@@ -166,24 +166,27 @@ for (const pio of mcu.pio) {
   }
   const write = pio.writeUint32.bind(pio);
   pio.writeUint32 = (offset, value) => {
-    const before = pio.machines.map((sm) => [sm.waiting, sm.cycles]);
+    const cyclesBefore = pio.machines.map((sm) => sm.cycles);
     write(offset, value);
     const now = clock.nanos;
     for (const m of machines) {
       if (m.pio !== pio) continue;
-      const [wasWaiting, cycles] = before[m.sm.index];
       if (m.idle && !m.sm.waiting) {
-        // A FIFO write released a stalled pull/out: it completed now, then its delay.
+        // A FIFO write (or restart) released a stalled pull/out: it completed now,
+        // then its delay.
         m.idle = false;
-        m.readyNs = now + (1 + m.sm.cycles - cycles) * periodNs(m);
-      } else if (m.idle || !wasWaiting) {
-        m.idle = false;
+        m.readyNs = now + (1 + m.sm.cycles - cyclesBefore[m.sm.index]) * periodNs(m);
+      } else if (!m.idle) {
+        // A machine just enabled must not replay the time it was off.
         m.readyNs = Math.max(m.readyNs, now);
       }
     }
     pio.checkChangedPins();
   };
 }
+// rp2040js's WaitType values for a pull and an autopull out on an empty TX FIFO.
+const WAIT_TX_FIFO = 3;
+const WAIT_OUT = 5;
 function periodNs(m) {
   const div = m.sm.clockDivInt === 0 ? 65536 : m.sm.clockDivInt + m.sm.clockDivFrac / 256;
   return (div * 1e9) / mcu.clkSys;
@@ -203,7 +206,7 @@ function stepPio(now) {
       const cycles = sm.cycles;
       sm.step();
       m.pio.checkChangedPins();
-      if (sm.waiting && (sm.waitType === 3 || sm.waitType === 5)) {
+      if (sm.waiting && (sm.waitType === WAIT_TX_FIFO || sm.waitType === WAIT_OUT)) {
         // Stalled on an empty TX FIFO: only a FIFO write releases it.
         m.idle = true;
       } else {

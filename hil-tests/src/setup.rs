@@ -9,8 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use stereotac::device::{Connector, Sensor, SensorConfig, SensorError};
-use stereotac::transport::usb::OpenError;
+use stereotac::device::{Sensor, SensorConfig, SensorError, connect_once};
 
 use crate::emulator::{EmulatedClock, EmulatedTransport, Emulator, SharedEmulator, harness_dir};
 
@@ -126,16 +125,10 @@ impl Rig {
     /// The host library's [`Sensor`] on the emulated one (connects once; a reconnect
     /// after the emulator stops fails as an unplugged sensor would).
     pub fn sensor(&self, config: SensorConfig) -> Result<Sensor, SensorError> {
-        let mut transport = Some(self.transport());
-        let connector: Connector = Box::new(move || {
-            transport
-                .take()
-                .map(|t| Box::new(t) as _)
-                .ok_or(OpenError::NotFound {
-                    serial: None,
-                    present: vec![],
-                })
-        });
-        Sensor::connect(connector, Arc::new(self.clock.clone()), config)
+        Sensor::connect(
+            connect_once(self.transport()),
+            Arc::new(self.clock.clone()),
+            config,
+        )
     }
 }

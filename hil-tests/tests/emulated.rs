@@ -23,7 +23,7 @@ fn rig() -> Option<Rig> {
         }
         Target::Device => {
             eprintln!(
-                "STEREOTAC_HIL=device: these tests need the emulator's pin trace; run tests/device.rs"
+                "STEREOTAC_HIL=device: the device run is not implemented yet (see the README); skipped"
             );
             None
         }
@@ -228,16 +228,15 @@ fn gradient_mode_at_4_hz_is_exact_lit_right_and_reported_truthfully() {
         );
         // Colours: dx lights strips 1 (blue) and 3 (red), dy strips 2 (blue) and 4 (red).
         let (blue, red, dark) = match e.phase {
-            Phase::Dx => ([0, 2], [2, 0], [1, 3]),
-            Phase::Dy => ([1, 3], [3, 1], [0, 2]),
+            Phase::Dx => (0, 2, [1, 3]),
+            Phase::Dy => (1, 3, [0, 2]),
             other => panic!("gradient mode showed {other:?}"),
         };
         let leds = usize::from(config.leds_per_strip);
-        let b = lit(&frames[blue[0]], leds).expect("blue strip lit");
+        let b = lit(&frames[blue], leds).expect("blue strip lit");
         assert!(b.b > 0 && b.r == 0 && b.g == 0, "{b:?}");
-        let r = lit(&frames[red[0]], leds).expect("red strip lit");
+        let r = lit(&frames[red], leds).expect("red strip lit");
         assert!(r.r > 0 && r.b == 0 && r.g == 0, "{r:?}");
-        let _ = (blue[1], red[1]);
         assert!(
             frames[dark[0]].is_dark() && frames[dark[1]].is_dark(),
             "phase {} dark strips",

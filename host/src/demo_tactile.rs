@@ -12,7 +12,7 @@ use std::time::Duration;
 use crate::progress::bar;
 use anyhow::{Context, Result, bail};
 use stereotac::clock::{HostClock, VirtualClock};
-use stereotac::device::{Connector, Sensor, SensorConfig};
+use stereotac::device::{Sensor, SensorConfig, connect_once};
 use stereotac::frames::capture::{Capture, LabelledFrame};
 use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
 use stereotac::matcher::{CameraSync, Label, MatcherConfig};
@@ -24,7 +24,6 @@ use stereotac::tactile::reconstruct::Reconstructor;
 use stereotac::tactile::render::{Optics, Scene, builtin_scenes};
 use stereotac::tactile::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
 use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig};
-use stereotac::transport::usb::OpenError;
 use stereotac_protocol::{Mode, Phase, Request};
 
 /// Presses rendered for the demo's calibration.
@@ -55,16 +54,7 @@ fn connect_simulated() -> Result<(Sensor, Arc<std::sync::Mutex<LedTimeline>>)> {
         },
     );
     let timeline = link.timeline();
-    let mut link = Some(link);
-    let connector: Connector = Box::new(move || {
-        link.take()
-            .map(|l| Box::new(l) as _)
-            .ok_or(OpenError::NotFound {
-                serial: None,
-                present: vec![],
-            })
-    });
-    let sensor = Sensor::connect(connector, clock, SensorConfig::default())?;
+    let sensor = Sensor::connect(connect_once(link), clock, SensorConfig::default())?;
     Ok((sensor, timeline))
 }
 

@@ -54,6 +54,21 @@ where
 /// A boxed [`Connect`].
 pub type Connector = Box<dyn Connect>;
 
+/// A connector that hands out `transport` once; later opens find no sensor, as after
+/// an unplug with nothing coming back (simulations, emulation, tests).
+pub fn connect_once(transport: impl Transport + Send + 'static) -> Connector {
+    let mut transport = Some(transport);
+    Box::new(move || {
+        transport
+            .take()
+            .map(|t| Box::new(t) as BoxedTransport)
+            .ok_or(OpenError::NotFound {
+                serial: None,
+                present: vec![],
+            })
+    })
+}
+
 /// Why a sensor operation failed.
 #[derive(Debug, thiserror::Error)]
 pub enum SensorError {

@@ -12,7 +12,9 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use stereotac::clock::{HostClock, MonotonicClock};
-use stereotac::device::{Connector, Sensor, SensorConfig, SensorEvent, hex, status_line};
+use stereotac::device::{
+    Connector, Sensor, SensorConfig, SensorEvent, connect_once, hex, status_line,
+};
 use stereotac::frames::capture::Capture;
 use stereotac::frames::replay::Recorder;
 use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
@@ -122,16 +124,7 @@ fn open(device: &DeviceArgs) -> Result<Opened> {
             },
         );
         let timeline = link.timeline();
-        let mut link = Some(link);
-        let connector: Connector = Box::new(move || {
-            link.take()
-                .map(|l| Box::new(l) as _)
-                .ok_or(usb::OpenError::NotFound {
-                    serial: None,
-                    present: vec![],
-                })
-        });
-        (connector, Some(timeline))
+        (connect_once(link), Some(timeline))
     } else {
         (usb_connector(device)?, None)
     };

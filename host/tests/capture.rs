@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, VirtualClock};
-use stereotac::device::{Connector, Sensor, SensorConfig};
+use stereotac::device::{Sensor, SensorConfig, connect_once};
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
 use stereotac::frames::replay::{Recorder, ReplaySource};
@@ -47,10 +47,12 @@ fn run(mode: Mode, (clocking, sync): (SimClocking, CameraSync), drop_every: Opti
         },
     );
     let timeline = link.timeline();
-    let mut link = Some(link);
-    let connector: Connector = Box::new(move || Ok(Box::new(link.take().expect("one open")) as _));
-    let mut sensor =
-        Sensor::connect(connector, Arc::new(clock.clone()), SensorConfig::default()).unwrap();
+    let mut sensor = Sensor::connect(
+        connect_once(link),
+        Arc::new(clock.clone()),
+        SensorConfig::default(),
+    )
+    .unwrap();
     let images = images();
     let mut camera = SimulatedCamera::new(
         timeline,

@@ -6,7 +6,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, VirtualClock};
-use stereotac::device::{Connector, Sensor, SensorConfig, SensorError, SensorEvent};
+use stereotac::device::{Connector, Sensor, SensorConfig, SensorError, SensorEvent, connect_once};
 use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig, PlugHandle};
 use stereotac::transport::usb::OpenError;
 use stereotac_protocol::*;
@@ -25,17 +25,12 @@ fn rig(config: LoopbackConfig) -> Rig {
     let link = Loopback::new(BOARD, Arc::new(clock.clone()), config);
     let plug = link.plug_handle();
     let timeline = link.timeline();
-    let mut once = Some(link);
-    let connector: Connector = Box::new(move || {
-        once.take()
-            .map(|l| Box::new(l) as _)
-            .ok_or(OpenError::NotFound {
-                serial: None,
-                present: vec![],
-            })
-    });
-    let sensor = Sensor::connect(connector, Arc::new(clock.clone()), SensorConfig::default())
-        .expect("connect");
+    let sensor = Sensor::connect(
+        connect_once(link),
+        Arc::new(clock.clone()),
+        SensorConfig::default(),
+    )
+    .expect("connect");
     Rig {
         clock,
         plug,

@@ -304,7 +304,7 @@ impl FrameSource for V4l2Camera {
         let ready = self
             .stream
             .handle()
-            .poll(libc_pollin(), ms)
+            .poll(POLLIN, ms)
             .map_err(|e| camera_error(&self.path, e))?;
         if ready == 0 {
             return Ok(None);
@@ -344,9 +344,7 @@ impl FrameSource for V4l2Camera {
 }
 
 /// `POLLIN` (poll(2)'s "data to read"), the same value on every Linux architecture.
-const fn libc_pollin() -> i16 {
-    0x001
-}
+const POLLIN: i16 = 0x001;
 
 #[cfg(test)]
 mod tests {
