@@ -45,7 +45,13 @@ pub const SETTLE_RANGE_US: core::ops::RangeInclusive<u32> = 0..=1_000_000;
 /// Upper bound of the time from the start of an LED write until the last bit of every
 /// strip is out, for `frame_leds` pixels per strip (24 bits each).
 pub const fn led_write_us(frame_leds: u16) -> u32 {
-    (frame_leds as u32 * 24 * WS2812_BIT_NS).div_ceil(1000) + STRIP_STAGGER_US
+    led_bits_us(frame_leds) + STRIP_STAGGER_US
+}
+
+/// Time the bit stream of one strip of `frame_leds` pixels takes on the wire, µs
+/// (rounded up).
+pub const fn led_bits_us(frame_leds: u16) -> u32 {
+    (frame_leds as u32 * 24 * WS2812_BIT_NS).div_ceil(1000)
 }
 
 /// Offset of the trigger edge from the phase start, µs.

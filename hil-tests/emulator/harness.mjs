@@ -21,6 +21,8 @@
 //  4. A device-mode OUT buffer's AVAILABLE bit is cleared when the firmware arms it:
 //     it is kept set until the host delivers data (embassy-rp polls it).
 //  5. STALL is never reported to the host side: the host model watches for it.
+// Debugging: HIL_TRACE_USB=1 logs USB traffic, HIL_TRACE_DMA=1 DMA channel triggers, on
+// stderr with simulated ns.
 // The RP2040 boot ROM is not loaded (its licence forbids use off the chip): a tiny ROM
 // of BKPT stubs answers rom_table_lookup and the flash helpers.
 
@@ -158,6 +160,9 @@ let halted = false;
 
 // Fix 3: PIO stepped in simulated time.
 const machines = [];
+// Set when a register write released or enabled a machine: the CPU loop then stops so
+// the machine is stepped on time (its edges are stamped when stepped).
+let pioWoken = false;
 for (const pio of mcu.pio) {
   pio.run = () => {}; // never the timer loop
   for (const sm of pio.machines) {
@@ -176,9 +181,11 @@ for (const pio of mcu.pio) {
         // then its delay.
         m.idle = false;
         m.readyNs = now + (1 + m.sm.cycles - cyclesBefore[m.sm.index]) * periodNs(m);
+        pioWoken = true;
       } else if (!m.idle) {
         // A machine just enabled must not replay the time it was off.
         m.readyNs = Math.max(m.readyNs, now);
+        pioWoken = true;
       }
     }
     pio.checkChangedPins();
@@ -410,6 +417,13 @@ function drainRtt() {
   return out;
 }
 
+if (process.env.HIL_TRACE_DMA) {
+  const w = mcu.dma.writeUint32.bind(mcu.dma);
+  mcu.dma.writeUint32 = (offset, value) => {
+    if ((offset & 0x3f) === 0x0c && offset < 0x400) process.stderr.write(`[dma ${clock.nanos}] ch${offset >> 6} trig ${value.toString(16)}\n`);
+    w(offset, value);
+  };
+}
 // ---------------------------------------------------------------- the run loop
 function runUntil(targetNs, stop) {
   while (clock.nanos < targetNs && !halted) {
@@ -423,10 +437,17 @@ function runUntil(targetNs, stop) {
     } else {
       // Instructions until the next PIO step is due.
       const until = Math.min(pioNext, targetNs);
+      pioWoken = false;
       do {
         const cycles = core.executeInstruction();
         clock.tick(cycles * NS_PER_CYCLE);
-      } while (!core.waiting && clock.nanos < until && !halted && !(stop && stop()));
+      } while (
+        !core.waiting &&
+        !pioWoken &&
+        clock.nanos < until &&
+        !halted &&
+        !(stop && stop())
+      );
     }
     stepPio(clock.nanos);
     advanceEnumeration();

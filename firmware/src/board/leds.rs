@@ -2,13 +2,23 @@
 //! each fed by its own DMA channel, written together.
 //!
 //! Every write clocks out [`MAX_LEDS_PER_STRIP`] pixels per strip (pixels past the
-//! configured strip length are dark), so a write always takes the same time; its end is
-//! computed from the bit rate (see `stereotac_firmware::sequencer::led_write_us`), because
-//! `PioWs2812::write` returns while the last words may still be in the PIO FIFO.
+//! configured strip length are dark, so a longer physical strip shows no stale colours),
+//! so a write always takes the same time. Its end is computed from the bit rate (see
+//! `stereotac_firmware::sequencer::led_bits_us`), because `PioWs2812::write` returns
+//! while the last words may still be in the PIO FIFO.
+//!
+//! Timestamps: the four state machines are released together right after the timer is
+//! read (see [`Strips::write`]), so every strip's first bit follows the reported start
+//! by under a microsecond (measured in emulation) and all four end together.
+
+use core::future::{Future, poll_fn};
+use core::pin::pin;
+use core::task::Poll;
 
 use embassy_futures::join::join4;
 use embassy_rp::Peri;
 use embassy_rp::gpio::Pin;
+use embassy_rp::pac;
 use embassy_rp::peripherals::{
     DMA_CH0, DMA_CH1, DMA_CH2, DMA_CH3, PIN_2, PIN_3, PIN_4, PIN_5, PIO0,
 };
@@ -23,13 +33,15 @@ use stereotac_firmware::{MAX_LEDS_PER_STRIP, PhaseFrame};
 use super::shared;
 
 const N: usize = MAX_LEDS_PER_STRIP as usize;
+/// SM_ENABLE bits of state machines 0..3 (strips 1..4).
+const ALL_STRIPS: u8 = 0b1111;
 
 type Strip<const S: usize> = PioWs2812<'static, PIO0, S, N, Grb>;
 
 /// A frame to show.
 pub static DRAW: Signal<CriticalSectionRawMutex, PhaseFrame> = Signal::new();
-/// A frame has been written; carries the write start time (device µs).
-pub static DRAWN: Signal<CriticalSectionRawMutex, u64> = Signal::new();
+/// A frame has been written; carries when its write started.
+pub static DRAWN: Signal<CriticalSectionRawMutex, Drawn> = Signal::new();
 
 /// The four strips and the PIO block they run on.
 pub struct Strips {
@@ -93,17 +105,55 @@ impl Strips {
         self.pins
     }
 
-    async fn write(&mut self, frame: &PhaseFrame) {
+    /// Write `frame` to the four strips at once; returns when the last word has been
+    /// handed to the PIO.
+    ///
+    /// The four state machines are paused while the DMA transfers start and fill their
+    /// FIFOs, then released by one register write right after the timer is read: all
+    /// four bit streams begin together, 3 PIO cycles (375 ns) after the reported start.
+    async fn write(&mut self, frame: &PhaseFrame) -> Drawn {
         let strip = |i: usize| -> [RGB8; N] { core::array::from_fn(|px| frame.pixel(i, px)) };
         let (c1, c2, c3, c4) = (strip(0), strip(1), strip(2), strip(3));
-        join4(
+        // Between phases every machine is stalled on its empty FIFO with the line low,
+        // so pausing it here changes nothing on the wire.
+        set_strips_enabled(false);
+        let mut writes = pin!(join4(
             self.s1.write(&c1),
             self.s2.write(&c2),
             self.s3.write(&c3),
             self.s4.write(&c4),
-        )
-        .await;
+        ));
+        // The first poll packs the colours and starts all four DMA transfers.
+        let done = poll_fn(|cx| Poll::Ready(writes.as_mut().poll(cx).is_ready())).await;
+        let start_us = critical_section::with(|_| {
+            let now = shared::now_us();
+            set_strips_enabled(true);
+            now
+        });
+        if !done {
+            writes.await;
+        }
+        Drawn { start_us }
     }
+}
+
+/// Pause or release the four strip state machines together (one register write; the
+/// restart bits read as zero, so the read-modify-write touches nothing else).
+fn set_strips_enabled(on: bool) {
+    critical_section::with(|_| {
+        pac::PIO0.ctrl().modify(|w| {
+            let others = w.sm_enable() & !ALL_STRIPS;
+            w.set_sm_enable(if on { others | ALL_STRIPS } else { others });
+        })
+    });
+}
+
+/// When a frame's write started.
+#[derive(Debug, Clone, Copy)]
+pub struct Drawn {
+    /// Read just before the four state machines were released (device µs): the first
+    /// bit of every strip follows within a microsecond.
+    pub start_us: u64,
 }
 
 /// Writes every frame it is given and reports when the write started.
@@ -111,8 +161,7 @@ impl Strips {
 pub async fn led_strips(mut strips: Strips) {
     loop {
         let frame = DRAW.wait().await;
-        let start = shared::now_us();
-        strips.write(&frame).await;
-        DRAWN.signal(start);
+        let drawn = strips.write(&frame).await;
+        DRAWN.signal(drawn);
     }
 }

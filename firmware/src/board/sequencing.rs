@@ -7,16 +7,16 @@
 
 use embassy_futures::select::{Either, select};
 use embassy_time::{Instant, Timer};
-use stereotac_firmware::sequencer::{WS2812_RESET_US, led_write_us};
+use stereotac_firmware::sequencer::{WS2812_RESET_US, led_bits_us};
 use stereotac_firmware::{MAX_LEDS_PER_STRIP, PhaseFrame};
 use stereotac_protocol::TriggerOutcome;
 
-use super::leds::{DRAW, DRAWN};
+use super::leds::{DRAW, DRAWN, Drawn};
 use super::shared::{self, RECONFIGURED};
 use super::trigger;
 
-/// Write `frame` to the strips; returns the write start (device µs).
-async fn draw(frame: PhaseFrame) -> u64 {
+/// Write `frame` to the strips; returns when the write started.
+async fn draw(frame: PhaseFrame) -> Drawn {
     DRAWN.reset();
     DRAW.signal(frame);
     DRAWN.wait().await
@@ -24,7 +24,9 @@ async fn draw(frame: PhaseFrame) -> u64 {
 
 #[embassy_executor::task]
 pub async fn sequencer() {
-    let write_and_latch_us = u64::from(led_write_us(MAX_LEDS_PER_STRIP) + WS2812_RESET_US);
+    // From the release of the four strips to their latch; +1 for the timer read's
+    // rounding.
+    let bits_and_latch_us = u64::from(led_bits_us(MAX_LEDS_PER_STRIP) + WS2812_RESET_US + 1);
     let mut dark = false;
     loop {
         let Some(plan) = shared::with(|c| c.plan(shared::now_us())) else {
@@ -45,8 +47,9 @@ pub async fn sequencer() {
             c.frame(plan.phase)
         });
         dark = false;
-        let write_start = draw(frame).await;
-        let latched = write_start + write_and_latch_us;
+        let drawn = draw(frame).await;
+        let write_start = drawn.start_us;
+        let latched = write_start + bits_and_latch_us;
         let message = critical_section::with(|_| {
             let tick = trigger::next_tick_us();
             let (event, message) = shared::with(|c| c.finish(&plan, write_start, latched, tick));
