@@ -24,10 +24,15 @@ use stereotac_protocol::{
 pub const WS2812_BIT_NS: u32 = 1250;
 /// Low time after the last bit before the pixels latch, in µs (WS2812B needs > 280 µs).
 pub const WS2812_RESET_US: u32 = 300;
-/// Allowance for the start of the LED write after the phase boundary (task wake-up and
-/// DMA set-up), in µs. A later start that still latches in time is fine; one that does
-/// not becomes an overrun.
+/// Allowance for the start of the LED write after the phase boundary, in µs. The board
+/// prepares the write [`PREPARE_LEAD_US`] ahead and starts it on the boundary, so this
+/// only matters when the executor was busy; a later start that still latches in time is
+/// fine, one that does not becomes an overrun.
 pub const WRITE_START_SLACK_US: u32 = 100;
+/// How long before a phase boundary the board composes the frame and loads the strips'
+/// FIFOs (measured in emulation: ~100 µs, up to ~150 µs when the heartbeat is encoded at
+/// the same moment), µs.
+pub const PREPARE_LEAD_US: u32 = 300;
 /// Allowance for the four strips' DMA transfers starting one after another, in µs.
 pub const STRIP_STAGGER_US: u32 = 20;
 /// The trigger must be armed at least this long before its edge, in µs.

@@ -236,8 +236,7 @@ let ep0OutArmed = false;
 const outQueue = [];
 const outArmed = new Map(); // endpoint -> size the firmware armed
 let reading = true;
-const heldReady = [];
-const heldIn = [];
+const heldIn = []; // IN buffer controls armed while the host was not reading
 let inBytes = [];
 let enumerated = null;
 
@@ -245,6 +244,12 @@ let enumerated = null;
 const dpramUpdated = usb.DPRAMUpdated.bind(usb);
 usb.DPRAMUpdated = (offset, value) => {
   const isBufCtrl = offset >= 0x80 && offset < 0x100;
+  if (!reading && inEp > 0 && offset === 0x80 + inEp * 8 && value & AVAILABLE) {
+    // A host that does not read leaves the armed IN buffer AVAILABLE (the firmware
+    // cannot queue the next one) until it reads again.
+    heldIn.push(offset);
+    return;
+  }
   if (isBufCtrl && offset <= 0x84 && value & STALL && ctl) {
     ctl.status = 'stall';
     ctl.done = true;
@@ -260,14 +265,6 @@ usb.finishRead = (endpoint, buffer) => {
   const reg = 0x84 + endpoint * 8;
   dpram.setUint32(reg, dpram.getUint32(reg, true) & ~AVAILABLE, true);
   finishRead(endpoint, buffer);
-};
-const indicateBufferReady = usb.indicateBufferReady.bind(usb);
-usb.indicateBufferReady = (endpoint, out) => {
-  if (!out && endpoint === inEp && inEp > 0 && !reading) {
-    heldReady.push(endpoint);
-    return;
-  }
-  indicateBufferReady(endpoint, out);
 };
 
 function deliverOut() {
@@ -299,8 +296,7 @@ usb.onEndpointWrite = (endpoint, buffer) => {
     return;
   }
   if (endpoint === inEp) {
-    if (reading) inBytes.push(...buffer);
-    else heldIn.push(...buffer);
+    inBytes.push(...buffer);
   }
 };
 usb.onEndpointRead = (endpoint, size) => {
@@ -486,8 +482,7 @@ function handle(command) {
     case 'reading':
       reading = !!command.on;
       if (reading) {
-        inBytes.push(...heldIn.splice(0));
-        for (const ep of heldReady.splice(0)) indicateBufferReady(ep, false);
+        for (const offset of heldIn.splice(0)) usb.DPRAMUpdated(offset, dpram.getUint32(offset, true));
       }
       return { ok: true };
     case 'control': {

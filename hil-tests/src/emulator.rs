@@ -32,6 +32,9 @@ pub enum EmulatorError {
     /// The harness answered with an error or went away.
     #[error("emulator: {0}")]
     Harness(String),
+    /// The defmt log could not be decoded.
+    #[error("defmt log: {0}")]
+    Log(String),
     /// The firmware halted (runaway CPU, unknown breakpoint).
     #[error("the emulated CPU halted at {t_ns} ns: {faults:?}")]
     Halted {
@@ -114,6 +117,7 @@ pub struct Emulator {
     pending_in: Vec<u8>,
     trace: PinTrace,
     rtt: Vec<u8>,
+    elf: PathBuf,
     faults: Vec<String>,
     bootloader: bool,
     enumeration: Enumeration,
@@ -150,6 +154,7 @@ impl Emulator {
             pending_in: Vec::new(),
             trace: PinTrace::default(),
             rtt: Vec::new(),
+            elf: elf.to_path_buf(),
             faults: Vec::new(),
             bootloader: false,
             enumeration: Enumeration {
@@ -283,6 +288,32 @@ impl Emulator {
     /// RTT (defmt) bytes the firmware logged.
     pub fn rtt(&self) -> &[u8] {
         &self.rtt
+    }
+
+    /// The firmware's defmt log so far, decoded with the ELF's string table: one line
+    /// per message, with the firmware's timestamp and level.
+    pub fn log(&self) -> Result<Vec<String>, EmulatorError> {
+        let elf = std::fs::read(&self.elf)
+            .map_err(|e| EmulatorError::Log(format!("{}: {e}", self.elf.display())))?;
+        let table = defmt_decoder::Table::parse(&elf)
+            .map_err(|e| EmulatorError::Log(e.to_string()))?
+            .ok_or_else(|| EmulatorError::Log("the ELF has no defmt table".into()))?;
+        let mut decoder = table.new_stream_decoder();
+        decoder.received(&self.rtt);
+        let mut lines = Vec::new();
+        loop {
+            match decoder.decode() {
+                Ok(frame) => lines.push(frame.display(false).to_string()),
+                Err(defmt_decoder::DecodeError::UnexpectedEof) => return Ok(lines),
+                Err(defmt_decoder::DecodeError::Malformed) if table.encoding().can_recover() => {}
+                Err(defmt_decoder::DecodeError::Malformed) => {
+                    return Err(EmulatorError::Log(format!(
+                        "malformed frame after {} messages",
+                        lines.len()
+                    )));
+                }
+            }
+        }
     }
 
     /// Emulator warnings (unimplemented registers and the like).

@@ -11,8 +11,8 @@ use stereotac_hil_tests::emulator::{ControlOutcome, lock};
 use stereotac_hil_tests::setup::{HOST_OFFSET_US, HOST_PPM, Rig, Target, target};
 use stereotac_hil_tests::ws2812::{Ws2812Frame, decode};
 use stereotac_protocol::{
-    DeviceError, Field, Mode, PROTOCOL_VERSION, Phase, PhaseEvent, Request, Response, Rgb, Strip,
-    StripSettings, Timing, TriggerOutcome, USB_PID, USB_VID,
+    Config, DeviceError, FaultKind, Field, Mode, PROTOCOL_VERSION, Phase, PhaseEvent, Request,
+    Response, Rgb, Strip, StripSettings, Timing, TriggerOutcome, USB_PID, USB_VID,
 };
 
 fn rig() -> Option<Rig> {
@@ -147,70 +147,102 @@ fn enumerates_handshakes_and_answers_every_command() {
     let later = emulator.now_ns() + 50_000_000;
     emulator.run_until(later, false).unwrap();
     assert!(emulator.bootloader_requested());
+    // The defmt log over RTT, decoded with the ELF, tells the same story.
+    let log = emulator.log().unwrap();
+    for expected in [
+        "stereotac firmware",
+        "host connected",
+        "rebooting into the USB bootloader",
+    ] {
+        assert!(
+            log.iter().any(|l| l.contains(expected)),
+            "{expected:?} not in {log:#?}"
+        );
+    }
 }
 
-#[test]
-fn gradient_mode_at_4_hz_is_exact_lit_right_and_reported_truthfully() {
-    let Some(rig) = rig() else { return };
-    let mut s = rig.sensor(SensorConfig::default()).unwrap();
-    let Response::Config(config) = s.request(Request::GetConfig).unwrap() else {
-        panic!("no config")
-    };
-    let settle_us = u64::from(config.timing.led_settle_us);
-    s.request(Request::SetMode(Mode::Gradient)).unwrap();
-    s.request(Request::Start).unwrap();
-    let (events, _) = phases(&mut s, 42, Duration::from_secs(15));
-    assert!(events.len() >= 42, "{} phases", events.len());
-    assert_eq!(s.counters().link.lost_events, 0);
-    // Let the last phase's trigger fire before reading the trace.
-    let later = s.clock().now_us() + 300_000;
-    s.clock().sleep_until(later);
+/// What [`check_phases`] measured, worst case over the phases.
+#[derive(Debug, Default)]
+struct Measured {
+    /// Shortest and longest trigger period, ns.
+    period_ns: (i64, i64),
+    /// Traced trigger edge vs the event's `edge_us`.
+    edge_error_ns: u64,
+    /// First WS2812 bit after the event's `write_start_us`.
+    write_lag_ns: i64,
+    /// Write start after the phase boundary, µs.
+    boundary_lag_us: u64,
+    /// Real latch (last bit + reset) vs the event's `latched_us`.
+    latch_error_ns: u64,
+}
+
+/// Expected strip colours of a phase: for each strip, `None` (dark) or the one colour
+/// channel ('r' or 'b') it shows.
+fn expected_channels(phase: Phase) -> [Option<char>; 4] {
+    match phase {
+        Phase::Dark => [None; 4],
+        Phase::Dx => [Some('b'), None, Some('r'), None],
+        Phase::Dy => [None, Some('b'), None, Some('r')],
+        Phase::All => [Some('b'), Some('b'), Some('r'), Some('r')],
+    }
+}
+
+/// Check every phase event against the pins: its trigger edge is on the trace within
+/// 2 µs, after the real latch + settle; its strips started together within 2 µs of the
+/// reported write start and latched within 2 µs of the reported latch; each strip shows
+/// the phase's colour on its `leds` pixels (dark beyond); trigger periods are `period_us`
+/// within 1 µs, and the span shows no drift. Events must be consecutive and all fired.
+fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u64) -> Measured {
     let indices: Vec<u32> = events.iter().map(|e| e.index).collect();
     assert!(indices.windows(2).all(|w| w[1] == w[0] + 1), "{indices:?}");
-
-    // The trigger pin: 4 Hz to the microsecond, no drift.
-    let rises = lock(&rig.emulator).trace().trigger_rises();
-    let edges: Vec<String> = events
-        .iter()
-        .map(|e| format!("{}:{:?}", e.index, e.trigger))
+    let first_ns = events[0].write_start_us * 1000;
+    let last_ns = events.last().unwrap().write_start_us * 1000 + period_us * 1000;
+    let rises: Vec<u64> = lock(&rig.emulator)
+        .trace()
+        .trigger_rises()
+        .into_iter()
+        .filter(|&r| r >= first_ns && r < last_ns)
         .collect();
-    assert!(
-        rises.len() >= 42,
-        "{} trigger edges {rises:?} {edges:?}",
-        rises.len()
-    );
-    let period_ns = 250_000_000i64;
+    assert_eq!(rises.len(), events.len(), "one trigger edge per phase");
+    let period_ns = period_us as i64 * 1000;
+    let mut m = Measured {
+        period_ns: (i64::MAX, i64::MIN),
+        ..Measured::default()
+    };
     for w in rises.windows(2) {
         let d = w[1] as i64 - w[0] as i64;
         assert!((d - period_ns).abs() <= 1_000, "trigger period {d} ns");
+        m.period_ns = (m.period_ns.0.min(d), m.period_ns.1.max(d));
     }
     let span = *rises.last().unwrap() as i64 - rises[0] as i64;
     assert!(
         (span - (rises.len() as i64 - 1) * period_ns).abs() <= 1_000,
-        "drift {span}"
+        "drift over {} phases: {span} ns",
+        rises.len()
     );
-
-    let (mut max_write_lag_ns, mut max_edge_error_ns, mut max_latch_error_ns) = (0i64, 0u64, 0u64);
-    for (k, e) in events.iter().enumerate() {
+    let settle_ns = u64::from(config.timing.led_settle_us) * 1000;
+    let leds = usize::from(config.leds_per_strip);
+    let mut trigger_index = None;
+    for (e, rise) in events.iter().zip(&rises) {
         let TriggerOutcome::Fired { index, edge_us } = e.trigger else {
             panic!("phase {} overran", e.index)
         };
-        assert_eq!(index as usize, k);
-        // The event's timestamps against the traced pins (device µs = simulated µs).
-        let rise = rises
-            .iter()
-            .find(|&&r| r.abs_diff(edge_us * 1000) < 100_000)
-            .unwrap_or_else(|| panic!("no traced edge near {edge_us} µs"));
+        if let Some(previous) = trigger_index {
+            assert_eq!(index, previous + 1, "trigger numbers");
+        }
+        trigger_index = Some(index);
+        // Device µs = simulated µs.
+        let edge_error_ns = rise.abs_diff(edge_us * 1000);
         assert!(
-            rise.abs_diff(edge_us * 1000) <= 2_000,
+            edge_error_ns <= 2_000,
             "edge {rise} ns vs event {edge_us} µs"
         );
-        let frames = frames_at(&rig, e.write_start_us);
+        m.edge_error_ns = m.edge_error_ns.max(edge_error_ns);
+        let frames = frames_at(rig, e.write_start_us);
         let first_bit = frames.iter().map(|f| f.start_ns).min().unwrap();
-        // All four strips start together, within 2 µs after the reported write start.
-        let after_ns = first_bit as i64 - e.write_start_us as i64 * 1000;
+        let lag_ns = first_bit as i64 - e.write_start_us as i64 * 1000;
         assert!(
-            (0..=2_000).contains(&after_ns),
+            (0..=2_000).contains(&lag_ns),
             "write start {} µs, first bit {first_bit} ns",
             e.write_start_us
         );
@@ -218,60 +250,249 @@ fn gradient_mode_at_4_hz_is_exact_lit_right_and_reported_truthfully() {
             frames.iter().all(|f| f.start_ns == first_bit),
             "strips started apart"
         );
-        max_write_lag_ns = max_write_lag_ns.max(after_ns);
-        max_edge_error_ns = max_edge_error_ns.max(rise.abs_diff(edge_us * 1000));
+        m.write_lag_ns = m.write_lag_ns.max(lag_ns);
+        // The write starts on the phase boundary itself.
+        let late_us = e.write_start_us - e.scheduled_us;
+        assert!(late_us <= 2, "phase {} written {late_us} µs late", e.index);
+        m.boundary_lag_us = m.boundary_lag_us.max(late_us);
         let last_bit = frames.iter().map(|f| f.end_ns).max().unwrap();
         let latched_ns = last_bit + u64::from(WS2812_RESET_US) * 1000;
-        // Reported latch vs the real one (last bit + reset).
         let latch_error_ns = latched_ns.abs_diff(e.latched_us * 1000);
         assert!(
             latch_error_ns <= 2_000,
             "latch {latched_ns} ns vs event {} µs",
             e.latched_us
         );
-        max_latch_error_ns = max_latch_error_ns.max(latch_error_ns);
+        m.latch_error_ns = m.latch_error_ns.max(latch_error_ns);
         assert!(
-            *rise >= latched_ns + settle_us * 1000,
+            *rise >= latched_ns + settle_ns,
             "trigger {rise} ns before latch + settle"
         );
-        // Colours: dx lights strips 1 (blue) and 3 (red), dy strips 2 (blue) and 4 (red).
-        let (blue, red, dark) = match e.phase {
-            Phase::Dx => (0, 2, [1, 3]),
-            Phase::Dy => (1, 3, [0, 2]),
-            other => panic!("gradient mode showed {other:?}"),
-        };
-        let leds = usize::from(config.leds_per_strip);
-        let b = lit(&frames[blue], leds).expect("blue strip lit");
-        assert!(b.b > 0 && b.r == 0 && b.g == 0, "{b:?}");
-        let r = lit(&frames[red], leds).expect("red strip lit");
-        assert!(r.r > 0 && r.b == 0 && r.g == 0, "{r:?}");
-        assert!(
-            frames[dark[0]].is_dark() && frames[dark[1]].is_dark(),
-            "phase {} dark strips",
-            e.index
-        );
-        assert!(
-            frames
-                .iter()
-                .all(|f| f.stray_bits == 0 && f.pixels.len() >= leds)
-        );
+        for (strip, (frame, channel)) in frames.iter().zip(expected_channels(e.phase)).enumerate() {
+            assert!(frame.stray_bits == 0 && frame.pixels.len() >= leds);
+            let what = format!("phase {} ({:?}) strip {}", e.index, e.phase, strip + 1);
+            match channel {
+                None => assert!(frame.is_dark(), "{what}: not dark"),
+                Some(c) => {
+                    let colour = lit(frame, leds).unwrap_or_else(|| panic!("{what}: not lit"));
+                    let (on, others) = match c {
+                        'b' => (colour.b, colour.r | colour.g),
+                        _ => (colour.r, colour.b | colour.g),
+                    };
+                    assert!(on > 0 && others == 0, "{what}: {colour:?}");
+                }
+            }
+        }
     }
-    let periods: Vec<i64> = rises
-        .windows(2)
-        .map(|w| w[1] as i64 - w[0] as i64)
-        .collect();
-    eprintln!(
-        "gradient: {} phases, trigger period {}..{} ns, edge vs event ≤ {max_edge_error_ns} ns, first bit after write start ≤ {max_write_lag_ns} ns, latch error ≤ {max_latch_error_ns} ns",
-        events.len(),
-        periods.iter().min().unwrap(),
-        periods.iter().max().unwrap()
-    );
+    m
+}
+
+/// Start `mode`, collect `n` phases and let the last trigger fire.
+fn run_mode(s: &mut Sensor, mode: Mode, n: usize) -> Vec<PhaseEvent> {
+    s.request(Request::SetMode(mode)).unwrap();
+    s.request(Request::Start).unwrap();
+    let (events, _) = phases(s, n, Duration::from_secs(20));
+    assert!(events.len() >= n, "{mode:?}: {} phases", events.len());
+    events
+}
+
+/// Run the emulator `us` of host time without any host traffic.
+fn idle_for(s: &Sensor, us: u64) {
+    let later = s.clock().now_us() + us;
+    s.clock().sleep_until(later);
+}
+
+fn config(s: &mut Sensor) -> Config {
+    let Response::Config(config) = s.request(Request::GetConfig).unwrap() else {
+        panic!("no config")
+    };
+    config
+}
+
+#[test]
+fn gradient_mode_at_4_hz_is_exact_lit_right_and_reported_truthfully() {
+    let Some(rig) = rig() else { return };
+    let mut s = rig.sensor(SensorConfig::default()).unwrap();
+    let config = config(&mut s);
+    assert_eq!(config.timing.phase_period_us, 250_000, "4 Hz by default");
+    let events = run_mode(&mut s, Mode::Gradient, 42);
+    assert_eq!(s.counters().link.lost_events, 0);
+    idle_for(&s, 300_000);
+    let m = check_phases(&rig, &events, &config, 250_000);
     let expected = [Phase::Dx, Phase::Dy];
     assert!(
         events
             .iter()
             .enumerate()
             .all(|(k, e)| e.phase == expected[k % 2])
+    );
+    eprintln!(
+        "gradient: {} phases, trigger period {}..{} ns, edge vs event ≤ {} ns, write start after boundary ≤ {} µs, first bit after write start ≤ {} ns, latch error ≤ {} ns",
+        events.len(),
+        m.period_ns.0,
+        m.period_ns.1,
+        m.edge_error_ns,
+        m.boundary_lag_us,
+        m.write_lag_ns,
+        m.latch_error_ns
+    );
+}
+
+#[test]
+fn interleaved_then_vision_with_the_period_changed_while_running() {
+    let Some(rig) = rig() else { return };
+    let mut s = rig.sensor(SensorConfig::default()).unwrap();
+    let mut config = config(&mut s);
+    config.timing.phase_period_us = 100_000;
+    s.request(Request::SetTiming(config.timing)).unwrap();
+    let events = run_mode(&mut s, Mode::Interleaved, 12);
+    // The sequence may start at any phase of the cycle after a reconfiguration; it
+    // must then go Dark, Dx, Dy in order.
+    let cycle = [Phase::Dark, Phase::Dx, Phase::Dy];
+    let offset = cycle.iter().position(|&p| p == events[0].phase).unwrap();
+    for (k, e) in events.iter().enumerate() {
+        assert_eq!(e.phase, cycle[(k + offset) % 3], "phase {}", e.index);
+    }
+    idle_for(&s, 100_000);
+    let m = check_phases(&rig, &events, &config, 100_000);
+    eprintln!("interleaved at 10 Hz: period {:?} ns", m.period_ns);
+
+    // Halve the period while running: the sequence re-plans and keeps its promises.
+    config.timing.phase_period_us = 50_000;
+    s.request(Request::SetTiming(config.timing)).unwrap();
+    let (after, _) = phases(&mut s, 14, Duration::from_secs(5));
+    // The phases that started after the change (the first may still be the old plan).
+    let changed: Vec<PhaseEvent> = after
+        .iter()
+        .skip_while(|e| {
+            after
+                .iter()
+                .any(|n| n.index == e.index + 1 && n.scheduled_us - e.scheduled_us != 50_000)
+        })
+        .copied()
+        .collect();
+    assert!(
+        changed.len() >= 10,
+        "{} phases at the new period",
+        changed.len()
+    );
+    idle_for(&s, 50_000);
+    let m = check_phases(&rig, &changed, &config, 50_000);
+    eprintln!(
+        "interleaved at 20 Hz after the change: period {:?} ns",
+        m.period_ns
+    );
+    let status = s.status().unwrap();
+    assert_eq!(status.overruns, 0, "{status:?}");
+
+    // Vision: strips dark, the cameras still triggered.
+    let events = run_mode(&mut s, Mode::Vision, 8);
+    let vision: Vec<PhaseEvent> = events
+        .iter()
+        .skip_while(|e| e.phase != Phase::Dark)
+        .skip(1) // the first may follow the mode change at any time
+        .copied()
+        .collect();
+    assert!(vision.iter().all(|e| e.phase == Phase::Dark));
+    idle_for(&s, 50_000);
+    check_phases(&rig, &vision, &config, 50_000);
+    assert_eq!(s.counters().link.lost_events, 0);
+}
+
+#[test]
+fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
+    let Some(rig) = rig() else { return };
+    let mut s = rig.sensor(SensorConfig::default()).unwrap();
+    s.request(Request::SetHostTimeout(300)).unwrap();
+    run_mode(&mut s, Mode::ContactShape, 2);
+    // From here on the host says nothing.
+    let silent_from_ns = lock(&rig.emulator).now_ns();
+    idle_for(&s, 1_500_000);
+    let events = s.poll(Duration::from_millis(50)).unwrap();
+    let fault = events
+        .iter()
+        .find_map(|e| match e {
+            SensorEvent::Fault(f, _) => Some(*f),
+            _ => None,
+        })
+        .expect("a fault event");
+    assert_eq!(fault.kind, FaultKind::HostTimeout);
+    let fault_ns = fault.at_us * 1000;
+    // Checked every 100 ms: the timeout fires 300..400 ms after the last host message.
+    assert!(
+        (silent_from_ns + 300_000_000..=silent_from_ns + 400_000_000).contains(&fault_ns),
+        "fault at {fault_ns} ns, silent from {silent_from_ns} ns"
+    );
+    let emulator = lock(&rig.emulator);
+    let trace = emulator.trace();
+    // The strips' last frames went out after the fault and are dark; nothing after.
+    for pin in PINS.strips {
+        let frames = decode(&trace.pin(pin));
+        let last = frames.last().unwrap();
+        assert!(
+            last.start_ns >= fault_ns && last.start_ns < fault_ns + 1_000_000,
+            "GPIO{pin}"
+        );
+        assert!(last.is_dark(), "GPIO{pin} still lit");
+        let before = &frames[frames.len() - 2];
+        assert!(!before.is_dark(), "GPIO{pin} was lit before the fault");
+    }
+    // No trigger after the fault.
+    let late: Vec<u64> = trace
+        .trigger_rises()
+        .into_iter()
+        .filter(|&r| r > fault_ns)
+        .collect();
+    assert!(late.is_empty(), "triggers after the fault: {late:?}");
+    drop(emulator);
+    let status = s.status().unwrap();
+    assert_eq!(
+        (status.host_timeouts, status.running),
+        (1, false),
+        "{status:?}"
+    );
+    // The defmt log says why.
+    let log = lock(&rig.emulator).log().unwrap();
+    assert!(log.iter().any(|l| l.contains("host silent")), "{log:?}");
+}
+
+#[test]
+fn a_host_that_stops_reading_loses_events_not_timing() {
+    let Some(rig) = rig() else { return };
+    let mut s = rig.sensor(SensorConfig::default()).unwrap();
+    let mut config = config(&mut s);
+    config.timing.phase_period_us = 20_000;
+    s.request(Request::SetTiming(config.timing)).unwrap();
+    let before = run_mode(&mut s, Mode::Gradient, 5);
+    lock(&rig.emulator).set_reading(false).unwrap();
+    // 2 s of phases (100) with bulk IN stalled: the device's queue fills.
+    idle_for(&s, 2_000_000);
+    lock(&rig.emulator).set_reading(true).unwrap();
+    let (after, _) = phases(&mut s, 5, Duration::from_secs(2));
+    let status = s.status().unwrap();
+    assert!(status.events_dropped > 0, "{status:?}");
+    let lost = s.counters().link.lost_events;
+    assert!(lost >= u64::from(status.events_dropped), "{lost} lost");
+    assert_eq!(status.overruns, 0, "{status:?}");
+    // The trigger kept its 20 ms period through it all, not one edge missing.
+    let from = before[0].write_start_us * 1000;
+    let to = after.last().unwrap().write_start_us * 1000;
+    let rises: Vec<u64> = lock(&rig.emulator)
+        .trace()
+        .trigger_rises()
+        .into_iter()
+        .filter(|&r| r >= from && r < to)
+        .collect();
+    let expected = (to - from) / 20_000_000;
+    assert_eq!(rises.len() as u64, expected, "trigger edges");
+    for w in rises.windows(2) {
+        let d = w[1] as i64 - w[0] as i64;
+        assert!((d - 20_000_000).abs() <= 1_000, "trigger period {d} ns");
+    }
+    eprintln!(
+        "not reading for 2 s: {} events dropped on the device, {lost} seen lost by the host, {} trigger edges at 20 ms",
+        status.events_dropped,
+        rises.len()
     );
 }
 

@@ -7,9 +7,10 @@
 //! `stereotac_firmware::sequencer::led_bits_us`), because `PioWs2812::write` returns
 //! while the last words may still be in the PIO FIFO.
 //!
-//! Timestamps: the four state machines are released together right after the timer is
-//! read (see [`Strips::write`]), so every strip's first bit follows the reported start
-//! by under a microsecond (measured in emulation) and all four end together.
+//! Timing: the frame is prepared ahead of the phase boundary and the four state machines
+//! are released together on it, right after the timer is read (see [`Strips::write`]):
+//! every strip's first bit follows the reported start by under 1.5 µs (measured in
+//! emulation), whatever else the executor was doing, and all four end together.
 
 use core::future::{Future, poll_fn};
 use core::pin::pin;
@@ -26,6 +27,7 @@ use embassy_rp::pio::{Common, Pio};
 use embassy_rp::pio_programs::ws2812::{Grb, PioWs2812, PioWs2812Program};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
+use embassy_time::{Instant, Timer};
 use smart_leds::RGB8;
 use static_cell::StaticCell;
 use stereotac_firmware::{MAX_LEDS_PER_STRIP, PhaseFrame};
@@ -33,15 +35,27 @@ use stereotac_firmware::{MAX_LEDS_PER_STRIP, PhaseFrame};
 use super::shared;
 
 const N: usize = MAX_LEDS_PER_STRIP as usize;
+/// The last stretch before a write's start is spun with interrupts off (the executor's
+/// wake-up is not that exact), µs.
+const SPIN_US: u64 = 20;
 /// SM_ENABLE bits of state machines 0..3 (strips 1..4).
 const ALL_STRIPS: u8 = 0b1111;
 
 type Strip<const S: usize> = PioWs2812<'static, PIO0, S, N, Grb>;
 
 /// A frame to show.
-pub static DRAW: Signal<CriticalSectionRawMutex, PhaseFrame> = Signal::new();
+pub static DRAW: Signal<CriticalSectionRawMutex, Draw> = Signal::new();
 /// A frame has been written; carries when its write started.
 pub static DRAWN: Signal<CriticalSectionRawMutex, Drawn> = Signal::new();
+
+/// What to show, and when.
+#[derive(Debug, Clone, Copy)]
+pub struct Draw {
+    /// The colours.
+    pub frame: PhaseFrame,
+    /// When the bits should start (device µs).
+    pub at_us: u64,
+}
 
 /// The four strips and the PIO block they run on.
 pub struct Strips {
@@ -105,13 +119,14 @@ impl Strips {
         self.pins
     }
 
-    /// Write `frame` to the four strips at once; returns when the last word has been
-    /// handed to the PIO.
+    /// Write `frame` to the four strips at once, starting at `at_us` (device µs; at once
+    /// if that has passed); returns when the last word has been handed to the PIO.
     ///
     /// The four state machines are paused while the DMA transfers start and fill their
-    /// FIFOs, then released by one register write right after the timer is read: all
-    /// four bit streams begin together, 3 PIO cycles (375 ns) after the reported start.
-    async fn write(&mut self, frame: &PhaseFrame) -> Drawn {
+    /// FIFOs; then, with interrupts off, the code spins to `at_us`, reads the timer and
+    /// releases all four with one register write: the bit streams begin together, 3 PIO
+    /// cycles (375 ns) after the reported start.
+    async fn write(&mut self, frame: &PhaseFrame, at_us: u64) -> Drawn {
         let strip = |i: usize| -> [RGB8; N] { core::array::from_fn(|px| frame.pixel(i, px)) };
         let (c1, c2, c3, c4) = (strip(0), strip(1), strip(2), strip(3));
         // Between phases every machine is stalled on its empty FIFO with the line low,
@@ -125,8 +140,12 @@ impl Strips {
         ));
         // The first poll packs the colours and starts all four DMA transfers.
         let done = poll_fn(|cx| Poll::Ready(writes.as_mut().poll(cx).is_ready())).await;
+        Timer::at(Instant::from_micros(at_us.saturating_sub(SPIN_US))).await;
         let start_us = critical_section::with(|_| {
-            let now = shared::now_us();
+            let mut now = shared::now_us();
+            while now < at_us {
+                now = shared::now_us();
+            }
             set_strips_enabled(true);
             now
         });
@@ -160,8 +179,8 @@ pub struct Drawn {
 #[embassy_executor::task]
 pub async fn led_strips(mut strips: Strips) {
     loop {
-        let frame = DRAW.wait().await;
-        let drawn = strips.write(&frame).await;
+        let draw = DRAW.wait().await;
+        let drawn = strips.write(&draw.frame, draw.at_us).await;
         DRAWN.signal(drawn);
     }
 }

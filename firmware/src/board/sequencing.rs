@@ -1,24 +1,25 @@
 //! The sequencer task: phase after phase on the controller's absolute schedule.
 //!
-//! For each phase: wait for its start (or a reconfiguration, which re-plans), commit to
-//! it, have the LED task write its colours, then — in one critical section, right after a
+//! For each phase: wait until [`PREPARE_LEAD_US`] before its start (or a reconfiguration,
+//! which re-plans), commit to it, have the LED task load its colours and start them on
+//! the boundary, then — in one critical section, right after a
 //! timer tick — let the controller decide the trigger and arm the PIO. The phase event is
 //! queued without waiting: the sequencer never waits on USB.
 
 use embassy_futures::select::{Either, select};
 use embassy_time::{Instant, Timer};
-use stereotac_firmware::sequencer::{WS2812_RESET_US, led_bits_us};
+use stereotac_firmware::sequencer::{PREPARE_LEAD_US, WS2812_RESET_US, led_bits_us};
 use stereotac_firmware::{MAX_LEDS_PER_STRIP, PhaseFrame};
 use stereotac_protocol::TriggerOutcome;
 
-use super::leds::{DRAW, DRAWN, Drawn};
+use super::leds::{DRAW, DRAWN, Draw, Drawn};
 use super::shared::{self, RECONFIGURED};
 use super::trigger;
 
-/// Write `frame` to the strips; returns when the write started.
-async fn draw(frame: PhaseFrame) -> Drawn {
+/// Write `frame` to the strips, starting at `at_us`; returns when the write started.
+async fn draw(frame: PhaseFrame, at_us: u64) -> Drawn {
     DRAWN.reset();
-    DRAW.signal(frame);
+    DRAW.signal(Draw { frame, at_us });
     DRAWN.wait().await
 }
 
@@ -32,13 +33,15 @@ pub async fn sequencer() {
         let Some(plan) = shared::with(|c| c.plan(shared::now_us())) else {
             // Stopped: strips dark, no triggers, until something changes.
             if !dark {
-                draw(PhaseFrame::DARK).await;
+                draw(PhaseFrame::DARK, 0).await;
                 dark = true;
             }
             RECONFIGURED.wait().await;
             continue;
         };
-        let start = Timer::at(Instant::from_micros(plan.start_us));
+        // Wake early enough to compose the frame and load the strips before the boundary.
+        let prepare_us = plan.start_us.saturating_sub(u64::from(PREPARE_LEAD_US));
+        let start = Timer::at(Instant::from_micros(prepare_us));
         if let Either::Second(()) = select(start, RECONFIGURED.wait()).await {
             continue; // re-plan with the new settings
         }
@@ -47,7 +50,7 @@ pub async fn sequencer() {
             c.frame(plan.phase)
         });
         dark = false;
-        let drawn = draw(frame).await;
+        let drawn = draw(frame, plan.start_us).await;
         let write_start = drawn.start_us;
         let latched = write_start + bits_and_latch_us;
         let message = critical_section::with(|_| {
