@@ -24,6 +24,7 @@ pub mod device;
 pub mod frames;
 pub mod matcher;
 pub mod sim;
+pub mod stereo;
 pub mod tactile;
 pub mod transport;
 pub mod uf2;

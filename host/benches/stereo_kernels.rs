@@ -1,0 +1,37 @@
+//! Criterion benches of the stereo kernels: the fixed-point undistort-rectify remap of a
+//! 640×480 frame, with a copy of the same frame as the reference measured in the same run.
+//! Run with `cargo bench -p stereotac --bench stereo_kernels`.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use stereotac::stereo::{Camera, Distortion, Rectification, StereoCalibration};
+
+fn remap(c: &mut Criterion) {
+    let camera = Camera {
+        width: 640,
+        height: 480,
+        k: Matrix3::new(420.0, 0.0, 320.0, 0.0, 420.0, 240.0, 0.0, 0.0, 1.0),
+        distortion: Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]),
+    };
+    let calib = StereoCalibration {
+        left: camera,
+        right: camera,
+        r: *Rotation3::from_euler_angles(0.01, -0.02, 0.005).matrix(),
+        t: Vector3::new(-14.0, 0.3, -0.2),
+    };
+    let rect = Rectification::bouguet(&calib, 0.8).expect("a horizontal pair");
+    let (table, _) = rect.maps(&calib);
+    let src: Vec<u8> = (0..640 * 480).map(|i| (i * 7 % 251) as u8).collect();
+    let mut out = vec![0u8; 640 * 480];
+    let mut g = c.benchmark_group("remap");
+    g.bench_function("fixed_point_640x480", |b| {
+        b.iter(|| table.remap(&src, &mut out).expect("sizes match"))
+    });
+    g.bench_function("copy_640x480_reference", |b| {
+        b.iter(|| out.copy_from_slice(std::hint::black_box(&src)))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, remap);
+criterion_main!(benches);

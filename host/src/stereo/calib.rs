@@ -1,0 +1,541 @@
+//! Stereo calibration files: OpenCV stereo YAML (`K1 D1 K2 D2 R T`, or `R1 R2 P1 P2`
+//! instead of `R T`) and pairs of ROS `camera_info` YAML, read into one
+//! [`StereoCalibration`] and written back in the OpenCV form.
+//!
+//! Conventions: `R`, `T` take a point from the left camera's frame to the right one's,
+//! `X_right = R·X_left + T`, in the file's length unit (OpenCV calibrations in mm when
+//! the squares were given in mm). A ROS pair carries the same extrinsics inside its
+//! rectification: `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))` with `Tx = P2[0,3] / P2[0,0]`.
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Matrix3, Matrix3x4, Vector3};
+
+use super::camera::{Camera, Distortion};
+use super::yaml::{self, Value, YamlError};
+
+/// Why a calibration could not be read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CalibError {
+    /// Not the YAML subset calibration files use.
+    #[error("{file}: {error}")]
+    Yaml {
+        /// Which file.
+        file: String,
+        /// Where and what.
+        error: YamlError,
+    },
+    /// A required field is absent.
+    #[error("{file}: missing `{field}`")]
+    Missing {
+        /// Which file.
+        file: String,
+        /// The field.
+        field: String,
+    },
+    /// A field is present but unusable.
+    #[error("{file}: `{field}`: {why}")]
+    Invalid {
+        /// Which file.
+        file: String,
+        /// The field.
+        field: String,
+        /// What is wrong with it.
+        why: String,
+    },
+    /// The fields disagree with each other.
+    #[error("{0}")]
+    Inconsistent(String),
+}
+
+/// A calibrated stereo pair.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoCalibration {
+    /// The left camera.
+    pub left: Camera,
+    /// The right camera.
+    pub right: Camera,
+    /// Rotation from the left camera's frame to the right one's.
+    pub r: Matrix3<f64>,
+    /// Translation from the left camera's frame to the right one's (file unit, e.g. mm).
+    pub t: Vector3<f64>,
+}
+
+impl StereoCalibration {
+    /// Distance between the optical centres, in the file's unit.
+    pub fn baseline(&self) -> f64 {
+        self.t.norm()
+    }
+}
+
+/// Reads fields of one parsed file, naming the file in errors.
+struct Fields<'a> {
+    file: &'a str,
+    map: BTreeMap<String, Value>,
+}
+
+impl<'a> Fields<'a> {
+    fn parse(file: &'a str, text: &str) -> Result<Self, CalibError> {
+        let map = yaml::parse(text).map_err(|error| CalibError::Yaml {
+            file: file.into(),
+            error,
+        })?;
+        Ok(Self { file, map })
+    }
+
+    fn invalid(&self, field: &str, why: impl Into<String>) -> CalibError {
+        CalibError::Invalid {
+            file: self.file.into(),
+            field: field.into(),
+            why: why.into(),
+        }
+    }
+
+    fn has(&self, field: &str) -> bool {
+        self.map.contains_key(field)
+    }
+
+    fn get(&self, field: &str) -> Result<&Value, CalibError> {
+        self.map.get(field).ok_or_else(|| CalibError::Missing {
+            file: self.file.into(),
+            field: field.into(),
+        })
+    }
+
+    fn number(&self, field: &str, text: &str) -> Result<f64, CalibError> {
+        let v: f64 = text
+            .parse()
+            .map_err(|_| self.invalid(field, format!("{text:?} is not a number")))?;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(self.invalid(field, format!("{text} is not finite")))
+        }
+    }
+
+    fn scalar(&self, field: &str) -> Result<&str, CalibError> {
+        match self.get(field)? {
+            Value::Scalar(s) => Ok(s),
+            _ => Err(self.invalid(field, "expected a single value")),
+        }
+    }
+
+    fn size(&self, field: &str) -> Result<u32, CalibError> {
+        let s = self.scalar(field)?;
+        s.parse::<u32>()
+            .ok()
+            .filter(|&v| v > 0)
+            .ok_or_else(|| self.invalid(field, format!("{s:?} is not a positive size")))
+    }
+
+    /// A matrix: a mapping with `rows`, `cols` and `data` (OpenCV and ROS), or a bare
+    /// list; returns (rows, cols, row-major data).
+    fn matrix(&self, field: &str) -> Result<(usize, usize, Vec<f64>), CalibError> {
+        let (rows, cols, data) = match self.get(field)? {
+            Value::Map(m) => {
+                let dim = |k: &str| -> Result<usize, CalibError> {
+                    match m.get(k) {
+                        Some(Value::Scalar(s)) => s
+                            .parse()
+                            .map_err(|_| self.invalid(field, format!("{k} {s:?}"))),
+                        _ => Err(self.invalid(field, format!("no `{k}`"))),
+                    }
+                };
+                let Some(Value::List(data)) = m.get("data") else {
+                    return Err(self.invalid(field, "no `data` list"));
+                };
+                (dim("rows")?, dim("cols")?, data)
+            }
+            Value::List(data) => (1, data.len(), data),
+            Value::Scalar(_) => return Err(self.invalid(field, "expected a matrix")),
+        };
+        if rows * cols != data.len() {
+            return Err(self.invalid(field, format!("{rows}×{cols} but {} values", data.len())));
+        }
+        let values = data
+            .iter()
+            .map(|d| self.number(field, d))
+            .collect::<Result<_, _>>()?;
+        Ok((rows, cols, values))
+    }
+
+    fn matrix3(&self, field: &str) -> Result<Matrix3<f64>, CalibError> {
+        match self.matrix(field)? {
+            (3, 3, d) => Ok(Matrix3::from_row_slice(&d)),
+            (r, c, _) => Err(self.invalid(field, format!("expected 3×3, found {r}×{c}"))),
+        }
+    }
+
+    fn matrix3x4(&self, field: &str) -> Result<Matrix3x4<f64>, CalibError> {
+        match self.matrix(field)? {
+            (3, 4, d) => Ok(Matrix3x4::from_row_slice(&d)),
+            (r, c, _) => Err(self.invalid(field, format!("expected 3×4, found {r}×{c}"))),
+        }
+    }
+
+    fn vector3(&self, field: &str) -> Result<Vector3<f64>, CalibError> {
+        let (_, _, d) = self.matrix(field)?;
+        if d.len() == 3 {
+            Ok(Vector3::from_row_slice(&d))
+        } else {
+            Err(self.invalid(field, format!("expected 3 values, found {}", d.len())))
+        }
+    }
+
+    fn camera_matrix(&self, field: &str) -> Result<Matrix3<f64>, CalibError> {
+        let k = self.matrix3(field)?;
+        let ok = k[(0, 0)] > 0.0
+            && k[(1, 1)] > 0.0
+            && k[(1, 0)] == 0.0
+            && k[(2, 0)] == 0.0
+            && k[(2, 1)] == 0.0
+            && k[(2, 2)] == 1.0;
+        if ok {
+            Ok(k)
+        } else {
+            Err(self.invalid(
+                field,
+                "not a camera matrix [fx s cx; 0 fy cy; 0 0 1] with fx, fy > 0",
+            ))
+        }
+    }
+
+    /// Distortion coefficients under a named model (`plumb_bob`, `rational_polynomial`,
+    /// `equidistant`/`fisheye`/`kannala_brandt`).
+    fn distortion(&self, field: &str, model: &str) -> Result<Distortion, CalibError> {
+        let (_, _, d) = self.matrix(field)?;
+        match model {
+            "plumb_bob" | "rational_polynomial" | "brown_conrady" | "pinhole" => {
+                if !matches!(d.len(), 4 | 5 | 8) {
+                    return Err(self.invalid(
+                        field,
+                        format!("{model} takes 4, 5 or 8 coefficients, found {}", d.len()),
+                    ));
+                }
+                let mut k = [0.0; 8];
+                k[..d.len()].copy_from_slice(&d);
+                Ok(Distortion::BrownConrady(k))
+            }
+            "equidistant" | "fisheye" | "kannala_brandt" => {
+                let k: [f64; 4] = d.as_slice().try_into().map_err(|_| {
+                    self.invalid(
+                        field,
+                        format!("{model} takes 4 coefficients, found {}", d.len()),
+                    )
+                })?;
+                Ok(Distortion::KannalaBrandt(k))
+            }
+            other => Err(self.invalid(
+                "distortion_model",
+                format!(
+                    "unknown model {other:?} (plumb_bob, rational_polynomial, equidistant, fisheye)"
+                ),
+            )),
+        }
+    }
+
+    fn model(&self) -> Result<String, CalibError> {
+        Ok(if self.has("distortion_model") {
+            self.scalar("distortion_model")?.to_ascii_lowercase()
+        } else {
+            "plumb_bob".into()
+        })
+    }
+
+    /// Image size: `image_width`/`image_height`, or `image_size`/`imageSize` `[w, h]`.
+    fn image_size(&self) -> Result<(u32, u32), CalibError> {
+        if self.has("image_width") || self.has("image_height") {
+            return Ok((self.size("image_width")?, self.size("image_height")?));
+        }
+        for field in ["image_size", "imageSize"] {
+            if self.has(field) {
+                let (_, _, d) = self.matrix(field)?;
+                let ok = d.len() == 2 && d.iter().all(|&v| v >= 1.0 && v.fract() == 0.0);
+                if !ok {
+                    return Err(self.invalid(field, "expected [width, height]"));
+                }
+                return Ok((d[0] as u32, d[1] as u32));
+            }
+        }
+        Err(CalibError::Missing {
+            file: self.file.into(),
+            field: "image_width/image_height".into(),
+        })
+    }
+}
+
+/// Whether `r` is a rotation (orthonormal, determinant +1) to 1e-6.
+fn is_rotation(r: &Matrix3<f64>) -> bool {
+    (r.transpose() * r - Matrix3::identity()).abs().max() < 1e-6
+        && (r.determinant() - 1.0).abs() < 1e-6
+}
+
+fn check_rotation(f: &Fields<'_>, field: &str, r: &Matrix3<f64>) -> Result<(), CalibError> {
+    if is_rotation(r) {
+        Ok(())
+    } else {
+        Err(f.invalid(field, "not a rotation matrix"))
+    }
+}
+
+/// Extrinsics from a rectification: `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))`.
+fn extrinsics_from_rectification(
+    r1: &Matrix3<f64>,
+    r2: &Matrix3<f64>,
+    p2: &Matrix3x4<f64>,
+) -> (Matrix3<f64>, Vector3<f64>) {
+    let tx = p2[(0, 3)] / p2[(0, 0)];
+    (
+        r2.transpose() * r1,
+        r2.transpose() * Vector3::new(tx, 0.0, 0.0),
+    )
+}
+
+impl StereoCalibration {
+    /// Read an OpenCV stereo YAML: `K1 D1 K2 D2` and `R T` (or `R1 R2 P1 P2`), the image
+    /// size, and optionally `distortion_model` (default `plumb_bob`).
+    pub fn from_opencv_yaml(file: &str, text: &str) -> Result<Self, CalibError> {
+        let f = Fields::parse(file, text)?;
+        let (width, height) = f.image_size()?;
+        let model = f.model()?;
+        let camera = |k: &str, d: &str| -> Result<Camera, CalibError> {
+            Ok(Camera {
+                width,
+                height,
+                k: f.camera_matrix(k)?,
+                distortion: f.distortion(d, &model)?,
+            })
+        };
+        let (left, right) = (camera("K1", "D1")?, camera("K2", "D2")?);
+        let (r, t) = if f.has("R") || f.has("T") || !f.has("R1") {
+            let r = f.matrix3("R")?;
+            check_rotation(&f, "R", &r)?;
+            (r, f.vector3("T")?)
+        } else {
+            let (r1, r2) = (f.matrix3("R1")?, f.matrix3("R2")?);
+            check_rotation(&f, "R1", &r1)?;
+            check_rotation(&f, "R2", &r2)?;
+            let p2 = f.matrix3x4("P2")?;
+            extrinsics_from_rectification(&r1, &r2, &p2)
+        };
+        Self::checked(left, right, r, t)
+    }
+
+    /// Read a left and a right ROS `camera_info` YAML.
+    pub fn from_ros_pair(
+        (left_file, left_text): (&str, &str),
+        (right_file, right_text): (&str, &str),
+    ) -> Result<Self, CalibError> {
+        let read = |file: &str,
+                    text: &str|
+         -> Result<(Camera, Matrix3<f64>, Matrix3x4<f64>), CalibError> {
+            let f = Fields::parse(file, text)?;
+            let (width, height) = f.image_size()?;
+            let camera = Camera {
+                width,
+                height,
+                k: f.camera_matrix("camera_matrix")?,
+                distortion: f.distortion("distortion_coefficients", &f.model()?)?,
+            };
+            let r = f.matrix3("rectification_matrix")?;
+            check_rotation(&f, "rectification_matrix", &r)?;
+            Ok((camera, r, f.matrix3x4("projection_matrix")?))
+        };
+        let (left, r1, p1) = read(left_file, left_text)?;
+        let (right, r2, p2) = read(right_file, right_text)?;
+        if p1[(0, 3)] != 0.0 {
+            return Err(CalibError::Inconsistent(format!(
+                "{left_file} is not the left camera (its projection has Tx = {})",
+                p1[(0, 3)]
+            )));
+        }
+        if p2[(0, 3)] == 0.0 {
+            return Err(CalibError::Inconsistent(format!(
+                "{right_file} carries no baseline (projection_matrix[0][3] is 0): not the right camera of a stereo pair"
+            )));
+        }
+        let (r, t) = extrinsics_from_rectification(&r1, &r2, &p2);
+        Self::checked(left, right, r, t)
+    }
+
+    fn checked(
+        left: Camera,
+        right: Camera,
+        r: Matrix3<f64>,
+        t: Vector3<f64>,
+    ) -> Result<Self, CalibError> {
+        if (left.width, left.height) != (right.width, right.height) {
+            return Err(CalibError::Inconsistent(format!(
+                "image sizes differ: {}×{} and {}×{}",
+                left.width, left.height, right.width, right.height
+            )));
+        }
+        if std::mem::discriminant(&left.distortion) != std::mem::discriminant(&right.distortion) {
+            return Err(CalibError::Inconsistent(
+                "the two cameras use different lens models".into(),
+            ));
+        }
+        if !t.iter().all(|v| v.is_finite()) || t.norm() == 0.0 {
+            return Err(CalibError::Inconsistent(format!(
+                "the baseline must be finite and non-zero, found T = {:?}",
+                t.as_slice()
+            )));
+        }
+        Ok(Self { left, right, r, t })
+    }
+
+    /// The calibration as OpenCV stereo YAML (what [`Self::from_opencv_yaml`] reads).
+    pub fn to_opencv_yaml(&self) -> String {
+        let matrix = |name: &str, rows: usize, cols: usize, data: &[f64]| {
+            format!(
+                "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: {}\n",
+                yaml::list(data)
+            )
+        };
+        let row_major = |m: &Matrix3<f64>| -> Vec<f64> { m.transpose().as_slice().to_vec() };
+        let model = match self.left.distortion {
+            Distortion::BrownConrady(_) => "plumb_bob",
+            Distortion::KannalaBrandt(_) => "fisheye",
+        };
+        let d1 = self.left.distortion.coefficients();
+        let d2 = self.right.distortion.coefficients();
+        let mut out = format!(
+            "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ndistortion_model: {model}\n",
+            self.left.width, self.left.height
+        );
+        out += &matrix("K1", 3, 3, &row_major(&self.left.k));
+        out += &matrix("D1", 1, d1.len(), &d1);
+        out += &matrix("K2", 3, 3, &row_major(&self.right.k));
+        out += &matrix("D2", 1, d2.len(), &d2);
+        out += &matrix("R", 3, 3, &row_major(&self.r));
+        out += &matrix("T", 3, 1, self.t.as_slice());
+        out
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use nalgebra::Rotation3;
+
+    use super::*;
+
+    /// A pair like the sensor's: 14 mm baseline, slightly rotated and offset.
+    pub(crate) fn sensor_pair(distortion: Distortion) -> StereoCalibration {
+        let k = Matrix3::new(420.0, 0.0, 322.5, 0.0, 421.0, 238.0, 0.0, 0.0, 1.0);
+        let k2 = Matrix3::new(425.0, 0.0, 318.0, 0.0, 424.0, 243.5, 0.0, 0.0, 1.0);
+        StereoCalibration {
+            left: Camera {
+                width: 640,
+                height: 480,
+                k,
+                distortion,
+            },
+            right: Camera {
+                width: 640,
+                height: 480,
+                k: k2,
+                distortion,
+            },
+            r: *Rotation3::from_euler_angles(0.01, -0.02, 0.005).matrix(),
+            t: Vector3::new(-14.0, 0.3, -0.2),
+        }
+    }
+
+    #[test]
+    fn opencv_yaml_round_trips_exactly() {
+        for d in [
+            Distortion::BrownConrady([-0.3, 0.1, 0.001, -0.002, -0.01, 0.0, 0.0, 0.0]),
+            Distortion::BrownConrady([-0.3, 0.1, 0.001, -0.002, -0.01, 0.2, 0.01, 0.001]),
+            Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]),
+        ] {
+            let c = sensor_pair(d);
+            let text = c.to_opencv_yaml();
+            assert_eq!(
+                StereoCalibration::from_opencv_yaml("c.yaml", &text),
+                Ok(c),
+                "{text}"
+            );
+        }
+    }
+
+    #[test]
+    fn reads_an_opencv_file_with_a_rectification_instead_of_r_t() {
+        let c = sensor_pair(Distortion::NONE);
+        let rect = crate::stereo::rectify::Rectification::bouguet(&c, 1.0).unwrap();
+        let m = |name: &str, rows: usize, cols: usize, data: Vec<f64>| {
+            format!(
+                "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: {}\n",
+                yaml::list(&data)
+            )
+        };
+        let rm = |r: &Matrix3<f64>| r.transpose().as_slice().to_vec();
+        let text = format!(
+            "%YAML:1.0\n---\nimageSize: [ 640, 480 ]\n{}{}{}{}{}{}{}{}",
+            m("K1", 3, 3, rm(&c.left.k)),
+            m("D1", 1, 5, vec![0.0; 5]),
+            m("K2", 3, 3, rm(&c.right.k)),
+            m("D2", 1, 5, vec![0.0; 5]),
+            m("R1", 3, 3, rm(&rect.r1)),
+            m("R2", 3, 3, rm(&rect.r2)),
+            m("P1", 3, 4, rect.p1.transpose().as_slice().to_vec()),
+            m("P2", 3, 4, rect.p2.transpose().as_slice().to_vec()),
+        );
+        let read = StereoCalibration::from_opencv_yaml("r.yaml", &text).unwrap();
+        assert!((read.r - c.r).abs().max() < 1e-12);
+        assert!((read.t - c.t).abs().max() < 1e-9, "{:?}", read.t);
+    }
+
+    #[test]
+    fn reads_a_ros_pair() {
+        let c = sensor_pair(Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]));
+        let rect = crate::stereo::rectify::Rectification::bouguet(&c, 1.0).unwrap();
+        let info = |cam: &Camera, r: &Matrix3<f64>, p: &Matrix3x4<f64>| {
+            format!(
+                "image_width: {}\nimage_height: {}\ncamera_name: x\ncamera_matrix:\n  rows: 3\n  cols: 3\n  data: {}\ndistortion_model: equidistant\ndistortion_coefficients:\n  rows: 1\n  cols: 4\n  data: {}\nrectification_matrix:\n  rows: 3\n  cols: 3\n  data: {}\nprojection_matrix:\n  rows: 3\n  cols: 4\n  data: {}\n",
+                cam.width,
+                cam.height,
+                yaml::list(cam.k.transpose().as_slice()),
+                yaml::list(&cam.distortion.coefficients()),
+                yaml::list(r.transpose().as_slice()),
+                yaml::list(p.transpose().as_slice()),
+            )
+        };
+        let left = info(&c.left, &rect.r1, &rect.p1);
+        let right = info(&c.right, &rect.r2, &rect.p2);
+        let read = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &right)).unwrap();
+        assert_eq!((read.left, read.right), (c.left, c.right));
+        assert!((read.r - c.r).abs().max() < 1e-12);
+        assert!((read.t - c.t).abs().max() < 1e-9);
+        // Swapped files are refused.
+        let e =
+            StereoCalibration::from_ros_pair(("r.yaml", &right), ("l.yaml", &left)).unwrap_err();
+        assert!(e.to_string().contains("not the left camera"), "{e}");
+    }
+
+    #[test]
+    fn missing_and_inconsistent_fields_get_clear_errors() {
+        let good = sensor_pair(Distortion::NONE).to_opencv_yaml();
+        let without_k1 = good.replace("K1:", "K9:");
+        assert_eq!(
+            StereoCalibration::from_opencv_yaml("c.yaml", &without_k1)
+                .unwrap_err()
+                .to_string(),
+            "c.yaml: missing `K1`"
+        );
+        let short = good.replacen("rows: 3\n   cols: 3", "rows: 3\n   cols: 2", 1);
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", &short).unwrap_err();
+        assert!(e.to_string().contains("3×2 but 9 values"), "{e}");
+        let nan = good.replacen("data: [420.0", "data: [NaN", 1);
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", &nan).unwrap_err();
+        assert!(e.to_string().contains("not finite"), "{e}");
+        let fisheye5 = good.replace("distortion_model: plumb_bob", "distortion_model: fisheye");
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", &fisheye5).unwrap_err();
+        assert!(e.to_string().contains("takes 4 coefficients"), "{e}");
+        let mut c = sensor_pair(Distortion::NONE);
+        c.r[(0, 0)] = 2.0;
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap_err();
+        assert!(e.to_string().contains("not a rotation"), "{e}");
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
+        assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
+    }
+}
