@@ -28,12 +28,36 @@ struct IndexLine<'a> {
     label: Label,
 }
 
-/// The fields replay needs from an index line.
+/// The fields replay needs from an index line. Spelled out rather than flattened:
+/// serde's flatten buffers numbers, which fails ("invalid type: map, expected f64")
+/// whenever serde_json's `arbitrary_precision` is on anywhere in the build (defmt-decoder
+/// turns it on in this workspace).
 #[derive(Debug, Clone, serde::Deserialize)]
+struct IndexStamp {
+    file: String,
+    sequence: u64,
+    timestamp_us: f64,
+    exposure_us: f64,
+}
+
+/// One frame to replay.
+#[derive(Debug, Clone)]
 struct ReplayLine {
     file: String,
-    #[serde(flatten)]
     stamp: FrameStamp,
+}
+
+impl From<IndexStamp> for ReplayLine {
+    fn from(l: IndexStamp) -> Self {
+        Self {
+            file: l.file,
+            stamp: FrameStamp {
+                sequence: l.sequence,
+                timestamp_us: l.timestamp_us,
+                exposure_us: l.exposure_us,
+            },
+        }
+    }
 }
 
 fn frame_file(sequence: u64) -> String {
@@ -136,13 +160,13 @@ impl ReplaySource {
             if line.trim().is_empty() {
                 continue;
             }
-            let parsed: ReplayLine =
+            let parsed: IndexStamp =
                 serde_json::from_str(&line).map_err(|e| FrameError::Index {
                     path: path.clone(),
                     line: n + 1,
                     message: e.to_string(),
                 })?;
-            lines.push(parsed);
+            lines.push(ReplayLine::from(parsed));
         }
         lines.sort_by_key(|l| l.stamp.sequence);
         Ok(Self {
