@@ -49,6 +49,14 @@ impl PinTrace {
             .collect()
     }
 
+    /// Rising edges of the camera trigger pin within `range` (ns).
+    pub fn trigger_rises_in(&self, range: std::ops::Range<u64>) -> Vec<u64> {
+        self.trigger_rises()
+            .into_iter()
+            .filter(|r| range.contains(r))
+            .collect()
+    }
+
     /// Forget everything before `t_ns`.
     pub fn clear_before(&mut self, t_ns: u64) {
         self.edges.retain(|e| e.t_ns >= t_ns);

@@ -47,15 +47,34 @@ fn phases(sensor: &mut Sensor, n: usize, limit: Duration) -> (Vec<PhaseEvent>, V
     (phases, others)
 }
 
-/// The frame each strip received for a phase whose LED write started at `write_us`.
-fn frames_at(rig: &Rig, write_us: u64) -> [Ws2812Frame; 4] {
+/// Every frame each strip received so far, decoded from the trace.
+fn strip_frames(rig: &Rig) -> [Vec<Ws2812Frame>; 4] {
     let emulator = lock(&rig.emulator);
-    PINS.strips.map(|pin| {
-        decode(&emulator.trace().pin(pin))
-            .into_iter()
-            .find(|f| f.start_ns >= write_us * 1000 && f.start_ns < write_us * 1000 + 1_000_000)
-            .unwrap_or_else(|| panic!("no frame on GPIO{pin} after {write_us} µs"))
+    PINS.strips.map(|pin| decode(&emulator.trace().pin(pin)))
+}
+
+/// The frame each strip received for a phase whose LED write started at `write_us`.
+fn frames_at(strips: &[Vec<Ws2812Frame>; 4], write_us: u64) -> [Ws2812Frame; 4] {
+    let window = write_us * 1000..write_us * 1000 + 1_000_000;
+    std::array::from_fn(|i| {
+        strips[i]
+            .iter()
+            .find(|f| window.contains(&f.start_ns))
+            .cloned()
+            .unwrap_or_else(|| panic!("no frame on GPIO{} after {write_us} µs", PINS.strips[i]))
     })
+}
+
+/// Assert every interval between `rises` is `period_ns` within 1 µs; returns the shortest
+/// and longest.
+fn check_periods(rises: &[u64], period_ns: i64) -> (i64, i64) {
+    let mut range = (i64::MAX, i64::MIN);
+    for w in rises.windows(2) {
+        let d = w[1] as i64 - w[0] as i64;
+        assert!((d - period_ns).abs() <= 1_000, "trigger period {d} ns");
+        range = (range.0.min(d), range.1.max(d));
+    }
+    range
 }
 
 /// The colour of the strip's `leds` pixels when they all show one lit colour; the
@@ -197,23 +216,15 @@ fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u6
     assert!(indices.windows(2).all(|w| w[1] == w[0] + 1), "{indices:?}");
     let first_ns = events[0].write_start_us * 1000;
     let last_ns = events.last().unwrap().write_start_us * 1000 + period_us * 1000;
-    let rises: Vec<u64> = lock(&rig.emulator)
+    let rises = lock(&rig.emulator)
         .trace()
-        .trigger_rises()
-        .into_iter()
-        .filter(|&r| r >= first_ns && r < last_ns)
-        .collect();
+        .trigger_rises_in(first_ns..last_ns);
     assert_eq!(rises.len(), events.len(), "one trigger edge per phase");
     let period_ns = period_us as i64 * 1000;
     let mut m = Measured {
-        period_ns: (i64::MAX, i64::MIN),
+        period_ns: check_periods(&rises, period_ns),
         ..Measured::default()
     };
-    for w in rises.windows(2) {
-        let d = w[1] as i64 - w[0] as i64;
-        assert!((d - period_ns).abs() <= 1_000, "trigger period {d} ns");
-        m.period_ns = (m.period_ns.0.min(d), m.period_ns.1.max(d));
-    }
     let span = *rises.last().unwrap() as i64 - rises[0] as i64;
     assert!(
         (span - (rises.len() as i64 - 1) * period_ns).abs() <= 1_000,
@@ -222,6 +233,7 @@ fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u6
     );
     let settle_ns = u64::from(config.timing.led_settle_us) * 1000;
     let leds = usize::from(config.leds_per_strip);
+    let strips = strip_frames(rig);
     let mut trigger_index = None;
     for (e, rise) in events.iter().zip(&rises) {
         let TriggerOutcome::Fired { index, edge_us } = e.trigger else {
@@ -238,7 +250,7 @@ fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u6
             "edge {rise} ns vs event {edge_us} µs"
         );
         m.edge_error_ns = m.edge_error_ns.max(edge_error_ns);
-        let frames = frames_at(rig, e.write_start_us);
+        let frames = frames_at(&strips, e.write_start_us);
         let first_bit = frames.iter().map(|f| f.start_ns).min().unwrap();
         let lag_ns = first_bit as i64 - e.write_start_us as i64 * 1000;
         assert!(
@@ -438,11 +450,7 @@ fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
         assert!(!before.is_dark(), "GPIO{pin} was lit before the fault");
     }
     // No trigger after the fault.
-    let late: Vec<u64> = trace
-        .trigger_rises()
-        .into_iter()
-        .filter(|&r| r > fault_ns)
-        .collect();
+    let late = trace.trigger_rises_in(fault_ns + 1..u64::MAX);
     assert!(late.is_empty(), "triggers after the fault: {late:?}");
     drop(emulator);
     let status = s.status().unwrap();
@@ -477,18 +485,10 @@ fn a_host_that_stops_reading_loses_events_not_timing() {
     // The trigger kept its 20 ms period through it all, not one edge missing.
     let from = before[0].write_start_us * 1000;
     let to = after.last().unwrap().write_start_us * 1000;
-    let rises: Vec<u64> = lock(&rig.emulator)
-        .trace()
-        .trigger_rises()
-        .into_iter()
-        .filter(|&r| r >= from && r < to)
-        .collect();
+    let rises = lock(&rig.emulator).trace().trigger_rises_in(from..to);
     let expected = (to - from) / 20_000_000;
     assert_eq!(rises.len() as u64, expected, "trigger edges");
-    for w in rises.windows(2) {
-        let d = w[1] as i64 - w[0] as i64;
-        assert!((d - 20_000_000).abs() <= 1_000, "trigger period {d} ns");
-    }
+    check_periods(&rises, 20_000_000);
     eprintln!(
         "not reading for 2 s: {} events dropped on the device, {lost} seen lost by the host, {} trigger edges at 20 ms",
         status.events_dropped,
