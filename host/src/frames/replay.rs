@@ -28,34 +28,24 @@ struct IndexLine<'a> {
     label: Label,
 }
 
-/// The fields replay needs from an index line. Spelled out rather than flattened:
-/// serde's flatten buffers numbers, which fails ("invalid type: map, expected f64")
-/// whenever serde_json's `arbitrary_precision` is on anywhere in the build (defmt-decoder
-/// turns it on in this workspace).
+/// The fields replay needs from an index line. Spelled out rather than a flattened
+/// [`FrameStamp`]: serde's flatten buffers numbers, which fails ("invalid type: map,
+/// expected f64") whenever serde_json's `arbitrary_precision` is on anywhere in the
+/// build (defmt-decoder turns it on in this workspace).
 #[derive(Debug, Clone, serde::Deserialize)]
-struct IndexStamp {
+struct ReplayLine {
     file: String,
     sequence: u64,
     timestamp_us: f64,
     exposure_us: f64,
 }
 
-/// One frame to replay.
-#[derive(Debug, Clone)]
-struct ReplayLine {
-    file: String,
-    stamp: FrameStamp,
-}
-
-impl From<IndexStamp> for ReplayLine {
-    fn from(l: IndexStamp) -> Self {
-        Self {
-            file: l.file,
-            stamp: FrameStamp {
-                sequence: l.sequence,
-                timestamp_us: l.timestamp_us,
-                exposure_us: l.exposure_us,
-            },
+impl ReplayLine {
+    fn stamp(&self) -> FrameStamp {
+        FrameStamp {
+            sequence: self.sequence,
+            timestamp_us: self.timestamp_us,
+            exposure_us: self.exposure_us,
         }
     }
 }
@@ -160,15 +150,15 @@ impl ReplaySource {
             if line.trim().is_empty() {
                 continue;
             }
-            let parsed: IndexStamp =
+            let parsed: ReplayLine =
                 serde_json::from_str(&line).map_err(|e| FrameError::Index {
                     path: path.clone(),
                     line: n + 1,
                     message: e.to_string(),
                 })?;
-            lines.push(ReplayLine::from(parsed));
+            lines.push(parsed);
         }
-        lines.sort_by_key(|l| l.stamp.sequence);
+        lines.sort_by_key(|l| l.sequence);
         Ok(Self {
             dir: dir.to_path_buf(),
             lines,
@@ -201,7 +191,7 @@ impl FrameSource for ReplaySource {
             })?
             .to_rgb8();
         Ok(Some(Frame {
-            stamp: line.stamp,
+            stamp: line.stamp(),
             image,
         }))
     }

@@ -386,12 +386,7 @@ impl StereoCalibration {
 
     /// The calibration as OpenCV stereo YAML (what [`Self::from_opencv_yaml`] reads).
     pub fn to_opencv_yaml(&self) -> String {
-        let matrix = |name: &str, rows: usize, cols: usize, data: &[f64]| {
-            format!(
-                "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: {}\n",
-                yaml::list(data)
-            )
-        };
+        let matrix = yaml::opencv_matrix;
         let row_major = |m: &Matrix3<f64>| -> Vec<f64> { m.transpose().as_slice().to_vec() };
         let model = match self.left.distortion {
             Distortion::BrownConrady(_) => "plumb_bob",
@@ -462,12 +457,8 @@ pub(crate) mod tests {
     fn reads_an_opencv_file_with_a_rectification_instead_of_r_t() {
         let c = sensor_pair(Distortion::NONE);
         let rect = crate::stereo::rectify::Rectification::bouguet(&c, 1.0).unwrap();
-        let m = |name: &str, rows: usize, cols: usize, data: Vec<f64>| {
-            format!(
-                "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: {}\n",
-                yaml::list(&data)
-            )
-        };
+        let m =
+            |name: &str, rows, cols, data: Vec<f64>| yaml::opencv_matrix(name, rows, cols, &data);
         let rm = |r: &Matrix3<f64>| r.transpose().as_slice().to_vec();
         let text = format!(
             "%YAML:1.0\n---\nimageSize: [ 640, 480 ]\n{}{}{}{}{}{}{}{}",

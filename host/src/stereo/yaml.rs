@@ -151,6 +151,14 @@ fn value_of(first: &str, rest: &[(usize, &str)], n: usize) -> Result<(Value, usi
     Ok((Value::List(items), used))
 }
 
+/// One OpenCV `FileStorage` matrix entry (row-major `data`).
+pub fn opencv_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
+    format!(
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: {}\n",
+        list(data)
+    )
+}
+
 /// Format numbers so they read back exactly.
 pub fn list(values: &[f64]) -> String {
     let items: Vec<String> = values.iter().map(|v| format!("{v:?}")).collect();
