@@ -33,8 +33,14 @@ pub const WRITE_START_SLACK_US: u32 = 100;
 /// FIFOs (measured in emulation: ~100 µs, up to ~150 µs when the heartbeat is encoded at
 /// the same moment), µs.
 pub const PREPARE_LEAD_US: u32 = 300;
-/// Allowance for the four strips' DMA transfers starting one after another, in µs.
+/// Margin kept in the schedule for the four strips not ending together, in µs. The board
+/// now releases them in one register write (measured: same cycle), so this is headroom,
+/// not an expected delay.
 pub const STRIP_STAGGER_US: u32 = 20;
+// Preparing the next phase pauses the strips, so the previous phase's bits must be out
+// by then. Even when the write started the whole slack late, they end stagger + reset +
+// settle before the trigger, and `check_timing` keeps the trigger before the next boundary.
+const _: () = assert!(PREPARE_LEAD_US <= STRIP_STAGGER_US + WS2812_RESET_US);
 /// The trigger must be armed at least this long before its edge, in µs.
 pub const MIN_ARM_LEAD_US: u32 = 5;
 /// Delay from a start request to the first phase boundary, in µs.
