@@ -23,6 +23,7 @@ pub mod clock;
 pub mod device;
 pub mod frames;
 pub mod matcher;
+pub mod output;
 pub mod sim;
 pub mod stereo;
 pub mod tactile;

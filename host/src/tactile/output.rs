@@ -3,118 +3,21 @@
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::Serialize;
+
+pub use crate::output::{OutputError, colour_map, write_npy};
+use crate::output::{io, write_false_colour_png, write_png16};
 
 use super::contact::Roi;
 use super::grid::Grid;
 use super::reconstruct::{Reconstruction, StageTimings};
 
-/// Why an output could not be written.
-#[derive(Debug, thiserror::Error)]
-pub enum OutputError {
-    /// File system error.
-    #[error("{path}: {source}")]
-    Io {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        source: std::io::Error,
-    },
-    /// PNG encoding error.
-    #[error("{path}: {source}")]
-    Image {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        source: image::ImageError,
-    },
-}
-
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
-    move |source| OutputError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
-/// Writes `grid` as a little-endian f32 `.npy` array of shape `(height, width)`.
-pub fn write_npy(path: &Path, grid: &Grid<f32>) -> Result<(), OutputError> {
-    let mut f = BufWriter::new(File::create(path).map_err(io(path))?);
-    let mut header = format!(
-        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}",
-        grid.height(),
-        grid.width()
-    );
-    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut bytes = Vec::with_capacity(10 + header.len() + grid.as_slice().len() * 4);
-    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    for v in grid.as_slice() {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    f.write_all(&bytes).map_err(io(path))?;
-    f.flush().map_err(io(path))
-}
-
 /// Writes depth as a 16-bit grey PNG, one count per micrometre (0 … 65.535 mm);
 /// negative depths are written as 0.
 pub fn write_depth_png16(path: &Path, depth_mm: &Grid<f32>) -> Result<(), OutputError> {
-    let data: Vec<u16> = depth_mm
-        .as_slice()
-        .iter()
-        .map(|d| (d * 1000.0).round().clamp(0.0, 65535.0) as u16)
-        .collect();
-    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
-        depth_mm.width() as u32,
-        depth_mm.height() as u32,
-        data,
-    )
-    .expect("buffer length matches");
-    img.save(path).map_err(|source| OutputError::Image {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
-/// Writes depth in false colour (dark blue at 0 through green and yellow to red at
-/// `max_mm`), for a quick look.
-pub fn write_false_colour_png(
-    path: &Path,
-    depth_mm: &Grid<f32>,
-    max_mm: f32,
-) -> Result<(), OutputError> {
-    let max = if max_mm > 0.0 { max_mm } else { 1.0 };
-    let mut img = image::RgbImage::new(depth_mm.width() as u32, depth_mm.height() as u32);
-    for (px, d) in img.pixels_mut().zip(depth_mm.as_slice()) {
-        *px = image::Rgb(colour_map((d / max).clamp(0.0, 1.0)));
-    }
-    img.save(path).map_err(|source| OutputError::Image {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
-/// A perceptually ordered map: piecewise linear through five anchor colours.
-pub fn colour_map(t: f32) -> [u8; 3] {
-    const ANCHORS: [[f32; 3]; 5] = [
-        [20.0, 20.0, 80.0],
-        [30.0, 110.0, 200.0],
-        [60.0, 190.0, 110.0],
-        [240.0, 220.0, 50.0],
-        [220.0, 40.0, 30.0],
-    ];
-    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) } * 4.0;
-    let i = (t as usize).min(3);
-    let f = t - i as f32;
-    let (a, b) = (ANCHORS[i], ANCHORS[i + 1]);
-    [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
+    write_png16(path, depth_mm, 1000.0)
 }
 
 /// Writes a binary little-endian PLY with one vertex per pixel: `x`, `y` in mm from the
@@ -215,9 +118,11 @@ pub fn write_all(dir: &Path, r: &Reconstruction, px_per_mm: f64) -> Result<Summa
     let summary = Summary::of(r, px_per_mm);
     write_npy(&dir.join("depth.npy"), &r.depth_mm)?;
     write_depth_png16(&dir.join("depth16.png"), &r.depth_mm)?;
+    // Dark blue at 0 through green and yellow to red at the deepest point.
     write_false_colour_png(
         &dir.join("depth_colour.png"),
         &r.depth_mm,
+        0.0,
         summary.max_depth_mm.max(0.1),
     )?;
     write_ply(&dir.join("depth.ply"), &r.depth_mm, px_per_mm)?;
@@ -228,37 +133,4 @@ pub fn write_all(dir: &Path, r: &Reconstruction, px_per_mm: f64) -> Result<Summa
     })?;
     std::fs::write(&json_path, json).map_err(io(&json_path))?;
     Ok(summary)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn npy_header_is_aligned_and_data_round_trips() {
-        let dir = std::env::temp_dir().join(format!("stereotac-npy-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("a.npy");
-        let g = Grid::from_fn(3, 2, |x, y| (x + 10 * y) as f32 * 0.5);
-        write_npy(&path, &g).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
-        let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-        assert_eq!((10 + hlen) % 64, 0);
-        let header = std::str::from_utf8(&bytes[10..10 + hlen]).unwrap();
-        assert!(header.contains("'shape': (2, 3)"), "{header}");
-        let data: Vec<f32> = bytes[10 + hlen..]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
-        assert_eq!(data, g.as_slice());
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn colour_map_endpoints_and_nan() {
-        assert_eq!(colour_map(0.0), [20, 20, 80]);
-        assert_eq!(colour_map(1.0), [220, 40, 30]);
-        assert_eq!(colour_map(f32::NAN), colour_map(0.0));
-    }
 }

@@ -1,0 +1,225 @@
+//! Files people open elsewhere, shared by the tactile and stereo pipelines: NumPy
+//! `.npy` (f32, H×W), 16-bit grey PNG at a chosen scale, false-colour PNG, and binary
+//! PLY point clouds.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::tactile::grid::Grid;
+
+/// Why an output could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// File system error.
+    #[error("{path}: {source}")]
+    Io {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// PNG encoding error.
+    #[error("{path}: {source}")]
+    Image {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        source: image::ImageError,
+    },
+}
+
+pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '_ {
+    move |source| OutputError::Image {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Writes `grid` as a little-endian f32 `.npy` array of shape `(height, width)`.
+pub fn write_npy(path: &Path, grid: &Grid<f32>) -> Result<(), OutputError> {
+    let mut f = BufWriter::new(File::create(path).map_err(io(path))?);
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}",
+        grid.height(),
+        grid.width()
+    );
+    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + grid.as_slice().len() * 4);
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in grid.as_slice() {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    f.write_all(&bytes).map_err(io(path))?;
+    f.flush().map_err(io(path))
+}
+
+/// Writes `grid` as a 16-bit grey PNG with `counts_per_unit` counts per unit of the
+/// grid (e.g. 1000 per mm: micrometres). Values are rounded and clamped to 0..=65535;
+/// NaN is written as 0 (the usual "no depth" value of depth images).
+pub fn write_png16(path: &Path, grid: &Grid<f32>, counts_per_unit: f32) -> Result<(), OutputError> {
+    let data: Vec<u16> = grid
+        .as_slice()
+        .iter()
+        .map(|v| {
+            let c = (v * counts_per_unit).round();
+            if c.is_nan() {
+                0
+            } else {
+                c.clamp(0.0, 65535.0) as u16
+            }
+        })
+        .collect();
+    let img = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
+        grid.width() as u32,
+        grid.height() as u32,
+        data,
+    )
+    .expect("buffer length matches");
+    img.save(path).map_err(image_error(path))
+}
+
+/// Writes `grid` in false colour, [`colour_map`] from `lo` (dark blue) to `hi` (red);
+/// NaN (no value) is black.
+pub fn write_false_colour_png(
+    path: &Path,
+    grid: &Grid<f32>,
+    lo: f32,
+    hi: f32,
+) -> Result<(), OutputError> {
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let mut img = image::RgbImage::new(grid.width() as u32, grid.height() as u32);
+    for (px, v) in img.pixels_mut().zip(grid.as_slice()) {
+        *px = image::Rgb(if v.is_nan() {
+            [0, 0, 0]
+        } else {
+            colour_map((v - lo) / span)
+        });
+    }
+    img.save(path).map_err(image_error(path))
+}
+
+/// A perceptually ordered map: piecewise linear through five anchor colours.
+pub fn colour_map(t: f32) -> [u8; 3] {
+    const ANCHORS: [[f32; 3]; 5] = [
+        [20.0, 20.0, 80.0],
+        [30.0, 110.0, 200.0],
+        [60.0, 190.0, 110.0],
+        [240.0, 220.0, 50.0],
+        [220.0, 40.0, 30.0],
+    ];
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) } * 4.0;
+    let i = (t as usize).min(3);
+    let f = t - i as f32;
+    let (a, b) = (ANCHORS[i], ANCHORS[i + 1]);
+    [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
+}
+
+/// Writes points (mm) as a binary little-endian PLY, with a grey value per point when
+/// `grey` is given (same length as `points`).
+pub fn write_points_ply(
+    path: &Path,
+    points: &[[f32; 3]],
+    grey: Option<&[u8]>,
+    comment: &str,
+) -> Result<(), OutputError> {
+    let mut f = BufWriter::new(File::create(path).map_err(io(path))?);
+    let colour = grey.filter(|g| g.len() == points.len());
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+        points.len()
+    );
+    if colour.is_some() {
+        header.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+    }
+    header.push_str("end_header\n");
+    f.write_all(header.as_bytes()).map_err(io(path))?;
+    for (i, p) in points.iter().enumerate() {
+        for v in p {
+            f.write_all(&v.to_le_bytes()).map_err(io(path))?;
+        }
+        if let Some(g) = colour {
+            f.write_all(&[g[i]; 3]).map_err(io(path))?;
+        }
+    }
+    f.flush().map_err(io(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_header_is_aligned_and_data_round_trips() {
+        let dir = std::env::temp_dir().join(format!("stereotac-npy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.npy");
+        let g = Grid::from_fn(3, 2, |x, y| (x + 10 * y) as f32 * 0.5);
+        write_npy(&path, &g).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+        let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        assert_eq!((10 + hlen) % 64, 0);
+        let header = std::str::from_utf8(&bytes[10..10 + hlen]).unwrap();
+        assert!(header.contains("'shape': (2, 3)"), "{header}");
+        let data: Vec<f32> = bytes[10 + hlen..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        assert_eq!(data, g.as_slice());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn colour_map_endpoints_and_nan() {
+        assert_eq!(colour_map(0.0), [20, 20, 80]);
+        assert_eq!(colour_map(1.0), [220, 40, 30]);
+        assert_eq!(colour_map(f32::NAN), colour_map(0.0));
+    }
+
+    #[test]
+    fn png16_scales_and_ply_has_one_record_per_point() {
+        let dir = std::env::temp_dir().join(format!("stereotac-out-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let g = Grid::from_vec(3, 1, vec![1.5, f32::NAN, 700.0]).unwrap();
+        let png = dir.join("a.png");
+        write_png16(&png, &g, 100.0).unwrap();
+        let img = image::open(&png).unwrap().into_luma16();
+        assert_eq!(img.as_raw(), &vec![150, 0, 65535]);
+        let ply = dir.join("a.ply");
+        write_points_ply(
+            &ply,
+            &[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]],
+            Some(&[7, 8]),
+            "t",
+        )
+        .unwrap();
+        let bytes = std::fs::read(&ply).unwrap();
+        let end = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
+        assert!(
+            std::str::from_utf8(&bytes[..end])
+                .unwrap()
+                .contains("element vertex 2")
+        );
+        assert_eq!(bytes.len() - end, 2 * 15);
+        assert_eq!(&bytes[end + 12..end + 15], &[7, 7, 7]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
