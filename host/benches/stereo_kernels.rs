@@ -4,7 +4,10 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Matrix3, Rotation3, Vector3};
-use stereotac::stereo::{Camera, Distortion, Rectification, StereoCalibration};
+use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+use stereotac::stereo::{
+    BlockMatchParams, BlockMatcher, Camera, Distortion, Kernel, Rectification, StereoCalibration,
+};
 
 fn remap(c: &mut Criterion) {
     let camera = Camera {
@@ -33,5 +36,35 @@ fn remap(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, remap);
+fn block_match(c: &mut Criterion) {
+    let rig = StereoRig::sensor();
+    let (left, right) = render_pair(&rig, &Plane::facing(120.0), &Membrane::sensor(), 1);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a pool");
+    let mut g = c.benchmark_group("block_match_640x480_64d_9x9_1thread");
+    g.sample_size(20);
+    for kernel in [Kernel::Portable, Kernel::Avx2] {
+        let Ok(m) =
+            BlockMatcher::new(BlockMatchParams::default()).and_then(|m| m.with_kernel(kernel))
+        else {
+            continue;
+        };
+        g.bench_function(format!("{kernel:?}"), |b| {
+            pool.install(|| b.iter(|| m.compute(&left, &right).expect("same size")))
+        });
+    }
+    let no_speckle = BlockMatchParams {
+        speckle_window: 0,
+        ..BlockMatchParams::default()
+    };
+    let m = BlockMatcher::new(no_speckle).expect("valid");
+    g.bench_function("best_without_speckle_filter", |b| {
+        pool.install(|| b.iter(|| m.compute(&left, &right).expect("same size")))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, remap, block_match);
 criterion_main!(benches);
