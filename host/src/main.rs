@@ -10,6 +10,7 @@ mod demo;
 mod demo_tactile;
 mod link_cli;
 mod progress;
+mod stereo_cli;
 mod tactile_cli;
 
 /// stereotac: visuotactile sensor toolkit (firmware link, tactile and stereo depth).
@@ -85,6 +86,12 @@ enum Command {
     Calibrate(tactile_cli::CalibrateArgs),
     /// Reconstruct the depth of one dx/dy pair into depth.npy, PNGs, PLY and summary.json.
     Reconstruct(tactile_cli::ReconstructArgs),
+    /// Stereo depth of one rectifiable pair: disparity and depth (.npy, PNG), point cloud
+    /// (PLY) and summary.json. `--synthetic MM` uses a built-in capture instead.
+    Stereo(stereo_cli::StereoArgs),
+    /// Depth-camera metrics (Z-accuracy, RMS error, temporal noise, fill rate) on built-in
+    /// captures of flat targets behind the skin, with and without post-filters.
+    StereoEval(stereo_cli::StereoEvalArgs),
     /// Benchmarks on built-in synthetic data.
     Bench {
         #[command(subcommand)]
@@ -117,6 +124,9 @@ enum BenchWhat {
         #[arg(long, default_value_t = 15)]
         repeats: usize,
     },
+    /// Stereo: remap, matching (per kernel, against OpenCV with --opencv) and the whole
+    /// vision frame on 1 and 2 threads.
+    Stereo(stereo_cli::BenchStereoArgs),
 }
 
 /// Lighting modes selectable from the command line.
@@ -164,6 +174,11 @@ fn run(cli: Cli) -> Result<()> {
                     repeats,
                 },
         } => tactile_cli::bench_tactile(sizes, repeats, json, json_out.as_deref()),
+        Command::Bench {
+            what: BenchWhat::Stereo(args),
+        } => stereo_cli::bench_stereo(&args),
+        Command::Stereo(args) => stereo_cli::stereo_cmd(args),
+        Command::StereoEval(args) => stereo_cli::stereo_eval_cmd(args),
         Command::FirmwareImage { elf, uf2 } => {
             let image = stereotac::uf2::FirmwareImage::read(&elf)
                 .with_context(|| format!("reading firmware {}", elf.display()))?;

@@ -28,6 +28,8 @@ fn help_documents_every_subcommand() {
         "demo",
         "calibrate",
         "reconstruct",
+        "stereo",
+        "stereo-eval",
         "bench",
         "firmware-image",
     ] {

@@ -1,18 +1,28 @@
 //! Stereo depth through the skin (Vision and Dark phases only): calibration files in,
-//! rectified frames out. Matching, reprojection and filtering build on this.
+//! rectified frames, disparity, depth and point clouds out, and the depth-camera
+//! evaluation that measures them.
 //!
 //! - [`yaml`]: the YAML subset calibration files use.
 //! - [`camera`]: camera matrix and lens models (Brown–Conrady, Kannala–Brandt).
 //! - [`calib`]: OpenCV stereo YAML and ROS `camera_info` pairs.
 //! - [`rectify`]: Bouguet rectification and fixed-point remap tables.
 //! - [`prefilter`], [`block_match`], [`speckle`]: disparity by block matching.
+//! - [`postfilter`]: spatial, temporal and hole-filling filters on disparity.
+//! - [`reproject`], [`outliers`]: depth, point clouds, statistical outlier removal.
+//! - [`pipeline`]: the whole frame, raw views to point cloud, with timings.
 //! - [`synthetic`]: built-in captures of textured targets behind the skin.
+//! - [`eval`]: Z-accuracy, RMS error, temporal noise and fill rate of flat targets.
 
 pub mod block_match;
 pub mod calib;
 pub mod camera;
+pub mod eval;
+pub mod outliers;
+pub mod pipeline;
+pub mod postfilter;
 pub mod prefilter;
 pub mod rectify;
+pub mod reproject;
 pub mod speckle;
 pub mod synthetic;
 pub mod yaml;
@@ -20,4 +30,5 @@ pub mod yaml;
 pub use block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
 pub use calib::{CalibError, StereoCalibration};
 pub use camera::{Camera, Distortion};
+pub use pipeline::{StereoConfig, StereoError, StereoFrame, StereoPipeline};
 pub use rectify::{Rectification, RectifyError, RemapTable};

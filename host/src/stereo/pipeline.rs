@@ -1,0 +1,286 @@
+//! The whole stereo frame: rectify both views (maps built once), match, post-filter,
+//! reproject, and optionally drop outlying points. One [`StereoPipeline`] per sensor
+//! and stream; it keeps the temporal filter's state between frames.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::block_match::{BlockMatchParams, BlockMatcher, MatchError, MatchStats};
+use super::calib::StereoCalibration;
+use super::outliers::{OutlierParams, statistical_inliers};
+use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
+use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
+use super::reproject::{PointCloud, depth_from_disparity, reproject};
+use crate::tactile::grid::Grid;
+
+/// How the pipeline runs. [`Default`] suits the sensor: depths 5–60 cm, the matcher's
+/// defaults, the spatial filter on, the rest off.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct StereoConfig {
+    /// Rectified focal length as a share of the cameras' (smaller shows more of a wide
+    /// lens at lower resolution).
+    pub rectify_scale: f64,
+    /// Nearest depth searched, mm.
+    pub near_mm: f64,
+    /// Farthest depth searched, mm.
+    pub far_mm: f64,
+    /// Matcher window side (odd).
+    pub block_size: u32,
+    /// Matcher uniqueness ratio, percent.
+    pub uniqueness_ratio: u32,
+    /// Matcher texture threshold.
+    pub texture_threshold: u32,
+    /// Edge-preserving spatial filter.
+    pub spatial: Option<SpatialFilter>,
+    /// Temporal filter (for streams).
+    pub temporal: Option<TemporalParams>,
+    /// Hole filling.
+    pub hole_fill: Option<HoleFill>,
+    /// Statistical outlier removal on the point cloud.
+    pub outliers: Option<OutlierParams>,
+}
+
+impl Default for StereoConfig {
+    fn default() -> Self {
+        let m = BlockMatchParams::default();
+        Self {
+            rectify_scale: 1.0,
+            near_mm: 50.0,
+            far_mm: 600.0,
+            block_size: m.block_size,
+            uniqueness_ratio: m.uniqueness_ratio,
+            texture_threshold: m.texture_threshold,
+            spatial: Some(SpatialFilter::default()),
+            temporal: None,
+            hole_fill: None,
+            outliers: None,
+        }
+    }
+}
+
+/// Why the pipeline could not be built or run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StereoError {
+    /// Rectification failed.
+    #[error(transparent)]
+    Rectify(#[from] RectifyError),
+    /// Matcher parameters or inputs.
+    #[error(transparent)]
+    Match(#[from] MatchError),
+    /// A frame of the wrong size.
+    #[error("{camera} frame: {source}")]
+    FrameSize {
+        /// "left" or "right".
+        camera: &'static str,
+        /// Details.
+        source: RemapSizeError,
+    },
+}
+
+/// Milliseconds per stage of one frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct StereoTimings {
+    /// Rectifying both views.
+    pub rectify_ms: f64,
+    /// Block matching (prefilter, costs, checks, speckles).
+    pub match_ms: f64,
+    /// Post-filters.
+    pub filter_ms: f64,
+    /// Depth and point cloud.
+    pub reproject_ms: f64,
+    /// Outlier removal.
+    pub outliers_ms: f64,
+    /// The whole frame.
+    pub total_ms: f64,
+}
+
+/// One processed frame.
+#[derive(Debug, Clone)]
+pub struct StereoFrame {
+    /// The rectified left view (what the maps below line up with).
+    pub left: Grid<u8>,
+    /// The rectified right view.
+    pub right: Grid<u8>,
+    /// Disparity (px, NaN invalid), after the filters and outlier removal.
+    pub disparity: Grid<f32>,
+    /// Depth along the rectified optical axis, mm (NaN invalid).
+    pub depth_mm: Grid<f32>,
+    /// Points in the rectified left camera's frame, mm.
+    pub cloud: PointCloud,
+    /// The matcher's counts.
+    pub stats: MatchStats,
+    /// Pixels filled by hole filling.
+    pub holes_filled: usize,
+    /// Points removed as outliers.
+    pub outliers_removed: usize,
+    /// Time per stage.
+    pub timings: StereoTimings,
+}
+
+/// Rectification maps, matcher and filter state for one calibrated pair.
+#[derive(Debug, Clone)]
+pub struct StereoPipeline {
+    config: StereoConfig,
+    rectification: Rectification,
+    maps: (RemapTable, RemapTable),
+    matcher: BlockMatcher,
+    temporal: Option<TemporalFilter>,
+}
+
+impl StereoPipeline {
+    /// Builds the maps and the matcher for `calib`.
+    pub fn new(calib: &StereoCalibration, config: StereoConfig) -> Result<Self, StereoError> {
+        let rectification = Rectification::bouguet(calib, config.rectify_scale)?;
+        let params = BlockMatchParams {
+            block_size: config.block_size,
+            uniqueness_ratio: config.uniqueness_ratio,
+            texture_threshold: config.texture_threshold,
+            ..BlockMatchParams::for_depth_range(
+                rectification.focal(),
+                rectification.baseline(),
+                config.near_mm,
+                config.far_mm,
+            )?
+        };
+        let matcher = BlockMatcher::new(params)?;
+        Ok(Self {
+            config,
+            maps: rectification.maps(calib),
+            rectification,
+            matcher,
+            temporal: config.temporal.map(TemporalFilter::new),
+        })
+    }
+
+    /// The rectification in use.
+    pub fn rectification(&self) -> &Rectification {
+        &self.rectification
+    }
+
+    /// The matcher in use.
+    pub fn matcher(&self) -> &BlockMatcher {
+        &self.matcher
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &StereoConfig {
+        &self.config
+    }
+
+    /// Processes one raw frame pair (8-bit grey, the calibration's size).
+    pub fn process(
+        &mut self,
+        left: &Grid<u8>,
+        right: &Grid<u8>,
+    ) -> Result<StereoFrame, StereoError> {
+        let start = Instant::now();
+        let (w, h) = (
+            self.rectification.width as usize,
+            self.rectification.height as usize,
+        );
+        let remap = |table: &RemapTable, src: &Grid<u8>, camera| {
+            let mut out = vec![0u8; w * h];
+            table
+                .remap(src.as_slice(), &mut out)
+                .map_err(|source| StereoError::FrameSize { camera, source })?;
+            Ok::<_, StereoError>(Grid::from_vec(w, h, out).expect("size matches"))
+        };
+        let (l, r) = rayon::join(
+            || remap(&self.maps.0, left, "left"),
+            || remap(&self.maps.1, right, "right"),
+        );
+        let (left, right) = (l?, r?);
+        let t_rect = Instant::now();
+        let matched = self.matcher.compute(&left, &right)?;
+        let t_match = Instant::now();
+        let mut disparity = matched.disparity;
+        if let Some(s) = &self.config.spatial {
+            s.apply(&mut disparity);
+        }
+        if let Some(t) = &mut self.temporal {
+            t.apply(&mut disparity);
+        }
+        let holes_filled = self.config.hole_fill.map_or(0, |f| f.apply(&mut disparity));
+        let t_filter = Instant::now();
+        let mut cloud = reproject(&disparity, &self.rectification.q);
+        let t_reproject = Instant::now();
+        let mut outliers_removed = 0;
+        if let Some(p) = &self.config.outliers {
+            let keep = statistical_inliers(&cloud.points, p);
+            for (&pixel, _) in cloud.pixels.iter().zip(&keep).filter(|(_, k)| !**k) {
+                disparity.as_mut_slice()[pixel as usize] = f32::NAN;
+                outliers_removed += 1;
+            }
+            cloud.retain(&keep);
+        }
+        let t_outliers = Instant::now();
+        let depth_mm = depth_from_disparity(
+            &disparity,
+            self.rectification.focal(),
+            self.rectification.baseline(),
+        );
+        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        let timings = StereoTimings {
+            rectify_ms: ms(start, t_rect),
+            match_ms: ms(t_rect, t_match),
+            filter_ms: ms(t_match, t_filter),
+            reproject_ms: ms(t_filter, t_reproject) + ms(t_outliers, Instant::now()),
+            outliers_ms: ms(t_reproject, t_outliers),
+            total_ms: ms(start, Instant::now()),
+        };
+        Ok(StereoFrame {
+            left,
+            right,
+            disparity,
+            depth_mm,
+            cloud,
+            stats: matched.stats,
+            holes_filled,
+            outliers_removed,
+            timings,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+
+    #[test]
+    fn a_plane_comes_out_at_its_depth() {
+        let rig = StereoRig::sensor();
+        let mut p = StereoPipeline::new(&rig.calibration(), StereoConfig::default()).unwrap();
+        let (l, r) = render_pair(&rig, &Plane::facing(200.0), &Membrane::sensor(), 1);
+        let f = p.process(&l, &r).unwrap();
+        let centre: Vec<f32> = (200..280)
+            .flat_map(|y| (250..390).map(move |x| (x, y)))
+            .map(|(x, y)| f.depth_mm.get(x, y))
+            .collect();
+        let valid: Vec<f32> = centre.iter().copied().filter(|v| v.is_finite()).collect();
+        assert!(
+            valid.len() * 100 >= centre.len() * 95,
+            "fill {}",
+            valid.len()
+        );
+        let mut sorted = valid.clone();
+        sorted.sort_by(f32::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        assert!((median - 200.0).abs() < 1.0, "median {median}");
+        assert_eq!(
+            f.cloud.len(),
+            f.depth_mm
+                .as_slice()
+                .iter()
+                .filter(|v| v.is_finite())
+                .count()
+        );
+        // Wrong frame size: a typed error naming the camera.
+        let small = Grid::filled(10, 10, 0u8);
+        assert!(matches!(
+            p.process(&small, &r),
+            Err(StereoError::FrameSize { camera: "left", .. })
+        ));
+    }
+}

@@ -1,0 +1,198 @@
+//! The `stereotac` stereo commands end to end: built-in captures in, files out, the same
+//! result through a calibration file, typed errors for bad input, and the evaluation's
+//! goals on synthetic flat targets.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+use stereotac::stereo::synthetic::StereoRig;
+
+fn stereotac(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(args)
+        .output()
+        .expect("run stereotac");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("stereotac-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+fn npy_f32(path: &Path) -> Vec<f32> {
+    let b = std::fs::read(path).expect("npy");
+    let h = u16::from_le_bytes([b[8], b[9]]) as usize;
+    b[10 + h..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+#[test]
+fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
+    let dir = temp_dir("stereo-cli");
+    let a = dir.join("a");
+    let (ok, out, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "150",
+        "--out-dir",
+        a.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let s: Value = serde_json::from_str(&out).expect("JSON summary");
+    assert!(s["fill_rate"].as_f64().unwrap() > 0.7, "{s}");
+    // The plane is at 150 mm on the axis, tilted: the median depth is near it.
+    let median = s["depth_mm"][1].as_f64().unwrap();
+    assert!((140.0..170.0).contains(&median), "{median}");
+    for f in s["files"].as_array().unwrap() {
+        assert!(a.join(f.as_str().unwrap()).is_file(), "{f} missing");
+    }
+    let depth = npy_f32(&a.join("depth.npy"));
+    assert_eq!(depth.len(), 640 * 480);
+
+    // The same images with the rig written as an OpenCV file give the same disparity.
+    let yaml = dir.join("rig.yaml");
+    std::fs::write(&yaml, StereoRig::sensor().calibration().to_opencv_yaml()).unwrap();
+    let b = dir.join("b");
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--calib",
+        yaml.to_str().unwrap(),
+        "--left",
+        a.join("input_left.png").to_str().unwrap(),
+        "--right",
+        a.join("input_right.png").to_str().unwrap(),
+        "--out-dir",
+        b.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (da, db) = (
+        npy_f32(&a.join("disparity.npy")),
+        npy_f32(&b.join("disparity.npy")),
+    );
+    let same = da
+        .iter()
+        .zip(&db)
+        .filter(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+        .count();
+    assert_eq!(same, da.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_inputs_are_refused_with_a_reason() {
+    let dir = temp_dir("stereo-bad");
+    let out = dir.to_str().unwrap();
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--left",
+        "l.png",
+        "--right",
+        "r.png",
+        "--out-dir",
+        out,
+    ]);
+    assert!(!ok && err.contains("--calib"), "{err}");
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--calib",
+        "/nonexistent.yaml",
+        "--left",
+        "l.png",
+        "--right",
+        "r.png",
+        "--out-dir",
+        out,
+    ]);
+    assert!(!ok && err.contains("/nonexistent.yaml"), "{err}");
+    // A calibration for 640×480 and a 20×10 image: the frame size error names the camera.
+    let yaml = dir.join("rig.yaml");
+    std::fs::write(&yaml, StereoRig::sensor().calibration().to_opencv_yaml()).unwrap();
+    let small = dir.join("small.png");
+    image::GrayImage::new(20, 10).save(&small).unwrap();
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--calib",
+        yaml.to_str().unwrap(),
+        "--left",
+        small.to_str().unwrap(),
+        "--right",
+        small.to_str().unwrap(),
+        "--out-dir",
+        out,
+    ]);
+    assert!(!ok && err.contains("left frame"), "{err}");
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "150",
+        "--near-mm",
+        "700",
+        "--out-dir",
+        out,
+    ]);
+    assert!(!ok && err.contains("disparity range"), "{err}");
+    let (ok, _, err) = stereotac(&["stereo-eval", "--frames", "0"]);
+    assert!(!ok && err.contains("frame"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_evaluation_meets_its_goals_with_the_post_filters() {
+    let (ok, out, err) = stereotac(&[
+        "stereo-eval",
+        "--distances",
+        "100,300",
+        "--frames",
+        "6",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let rows: Vec<Value> = serde_json::from_str(&out).expect("JSON rows");
+    assert_eq!(rows.len(), 4);
+    let get = |r: &Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
+    for pair in rows.chunks(2) {
+        let (raw, filtered) = (&pair[0], &pair[1]);
+        assert_eq!(
+            (raw["variant"].as_str(), filtered["variant"].as_str()),
+            (Some("raw"), Some("filtered"))
+        );
+        // Issue goals: Z-accuracy and RMS error within 0.3 %, fill ≥ 95 %.
+        assert!(get(filtered, "z_accuracy_pct").abs() <= 0.3, "{filtered}");
+        assert!(get(filtered, "rms_error_pct") <= 0.3, "{filtered}");
+        assert!(get(filtered, "fill_rate_pct") >= 95.0, "{filtered}");
+        // And the filters help.
+        assert!(
+            get(filtered, "rms_error_pct") < get(raw, "rms_error_pct"),
+            "{pair:?}"
+        );
+        assert!(get(filtered, "temporal_noise_pct") < get(raw, "temporal_noise_pct"));
+    }
+}
+
+#[test]
+fn the_stereo_bench_reports_every_stage() {
+    let (ok, out, err) = stereotac(&["bench", "stereo", "--repeats", "1", "--json"]);
+    assert!(ok, "{err}");
+    let rows: Vec<Value> = serde_json::from_str(&out).expect("JSON rows");
+    let names: Vec<&str> = rows.iter().filter_map(|r| r["what"].as_str()).collect();
+    for want in ["remap", "match, Portable", "whole frame"] {
+        assert!(
+            names.iter().any(|n| n.starts_with(want)),
+            "{want} missing: {names:?}"
+        );
+    }
+    for r in &rows {
+        assert!(r["median_ms"].as_f64().is_some_and(|t| t >= 0.0), "{r}");
+    }
+}
