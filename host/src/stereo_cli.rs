@@ -373,10 +373,7 @@ pub fn stereo_eval_cmd(a: StereoEvalArgs) -> Result<()> {
     let progress = bar(2 * a.distances.len() as u64, "rendering, matching");
     let rows = eval::run_synthetic(&setup, a.pipeline.config(), |_| progress.inc(1))?;
     progress.finish_and_clear();
-    let json = serde_json::to_string_pretty(&rows)?;
-    if let Some(path) = &a.json_out {
-        std::fs::write(path, &json).with_context(|| format!("writing {}", path.display()))?;
-    }
+    let json = report_json(&rows, a.json_out.as_deref())?;
     if a.json {
         println!("{json}");
     } else {
@@ -390,6 +387,15 @@ pub fn stereo_eval_cmd(a: StereoEvalArgs) -> Result<()> {
         print!("{}", eval::table(&rows));
     }
     Ok(())
+}
+
+/// The rows as pretty JSON, also written to `out` when given.
+fn report_json<T: Serialize>(rows: &T, out: Option<&Path>) -> Result<String> {
+    let json = serde_json::to_string_pretty(rows)?;
+    if let Some(path) = out {
+        std::fs::write(path, &json).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(json)
 }
 
 /// `stereotac bench stereo` options.
@@ -592,10 +598,7 @@ pub fn bench_stereo(a: &BenchStereoArgs) -> Result<()> {
     }
     progress.finish_and_clear();
 
-    let json = serde_json::to_string_pretty(&rows)?;
-    if let Some(path) = &a.json_out {
-        std::fs::write(path, &json).with_context(|| format!("writing {}", path.display()))?;
-    }
+    let json = report_json(&rows, a.json_out.as_deref())?;
     if a.json {
         println!("{json}");
         return Ok(());

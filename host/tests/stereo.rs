@@ -93,57 +93,47 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
 fn bad_inputs_are_refused_with_a_reason() {
     let dir = temp_dir("stereo-bad");
     let out = dir.to_str().unwrap();
-    let (ok, _, err) = stereotac(&[
-        "stereo",
-        "--left",
-        "l.png",
-        "--right",
-        "r.png",
-        "--out-dir",
-        out,
-    ]);
-    assert!(!ok && err.contains("--calib"), "{err}");
-    let (ok, _, err) = stereotac(&[
-        "stereo",
-        "--calib",
-        "/nonexistent.yaml",
-        "--left",
-        "l.png",
-        "--right",
-        "r.png",
-        "--out-dir",
-        out,
-    ]);
-    assert!(!ok && err.contains("/nonexistent.yaml"), "{err}");
+    let refused = |args: &[&str], why: &str| {
+        let (ok, _, err) = stereotac(args);
+        assert!(!ok && err.contains(why), "{args:?}: {err}");
+    };
+    let pair = ["--left", "l.png", "--right", "r.png", "--out-dir", out];
+    refused(&[&["stereo"][..], &pair].concat(), "--calib");
+    let missing = ["stereo", "--calib", "/nonexistent.yaml"];
+    refused(&[&missing[..], &pair].concat(), "/nonexistent.yaml");
     // A calibration for 640×480 and a 20×10 image: the frame size error names the camera.
     let yaml = dir.join("rig.yaml");
     std::fs::write(&yaml, StereoRig::sensor().calibration().to_opencv_yaml()).unwrap();
     let small = dir.join("small.png");
     image::GrayImage::new(20, 10).save(&small).unwrap();
-    let (ok, _, err) = stereotac(&[
-        "stereo",
-        "--calib",
-        yaml.to_str().unwrap(),
-        "--left",
-        small.to_str().unwrap(),
-        "--right",
-        small.to_str().unwrap(),
-        "--out-dir",
-        out,
-    ]);
-    assert!(!ok && err.contains("left frame"), "{err}");
-    let (ok, _, err) = stereotac(&[
-        "stereo",
-        "--synthetic",
-        "150",
-        "--near-mm",
-        "700",
-        "--out-dir",
-        out,
-    ]);
-    assert!(!ok && err.contains("disparity range"), "{err}");
-    let (ok, _, err) = stereotac(&["stereo-eval", "--frames", "0"]);
-    assert!(!ok && err.contains("frame"), "{err}");
+    let (y, sm) = (yaml.to_str().unwrap(), small.to_str().unwrap());
+    refused(
+        &[
+            "stereo",
+            "--calib",
+            y,
+            "--left",
+            sm,
+            "--right",
+            sm,
+            "--out-dir",
+            out,
+        ],
+        "left frame",
+    );
+    refused(
+        &[
+            "stereo",
+            "--synthetic",
+            "150",
+            "--near-mm",
+            "700",
+            "--out-dir",
+            out,
+        ],
+        "disparity range",
+    );
+    refused(&["stereo-eval", "--frames", "0"], "frame");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
