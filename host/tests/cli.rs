@@ -1,18 +1,7 @@
 //! The `stereotac` binary's link commands, end to end against the simulated sensor.
 
-use std::process::Command;
-
-fn stereotac(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_stereotac"))
-        .args(args)
-        .output()
-        .expect("run stereotac");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::stereotac;
 
 #[test]
 fn help_documents_every_subcommand() {

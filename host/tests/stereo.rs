@@ -2,23 +2,13 @@
 //! result through a calibration file, typed errors for bad input, and the evaluation's
 //! goals on synthetic flat targets.
 
+mod common;
+use common::stereotac;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use serde_json::Value;
 use stereotac::stereo::synthetic::StereoRig;
-
-fn stereotac(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_stereotac"))
-        .args(args)
-        .output()
-        .expect("run stereotac");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("stereotac-{name}-{}", std::process::id()));
