@@ -3,25 +3,11 @@
 //! Run with `cargo bench -p stereotac --bench stereo_kernels`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{Matrix3, Rotation3, Vector3};
-use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
-use stereotac::stereo::{
-    BlockMatchParams, BlockMatcher, Camera, Distortion, Kernel, Rectification, StereoCalibration,
-};
+use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
+use stereotac::stereo::{BlockMatchParams, BlockMatcher, Kernel, Rectification};
 
 fn remap(c: &mut Criterion) {
-    let camera = Camera {
-        width: 640,
-        height: 480,
-        k: Matrix3::new(420.0, 0.0, 320.0, 0.0, 420.0, 240.0, 0.0, 0.0, 1.0),
-        distortion: Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]),
-    };
-    let calib = StereoCalibration {
-        left: camera,
-        right: camera,
-        r: *Rotation3::from_euler_angles(0.01, -0.02, 0.005).matrix(),
-        t: Vector3::new(-14.0, 0.3, -0.2),
-    };
+    let calib = fisheye_calibration();
     let rect = Rectification::bouguet(&calib, 0.8).expect("a horizontal pair");
     let (table, _) = rect.maps(&calib);
     let src: Vec<u8> = (0..640 * 480).map(|i| (i * 7 % 251) as u8).collect();

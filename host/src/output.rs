@@ -1,6 +1,6 @@
 //! Files people open elsewhere, shared by the tactile and stereo pipelines: NumPy
 //! `.npy` (f32, H×W), 16-bit grey PNG at a chosen scale, false-colour PNG, and binary
-//! PLY point clouds.
+//! PLY point clouds; and reading `.npy` arrays back.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -26,6 +26,14 @@ pub enum OutputError {
         path: PathBuf,
         /// Cause.
         source: image::ImageError,
+    },
+    /// A file read back that is not in the form this module writes.
+    #[error("{path}: {why}")]
+    Format {
+        /// File.
+        path: PathBuf,
+        /// What is wrong.
+        why: String,
     },
 }
 
@@ -65,6 +73,45 @@ pub fn write_npy(path: &Path, grid: &Grid<f32>) -> Result<(), OutputError> {
     }
     f.write_all(&bytes).map_err(io(path))?;
     f.flush().map_err(io(path))
+}
+
+/// Reads a 2-D little-endian f32 `.npy` array in C order: what [`write_npy`] writes,
+/// and what NumPy's `np.save` writes for a `float32` array.
+pub fn read_npy(path: &Path) -> Result<Grid<f32>, OutputError> {
+    let bad = |why: &str| OutputError::Format {
+        path: path.to_path_buf(),
+        why: why.to_string(),
+    };
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" || bytes[6] != 1 {
+        return Err(bad("not a version 1 .npy file"));
+    }
+    let len = usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
+    let header = bytes
+        .get(10..10 + len)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or_else(|| bad("truncated header"))?;
+    if !header.contains("'descr': '<f4'") || !header.contains("'fortran_order': False") {
+        return Err(bad("not a little-endian f32 array in C order"));
+    }
+    let shape: Vec<usize> = header
+        .split("'shape': (")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .ok_or_else(|| bad("no shape"))?
+        .split(',')
+        .map(str::trim)
+        .filter(|v| !v.is_empty())
+        .map(|v| v.parse().map_err(|_| bad("a shape entry is not a number")))
+        .collect::<Result<_, _>>()?;
+    let [height, width] = shape[..] else {
+        return Err(bad("not a 2-D array"));
+    };
+    let data: Vec<f32> = bytes[10 + len..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Grid::from_vec(width, height, data).ok_or_else(|| bad("data length does not match the shape"))
 }
 
 /// Writes `grid` as a 16-bit grey PNG with `counts_per_unit` counts per unit of the
@@ -180,6 +227,9 @@ mod tests {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
         assert_eq!(data, g.as_slice());
+        assert_eq!(read_npy(&path).unwrap(), g);
+        std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
+        assert!(matches!(read_npy(&path), Err(OutputError::Format { .. })));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

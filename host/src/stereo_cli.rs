@@ -1,18 +1,20 @@
 //! CLI front-ends of the stereo pipeline: `stereo`, `stereo-eval`, `bench stereo`.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use stereotac::output::{write_false_colour_png, write_npy, write_png16, write_points_ply};
+use stereotac::output::{
+    read_npy, write_false_colour_png, write_npy, write_png16, write_points_ply,
+};
 use stereotac::stereo::block_match::{BlockMatchParams, BlockMatcher, Kernel, MatchStats};
 use stereotac::stereo::eval::{self, SyntheticEval};
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
 use stereotac::stereo::postfilter::HoleFill;
-use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
-use stereotac::stereo::{Camera, Distortion, Rectification, StereoCalibration};
+use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
+use stereotac::stereo::{Rectification, StereoCalibration};
+use stereotac::tactile::bench::median_ms;
 use stereotac::tactile::grid::Grid;
 
 use crate::progress::bar;
@@ -430,19 +432,6 @@ struct BenchRow {
     valid_pct: Option<f64>,
 }
 
-fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
-    f();
-    let mut t: Vec<f64> = (0..repeats.max(1))
-        .map(|_| {
-            let s = Instant::now();
-            f();
-            s.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    t.sort_by(f64::total_cmp);
-    t[t.len() / 2]
-}
-
 /// Matching quality against the true disparity of the bench scene.
 fn quality(disparity: &Grid<f32>, truth: &Grid<f32>) -> (f64, f64) {
     let (mut valid, mut bad) = (0usize, 0usize);
@@ -471,15 +460,7 @@ pub fn bench_stereo(a: &BenchStereoArgs) -> Result<()> {
         tilt_y: 0.1,
     };
     let (left, right) = render_pair(&rig, &plane, &Membrane::sensor(), 1);
-    let (cx, cy) = rig.centre();
-    let truth = Grid::from_fn(rig.width, rig.height, |x, y| {
-        let (u, v) = (
-            (x as f64 - cx) / rig.focal_px,
-            (y as f64 - cy) / rig.focal_px,
-        );
-        let z = plane.z_mm / (1.0 - plane.tilt_x * u - plane.tilt_y * v);
-        rig.disparity_at(z) as f32
-    });
+    let truth = rig.true_disparity(&plane);
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let two = rayon::ThreadPoolBuilder::new().num_threads(2).build()?;
     let mut rows: Vec<BenchRow> = Vec::new();
@@ -495,18 +476,7 @@ pub fn bench_stereo(a: &BenchStereoArgs) -> Result<()> {
     let progress = bar(6, "benchmarking");
 
     // Remap: a fisheye camera's map, against a plain copy of the frame.
-    let fisheye = Camera {
-        width: 640,
-        height: 480,
-        k: nalgebra::Matrix3::new(420.0, 0.0, 320.0, 0.0, 420.0, 240.0, 0.0, 0.0, 1.0),
-        distortion: Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]),
-    };
-    let fisheye_pair = StereoCalibration {
-        left: fisheye,
-        right: fisheye,
-        r: *nalgebra::Rotation3::from_euler_angles(0.01, -0.02, 0.005).matrix(),
-        t: nalgebra::Vector3::new(-14.0, 0.3, -0.2),
-    };
+    let fisheye_pair = fisheye_calibration();
     let (table, _) = Rectification::bouguet(&fisheye_pair, 0.8)?.maps(&fisheye_pair);
     let mut out = vec![0u8; 640 * 480];
     let copy = one.install(|| {
@@ -672,7 +642,15 @@ fn run_opencv(
     let median_ms = reply["median_ms"]
         .as_f64()
         .context("no median_ms in the reply")?;
-    let disparity = read_npy_f32(&d, left.width(), left.height())?;
+    let disparity = read_npy(&d)?;
+    if (disparity.width(), disparity.height()) != (left.width(), left.height()) {
+        bail!(
+            "{}: not a {}×{} array",
+            d.display(),
+            left.width(),
+            left.height()
+        );
+    }
     let _ = std::fs::remove_dir_all(&dir);
     let (bad, valid) = quality(&disparity, truth);
     Ok(OpenCvResult {
@@ -680,19 +658,4 @@ fn run_opencv(
         bad_1px_pct: bad,
         valid_pct: valid,
     })
-}
-
-/// Reads the `.npy` f32 array the script writes (NaN where OpenCV has no disparity).
-fn read_npy_f32(path: &Path, width: usize, height: usize) -> Result<Grid<f32>> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        bail!("{}: not an .npy file", path.display());
-    }
-    let header = usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
-    let data: Vec<f32> = bytes[10 + header..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    Grid::from_vec(width, height, data)
-        .with_context(|| format!("{}: not a {width}×{height} f32 array", path.display()))
 }

@@ -8,6 +8,7 @@ use common::stereotac;
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
+use stereotac::output::read_npy;
 use stereotac::stereo::synthetic::StereoRig;
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -18,12 +19,7 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn npy_f32(path: &Path) -> Vec<f32> {
-    let b = std::fs::read(path).expect("npy");
-    let h = u16::from_le_bytes([b[8], b[9]]) as usize;
-    b[10 + h..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect()
+    read_npy(path).expect("npy").into_vec()
 }
 
 #[test]

@@ -313,7 +313,9 @@ fn median_timings(runs: &[StageTimings]) -> StageTimings {
     }
 }
 
-fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
+/// Median wall time in ms of `repeats` runs of `f`, after one warm-up run (also the
+/// stereo bench's timer).
+pub fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
     f(); // warm-up: plans, caches
     median(
         (0..repeats.max(1))
