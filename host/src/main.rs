@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 
+mod calibrate_cli;
 mod demo;
 mod demo_tactile;
 mod link_cli;
@@ -92,6 +93,10 @@ enum Command {
     /// Depth-camera metrics (Z-accuracy, RMS error, temporal noise, fill rate) on built-in
     /// captures of flat targets behind the skin, with and without post-filters.
     StereoEval(stereo_cli::StereoEvalArgs),
+    /// Stereo calibration from checkerboard pairs (pinhole or fisheye), written as the
+    /// OpenCV YAML `stereo --calib` reads; `--synthetic N` uses built-in views. Needs
+    /// the `calibrate` cargo feature.
+    StereoCalibrate(calibrate_cli::CalibrateStereoArgs),
     /// Benchmarks on built-in synthetic data.
     Bench {
         #[command(subcommand)]
@@ -179,6 +184,7 @@ fn run(cli: Cli) -> Result<()> {
         } => stereo_cli::bench_stereo(&args),
         Command::Stereo(args) => stereo_cli::stereo_cmd(args),
         Command::StereoEval(args) => stereo_cli::stereo_eval_cmd(args),
+        Command::StereoCalibrate(args) => calibrate_cli::calibrate_stereo_cmd(args),
         Command::FirmwareImage { elf, uf2 } => {
             let image = stereotac::uf2::FirmwareImage::read(&elf)
                 .with_context(|| format!("reading firmware {}", elf.display()))?;

@@ -1,4 +1,5 @@
-//! CLI front-ends of the stereo pipeline: `stereo`, `stereo-eval`, `bench stereo`.
+//! CLI front-ends of the stereo pipeline: `stereo`, `stereo-eval`, `bench stereo`
+//! (`stereo-calibrate` is in `calibrate_cli`).
 
 use std::path::{Path, PathBuf};
 
@@ -106,7 +107,7 @@ struct StereoSummary {
     files: Vec<&'static str>,
 }
 
-fn load_grey(path: &Path) -> Result<Grid<u8>> {
+pub(crate) fn load_grey(path: &Path) -> Result<Grid<u8>> {
     let img = image::open(path)
         .with_context(|| format!("reading {}", path.display()))?
         .into_luma8();
@@ -114,7 +115,7 @@ fn load_grey(path: &Path) -> Result<Grid<u8>> {
     Ok(Grid::from_vec(w as usize, h as usize, img.into_raw()).expect("size matches"))
 }
 
-fn save_grey(path: &Path, g: &Grid<u8>) -> Result<()> {
+pub(crate) fn save_grey(path: &Path, g: &Grid<u8>) -> Result<()> {
     image::GrayImage::from_raw(g.width() as u32, g.height() as u32, g.as_slice().to_vec())
         .expect("size matches")
         .save(path)
@@ -340,6 +341,10 @@ pub struct StereoEvalArgs {
     /// Sensor noise, grey levels.
     #[arg(long, default_value_t = Membrane::sensor().noise)]
     pub noise: f64,
+    /// Cameras: an ideal rectified rig, or the sensor's 160° fisheye pair (raw frames
+    /// through the lens model, rectified by the pipeline).
+    #[arg(long, value_enum, default_value_t = LensArg::Ideal)]
+    pub lens: LensArg,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     /// Print JSON instead of the table.
@@ -348,6 +353,15 @@ pub struct StereoEvalArgs {
     /// Also write the JSON report here.
     #[arg(long)]
     pub json_out: Option<PathBuf>,
+}
+
+/// `--lens` of `stereo-eval`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LensArg {
+    /// An ideal rectified pinhole pair.
+    Ideal,
+    /// The sensor's wide fisheye pair, raw.
+    Wide,
 }
 
 pub fn stereo_eval_cmd(a: StereoEvalArgs) -> Result<()> {
@@ -370,6 +384,10 @@ pub fn stereo_eval_cmd(a: StereoEvalArgs) -> Result<()> {
             noise: a.noise,
             ..Membrane::sensor()
         },
+        lens: match a.lens {
+            LensArg::Ideal => eval::Lens::Ideal,
+            LensArg::Wide => eval::Lens::Wide,
+        },
         ..SyntheticEval::default()
     };
     let progress = bar(2 * a.distances.len() as u64, "rendering, matching");
@@ -380,7 +398,11 @@ pub fn stereo_eval_cmd(a: StereoEvalArgs) -> Result<()> {
         println!("{json}");
     } else {
         println!(
-            "synthetic flat targets, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
+            "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
+            match a.lens {
+                LensArg::Ideal => "ideal",
+                LensArg::Wide => "wide fisheye",
+            },
             a.frames,
             100.0 * a.roi,
             a.haze,

@@ -10,14 +10,19 @@
 //! - **fill rate**: share of ROI pixels with a depth, averaged over frames.
 //!
 //! [`run_synthetic`] produces the captures itself (textured planes behind the hazy skin,
-//! [`super::synthetic`]) and measures the pipeline with and without post-filters.
+//! [`super::synthetic`]) and measures the pipeline with and without post-filters, either
+//! through an ideal rig (rectification is the identity) or through the sensor's wide
+//! lenses ([`Lens::Wide`]: raw fisheye frames, rectified by the pipeline as real ones
+//! are, with the target facing the rectified left camera).
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Point3, Vector3};
 use serde::Serialize;
 
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::postfilter::{SpatialFilter, TemporalParams};
-use super::synthetic::{Membrane, Plane, StereoRig, render_pair};
+use super::synthetic::{
+    Membrane, Plane, RawRig, StereoRig, TexturedPlane, render_pair, wide_fisheye_calibration,
+};
 use crate::tactile::grid::Grid;
 
 /// A rectangle of pixels: columns `x0..x1`, rows `y0..y1`.
@@ -190,11 +195,23 @@ fn plane_rms(points: &[Vector3<f64>]) -> Option<f64> {
     Some((ss / n).sqrt())
 }
 
+/// Which cameras the synthetic captures come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Lens {
+    /// The ideal rectified rig of [`SyntheticEval::rig`].
+    Ideal,
+    /// The sensor's 160° fisheye pair ([`wide_fisheye_calibration`]), raw frames.
+    Wide,
+}
+
 /// What the synthetic evaluation runs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SyntheticEval {
-    /// The rig.
+    /// The ideal rig (used with [`Lens::Ideal`]).
     pub rig: StereoRig,
+    /// Which cameras see the targets.
+    pub lens: Lens,
     /// The skin and noise.
     pub membrane: Membrane,
     /// Target distances, mm.
@@ -209,6 +226,7 @@ impl Default for SyntheticEval {
     fn default() -> Self {
         Self {
             rig: StereoRig::sensor(),
+            lens: Lens::Ideal,
             membrane: Membrane::sensor(),
             distances_mm: vec![100.0, 150.0, 200.0, 250.0, 300.0],
             frames: 10,
@@ -258,19 +276,39 @@ pub fn run_synthetic(
     base: StereoConfig,
     mut progress: impl FnMut(&EvalRow),
 ) -> Result<Vec<EvalRow>, StereoError> {
-    let rig = eval.rig;
-    let roi = Region::central(rig.width, rig.height, eval.roi);
+    let (calib, raw) = match eval.lens {
+        Lens::Ideal => (eval.rig.calibration(), None),
+        Lens::Wide => {
+            let raw = RawRig::new(&wide_fisheye_calibration());
+            (*raw.calibration(), Some(raw))
+        }
+    };
+    // The rectified left camera the depth maps are in.
+    let rectification = *StereoPipeline::new(&calib, base)?.rectification();
+    let (width, height) = (rectification.width as usize, rectification.height as usize);
+    let roi = Region::central(width, height, eval.roi);
     let intrinsics = Intrinsics {
-        focal_px: rig.focal_px,
-        centre: rig.centre(),
+        focal_px: rectification.focal(),
+        centre: (rectification.p1[(0, 2)], rectification.p1[(1, 2)]),
     };
     let mut rows = Vec::new();
     for &distance in &eval.distances_mm {
         let captures: Vec<_> = (0..eval.frames as u64)
-            .map(|k| render_pair(&rig, &Plane::facing(distance), &eval.membrane, k + 1))
+            .map(|k| match &raw {
+                None => render_pair(&eval.rig, &Plane::facing(distance), &eval.membrane, k + 1),
+                Some(raw) => {
+                    // Facing the rectified left camera: Z_rect = distance.
+                    let to_raw = rectification.r1.transpose();
+                    let target = TexturedPlane {
+                        point: Point3::from(to_raw * Vector3::new(0.0, 0.0, distance)),
+                        normal: to_raw * Vector3::z(),
+                    };
+                    raw.render(&target, &eval.membrane, k + 1)
+                }
+            })
             .collect();
         for (variant, config) in variants(base) {
-            let mut pipeline = StereoPipeline::new(&rig.calibration(), config)?;
+            let mut pipeline = StereoPipeline::new(&calib, config)?;
             let mut depth = Vec::with_capacity(captures.len());
             let mut time = 0.0;
             for (l, r) in &captures {

@@ -5,16 +5,22 @@
 //! - [`yaml`]: the YAML subset calibration files use.
 //! - [`camera`]: camera matrix and lens models (Brown–Conrady, Kannala–Brandt).
 //! - [`calib`]: OpenCV stereo YAML and ROS `camera_info` pairs.
+//! - [`board`]: checkerboard targets and built-in views of them.
+//! - `calibrate` (feature `calibrate`): stereo calibration from checkerboard pairs.
 //! - [`rectify`]: Bouguet rectification and fixed-point remap tables.
 //! - [`prefilter`], [`block_match`], [`speckle`]: disparity by block matching.
 //! - [`postfilter`]: spatial, temporal and hole-filling filters on disparity.
 //! - [`reproject`], [`outliers`]: depth, point clouds, statistical outlier removal.
 //! - [`pipeline`]: the whole frame, raw views to point cloud, with timings.
+//! - [`scene`]: renders surfaces through a calibrated camera, lens model and all.
 //! - [`synthetic`]: built-in captures of textured targets behind the skin.
 //! - [`eval`]: Z-accuracy, RMS error, temporal noise and fill rate of flat targets.
 
 pub mod block_match;
+pub mod board;
 pub mod calib;
+#[cfg(feature = "calibrate")]
+pub mod calibrate;
 pub mod camera;
 pub mod eval;
 pub mod outliers;
@@ -23,6 +29,7 @@ pub mod postfilter;
 pub mod prefilter;
 pub mod rectify;
 pub mod reproject;
+pub mod scene;
 pub mod speckle;
 pub mod synthetic;
 pub mod yaml;

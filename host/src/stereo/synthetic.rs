@@ -11,13 +11,17 @@
 //! a few millimetres away: its disparity is far outside any search range) and lowers
 //! the target's contrast; each frame adds Gaussian noise.
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Vector3};
 use rayon::prelude::*;
 
 use super::calib::StereoCalibration;
 use super::camera::{Camera, Distortion};
 use crate::tactile::grid::Grid;
 use crate::tactile::render::Rng;
+
+use super::board::world_from_right;
+pub use super::scene::Membrane;
+use super::scene::{self, RayGrid, Surface, View, skin_pattern, value_noise};
 
 /// An ideal rectified pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -105,6 +109,37 @@ pub fn fisheye_calibration() -> StereoCalibration {
     }
 }
 
+/// A pair like the sensor's 160° lenses: Kannala–Brandt, f ≈ 295 px on 640×480 (about
+/// 128° across the width, 160° across the diagonal), cameras that differ slightly, and a
+/// slightly rotated and offset 14 mm baseline. The ground truth of the calibration
+/// tests and of the raw-lens captures.
+pub fn wide_fisheye_calibration() -> StereoCalibration {
+    let camera = |fx, fy, cx, cy, k: [f64; 4]| Camera {
+        width: 640,
+        height: 480,
+        k: Matrix3::new(fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0),
+        distortion: Distortion::KannalaBrandt(k),
+    };
+    StereoCalibration {
+        left: camera(
+            295.0,
+            294.0,
+            321.5,
+            238.0,
+            [-0.015, 0.003, -0.0004, 0.00002],
+        ),
+        right: camera(
+            297.0,
+            296.5,
+            317.0,
+            242.5,
+            [-0.012, 0.002, -0.0003, 0.00001],
+        ),
+        r: *Rotation3::from_euler_angles(0.008, -0.015, 0.004).matrix(),
+        t: Vector3::new(-14.0, 0.25, -0.15),
+    }
+}
+
 /// A target plane `Z = z + tilt_x·X + tilt_y·Y` (mm, left camera's frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Plane {
@@ -131,38 +166,6 @@ impl Plane {
     fn depth_along(&self, a: f64, b: f64, x0: f64) -> f64 {
         // Z = z + tx·(x0 + a·Z) + ty·(b·Z)  ⇒  Z = (z + tx·x0) / (1 − tx·a − ty·b).
         (self.z_mm + self.tilt_x * x0) / (1.0 - self.tilt_x * a - self.tilt_y * b)
-    }
-}
-
-/// The skin and the image sensor as the stereo cameras see them.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Membrane {
-    /// Share of each pixel's light that comes from the skin itself (0..1).
-    pub haze: f64,
-    /// Contrast of the skin's own pattern, grey levels (peak to peak about twice this).
-    pub pattern: f64,
-    /// Per-frame sensor noise, grey levels (standard deviation).
-    pub noise: f64,
-}
-
-impl Membrane {
-    /// The sensor's skin: a third of the light from the skin, a faint pattern, noise of
-    /// 2 grey levels.
-    pub fn sensor() -> Self {
-        Self {
-            haze: 0.35,
-            pattern: 6.0,
-            noise: 2.0,
-        }
-    }
-
-    /// No skin and no noise.
-    pub fn clear() -> Self {
-        Self {
-            haze: 0.0,
-            pattern: 0.0,
-            noise: 0.0,
-        }
     }
 }
 
@@ -225,6 +228,75 @@ fn render_view(
     Grid::from_vec(w, rig.height, data).expect("size matches")
 }
 
+/// A flat target through `point` with normal `normal` (world = the left camera's
+/// frame), printed with the built-in texture (a function of the world `X, Y` where a ray
+/// meets it, so both views see the same print).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TexturedPlane {
+    /// A point on the plane, mm.
+    pub point: Point3<f64>,
+    /// Its normal.
+    pub normal: Vector3<f64>,
+}
+
+impl Surface for TexturedPlane {
+    fn shade(&self, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<f64> {
+        let hit = scene::hit_plane(origin, dir, &self.point, &self.normal)?;
+        Some(target_texture(hit.x, hit.y))
+    }
+}
+
+/// Raw captures through a calibrated pair, lens distortion, rotation and all: what the
+/// sensor's cameras deliver before rectification. The rays are computed once.
+#[derive(Debug, Clone)]
+pub struct RawRig {
+    calib: StereoCalibration,
+    left: RayGrid,
+    right: RayGrid,
+}
+
+impl RawRig {
+    /// A rig with `calib`'s cameras.
+    pub fn new(calib: &StereoCalibration) -> Self {
+        let (left, right) =
+            rayon::join(|| RayGrid::new(&calib.left), || RayGrid::new(&calib.right));
+        Self {
+            calib: *calib,
+            left,
+            right,
+        }
+    }
+
+    /// The true calibration.
+    pub fn calibration(&self) -> &StereoCalibration {
+        &self.calib
+    }
+
+    /// One left/right frame of `surface` behind `membrane` (3×3 rays per pixel); `frame`
+    /// seeds the noise.
+    pub fn render(
+        &self,
+        surface: &impl Surface,
+        membrane: &Membrane,
+        frame: u64,
+    ) -> (Grid<u8>, Grid<u8>) {
+        let left = View {
+            rays: &self.left,
+            world_from_camera: Isometry3::identity(),
+            camera_id: 1,
+        };
+        let right = View {
+            rays: &self.right,
+            world_from_camera: world_from_right(&self.calib),
+            camera_id: 2,
+        };
+        rayon::join(
+            || scene::render(&left, surface, membrane, 3, frame),
+            || scene::render(&right, surface, membrane, 3, frame),
+        )
+    }
+}
+
 /// The target's printed texture at `(x, y)` mm, in 0..1.
 fn target_texture(x: f64, y: f64) -> f64 {
     let mut sum = 0.0;
@@ -234,38 +306,6 @@ fn target_texture(x: f64, y: f64) -> f64 {
         cell *= 2.0;
     }
     sum / 6.0
-}
-
-/// The skin's own faint pattern in camera `camera`'s pixel `(u, v)`, in −1..1.
-fn skin_pattern(camera: u64, u: usize, v: usize) -> f64 {
-    let (x, y) = (u as f64, v as f64);
-    value_noise(x / 3.0, y / 3.0, 100 + camera) + value_noise(x / 40.0, y / 40.0, 200 + camera)
-        - 1.0
-}
-
-/// Smoothly interpolated lattice noise in 0..1.
-fn value_noise(x: f64, y: f64, salt: u64) -> f64 {
-    let (fx, fy) = (x.floor(), y.floor());
-    let (tx, ty) = (smooth(x - fx), smooth(y - fy));
-    let (ix, iy) = (fx as i64, fy as i64);
-    let at = |dx: i64, dy: i64| lattice(ix + dx, iy + dy, salt);
-    let top = at(0, 0) + (at(1, 0) - at(0, 0)) * tx;
-    let bottom = at(0, 1) + (at(1, 1) - at(0, 1)) * tx;
-    top + (bottom - top) * ty
-}
-
-fn smooth(t: f64) -> f64 {
-    t * t * (3.0 - 2.0 * t)
-}
-
-fn lattice(x: i64, y: i64, salt: u64) -> f64 {
-    let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ salt.wrapping_mul(0x1656_67B1_9E37_79F9);
-    h ^= h >> 29;
-    h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    h ^= h >> 32;
-    (h >> 11) as f64 / (1u64 << 53) as f64
 }
 
 #[cfg(test)]

@@ -1,0 +1,288 @@
+//! CLI front-end of `stereo-calibrate`: checkerboard pairs (files, or built-in views
+//! through the sensor's wide lenses) in, an OpenCV stereo YAML that `stereo --calib`
+//! reads out, with a report of how well it fits.
+//!
+//! The solver lives behind the `calibrate` cargo feature (it brings about 300 crates);
+//! without it the command explains how to get it.
+
+use std::path::PathBuf;
+
+/// Lens model to fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModelArg {
+    /// Kannala–Brandt equidistant fisheye (OpenCV's fisheye model), for the 160° lenses.
+    Fisheye,
+    /// Pinhole with Brown–Conrady distortion (k1 k2 p1 p2).
+    Pinhole,
+}
+
+/// `stereo-calibrate` arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CalibrateStereoArgs {
+    /// Left images of the board (as many as --right, in the same order).
+    #[arg(long, num_args = 1.., required_unless_present = "synthetic")]
+    pub left: Vec<PathBuf>,
+    /// Right images of the board, taken at the same moments as --left.
+    #[arg(long, num_args = 1.., required_unless_present = "synthetic")]
+    pub right: Vec<PathBuf>,
+    /// Use N built-in pairs of the board seen through the sensor's wide lenses instead
+    /// (the report then compares the result with the true calibration).
+    #[arg(long, value_name = "N", conflicts_with_all = ["left", "right"])]
+    pub synthetic: Option<usize>,
+    /// Board size as inner corners, COLSxROWS.
+    #[arg(long, default_value = "8x6")]
+    pub board: String,
+    /// Side of one square, mm.
+    #[arg(long, default_value_t = 17.0)]
+    pub square_mm: f64,
+    /// Lens model of both cameras.
+    #[arg(long, value_enum, default_value_t = ModelArg::Fisheye)]
+    pub model: ModelArg,
+    /// Fewest pairs that must show the whole board in both views.
+    #[arg(long, default_value_t = 6)]
+    pub min_pairs: usize,
+    /// Where to write the calibration (OpenCV stereo YAML, as `stereo --calib` reads).
+    #[arg(long, default_value = "stereotac-calib.yaml")]
+    pub out: PathBuf,
+    /// With --synthetic: also save the built-in views here as left_NN.png/right_NN.png.
+    #[arg(long)]
+    pub save_views: Option<PathBuf>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[cfg(not(feature = "calibrate"))]
+pub fn calibrate_stereo_cmd(_: CalibrateStereoArgs) -> anyhow::Result<()> {
+    anyhow::bail!(
+        "this stereotac was built without stereo calibration; rebuild with the `calibrate` \
+         feature: `cargo run --release -p stereotac --features calibrate -- stereo-calibrate …` \
+         (or `cargo install --path host --features calibrate`)"
+    )
+}
+
+#[cfg(feature = "calibrate")]
+pub use with_solver::calibrate_stereo_cmd;
+
+#[cfg(feature = "calibrate")]
+mod with_solver {
+    use anyhow::{Context, Result, bail};
+    use serde::Serialize;
+    use stereotac::stereo::board::{Checkerboard, render_board_capture};
+    use stereotac::stereo::calibrate::{
+        CalibrateOptions, CalibrationResult, LensModel, calibrate_stereo,
+    };
+    use stereotac::stereo::scene::Membrane;
+    use stereotac::stereo::synthetic::wide_fisheye_calibration;
+    use stereotac::stereo::{Camera, Distortion, StereoCalibration};
+    use stereotac::tactile::grid::Grid;
+
+    use super::{CalibrateStereoArgs, ModelArg};
+    use crate::progress::bar;
+    use crate::stereo_cli::{load_grey, save_grey};
+
+    #[derive(Serialize)]
+    struct CameraReport {
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        model: &'static str,
+        distortion: Vec<f64>,
+        error_px: f64,
+    }
+
+    #[derive(Serialize)]
+    struct Skipped {
+        pair: usize,
+        reason: String,
+    }
+
+    #[derive(Serialize)]
+    struct Truth {
+        focal_error_percent: f64,
+        principal_point_error_px: f64,
+        baseline_error_percent: f64,
+        rotation_error_deg: f64,
+    }
+
+    #[derive(Serialize)]
+    struct Report {
+        out: String,
+        pairs: usize,
+        pairs_used: usize,
+        mean_error_px: f64,
+        baseline_mm: f64,
+        t_mm: [f64; 3],
+        left: CameraReport,
+        right: CameraReport,
+        skipped: Vec<Skipped>,
+        truth: Option<Truth>,
+    }
+
+    fn camera_report(c: &Camera, error_px: f64) -> CameraReport {
+        CameraReport {
+            fx: c.k[(0, 0)],
+            fy: c.k[(1, 1)],
+            cx: c.k[(0, 2)],
+            cy: c.k[(1, 2)],
+            model: match c.distortion {
+                Distortion::BrownConrady(_) => "plumb_bob",
+                Distortion::KannalaBrandt(_) => "fisheye",
+            },
+            distortion: c.distortion.coefficients(),
+            error_px,
+        }
+    }
+
+    /// How far `got` is from `truth`: worst focal length (%), worst principal point
+    /// (px), baseline (%), relative rotation (degrees).
+    fn compare(got: &StereoCalibration, truth: &StereoCalibration) -> Truth {
+        let mut focal: f64 = 0.0;
+        let mut centre: f64 = 0.0;
+        for (g, t) in [(&got.left, &truth.left), (&got.right, &truth.right)] {
+            for i in 0..2 {
+                focal = focal.max(((g.k[(i, i)] - t.k[(i, i)]) / t.k[(i, i)]).abs() * 100.0);
+                centre = centre.max((g.k[(i, 2)] - t.k[(i, 2)]).abs());
+            }
+        }
+        let cos = ((got.r.transpose() * truth.r).trace() - 1.0) / 2.0;
+        Truth {
+            focal_error_percent: focal,
+            principal_point_error_px: centre,
+            baseline_error_percent: (got.baseline() - truth.baseline()).abs() / truth.baseline()
+                * 100.0,
+            rotation_error_deg: cos.clamp(-1.0, 1.0).acos().to_degrees(),
+        }
+    }
+
+    /// The pairs to calibrate from, and the true calibration when they are built in.
+    struct Inputs {
+        left: Vec<Grid<u8>>,
+        right: Vec<Grid<u8>>,
+        truth: Option<StereoCalibration>,
+    }
+
+    fn inputs(a: &CalibrateStereoArgs, board: &Checkerboard) -> Result<Inputs> {
+        if let Some(n) = a.synthetic {
+            if n == 0 {
+                bail!("--synthetic takes a number of pairs (at least 1)");
+            }
+            let truth = wide_fisheye_calibration();
+            let capture = render_board_capture(&truth, board, &Membrane::sensor(), n, 1);
+            if capture.poses.len() < n {
+                bail!(
+                    "the built-in rig could only place the {}×{} board whole in both views {} times",
+                    board.cols,
+                    board.rows,
+                    capture.poses.len()
+                );
+            }
+            if let Some(dir) = &a.save_views {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                for (i, (l, r)) in capture.left.iter().zip(&capture.right).enumerate() {
+                    save_grey(&dir.join(format!("left_{i:02}.png")), l)?;
+                    save_grey(&dir.join(format!("right_{i:02}.png")), r)?;
+                }
+            }
+            return Ok(Inputs {
+                left: capture.left,
+                right: capture.right,
+                truth: Some(truth),
+            });
+        }
+        if a.save_views.is_some() {
+            bail!("--save-views only applies to --synthetic");
+        }
+        let load = |files: &[std::path::PathBuf]| -> Result<Vec<Grid<u8>>> {
+            files.iter().map(|f| load_grey(f)).collect()
+        };
+        Ok(Inputs {
+            left: load(&a.left)?,
+            right: load(&a.right)?,
+            truth: None,
+        })
+    }
+
+    pub fn calibrate_stereo_cmd(a: CalibrateStereoArgs) -> Result<()> {
+        let board = Checkerboard::parse(&a.board, a.square_mm)?;
+        let Inputs { left, right, truth } = inputs(&a, &board)?;
+        let options = CalibrateOptions {
+            board,
+            model: match a.model {
+                ModelArg::Fisheye => LensModel::Fisheye,
+                ModelArg::Pinhole => LensModel::Pinhole,
+            },
+            min_pairs: a.min_pairs,
+        };
+        let progress = bar(left.len() as u64, "finding the board");
+        let result = calibrate_stereo(&left, &right, &options, |n| progress.set_position(n as u64));
+        progress.finish_and_clear();
+        let result = result?;
+        let yaml = result.calibration.to_opencv_yaml();
+        // What we write must read back as what we found.
+        let name = a.out.display().to_string();
+        StereoCalibration::from_opencv_yaml(&name, &yaml)
+            .context("the calibration does not read back")?;
+        std::fs::write(&a.out, &yaml).with_context(|| format!("writing {name}"))?;
+        let report = report(&result, &name, truth.as_ref());
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print_report(&report);
+        }
+        Ok(())
+    }
+
+    fn report(result: &CalibrationResult, out: &str, truth: Option<&StereoCalibration>) -> Report {
+        let c = &result.calibration;
+        Report {
+            out: out.to_string(),
+            pairs: result.pairs.len(),
+            pairs_used: result.pairs_used(),
+            mean_error_px: result.mean_error_px,
+            baseline_mm: c.baseline(),
+            t_mm: [c.t.x, c.t.y, c.t.z],
+            left: camera_report(&c.left, result.camera_error_px[0]),
+            right: camera_report(&c.right, result.camera_error_px[1]),
+            skipped: result
+                .pairs
+                .iter()
+                .enumerate()
+                .filter_map(|(pair, p)| p.note.clone().map(|reason| Skipped { pair, reason }))
+                .collect(),
+            truth: truth.map(|t| compare(c, t)),
+        }
+    }
+
+    fn print_report(r: &Report) {
+        println!(
+            "stereo calibration from {} of {} pairs: mean reprojection error {:.3} px",
+            r.pairs_used, r.pairs, r.mean_error_px
+        );
+        for (name, c) in [("left ", &r.left), ("right", &r.right)] {
+            println!(
+                "  {name}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} px, {} {:?}, error {:.3} px",
+                c.fx, c.fy, c.cx, c.cy, c.model, c.distortion, c.error_px
+            );
+        }
+        println!(
+            "  baseline {:.3} mm, T = [{:.3}, {:.3}, {:.3}] mm",
+            r.baseline_mm, r.t_mm[0], r.t_mm[1], r.t_mm[2]
+        );
+        for s in &r.skipped {
+            println!("  pair {} not used: {}", s.pair, s.reason);
+        }
+        if let Some(t) = &r.truth {
+            println!(
+                "  against the built-in rig's truth: focal {:.3} %, principal point {:.2} px, baseline {:.3} %, rotation {:.4}°",
+                t.focal_error_percent,
+                t.principal_point_error_px,
+                t.baseline_error_percent,
+                t.rotation_error_deg
+            );
+        }
+        println!("wrote {}", r.out);
+    }
+}
