@@ -3,7 +3,7 @@
 //! goals on synthetic flat targets.
 
 mod common;
-use common::{stereotac, temp_dir};
+use common::{stereo_from_files, stereotac, temp_dir};
 
 use std::path::Path;
 
@@ -43,17 +43,13 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
     let yaml = dir.join("rig.yaml");
     std::fs::write(&yaml, StereoRig::sensor().calibration().to_opencv_yaml()).unwrap();
     let b = dir.join("b");
-    let (ok, _, err) = stereotac(&[
-        "stereo",
-        "--calib",
-        yaml.to_str().unwrap(),
-        "--left",
-        a.join("input_left.png").to_str().unwrap(),
-        "--right",
-        a.join("input_right.png").to_str().unwrap(),
-        "--out-dir",
-        b.to_str().unwrap(),
-    ]);
+    let (ok, _, err) = stereo_from_files(
+        &yaml,
+        &a.join("input_left.png"),
+        &a.join("input_right.png"),
+        &b,
+        &[],
+    );
     assert!(ok, "{err}");
     let (da, db) = (
         npy_f32(&a.join("disparity.npy")),
@@ -116,10 +112,13 @@ fn bad_inputs_are_refused_with_a_reason() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn the_evaluation_meets_its_goals_with_the_post_filters() {
+/// `stereo-eval --lens LENS` at 100 and 300 mm, six frames each: the (raw, filtered)
+/// rows of each distance.
+fn eval_pairs(lens: &str) -> Vec<(Value, Value)> {
     let (ok, out, err) = stereotac(&[
         "stereo-eval",
+        "--lens",
+        lens,
         "--distances",
         "100,300",
         "--frames",
@@ -129,45 +128,43 @@ fn the_evaluation_meets_its_goals_with_the_post_filters() {
     assert!(ok, "{err}");
     let rows: Vec<Value> = serde_json::from_str(&out).expect("JSON rows");
     assert_eq!(rows.len(), 4);
-    let get = |r: &Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
-    for pair in rows.chunks(2) {
-        let (raw, filtered) = (&pair[0], &pair[1]);
-        assert_eq!(
-            (raw["variant"].as_str(), filtered["variant"].as_str()),
-            (Some("raw"), Some("filtered"))
-        );
+    rows.chunks(2)
+        .map(|pair| {
+            let (raw, filtered) = (pair[0].clone(), pair[1].clone());
+            assert_eq!(
+                (raw["variant"].as_str(), filtered["variant"].as_str()),
+                (Some("raw"), Some("filtered"))
+            );
+            (raw, filtered)
+        })
+        .collect()
+}
+
+fn get(row: &Value, key: &str) -> f64 {
+    row[key].as_f64().unwrap_or(f64::NAN)
+}
+
+#[test]
+fn the_evaluation_meets_its_goals_with_the_post_filters() {
+    for (raw, filtered) in eval_pairs("ideal") {
         // Issue goals: Z-accuracy and RMS error within 0.3 %, fill ≥ 95 %.
-        assert!(get(filtered, "z_accuracy_pct").abs() <= 0.3, "{filtered}");
-        assert!(get(filtered, "rms_error_pct") <= 0.3, "{filtered}");
-        assert!(get(filtered, "fill_rate_pct") >= 95.0, "{filtered}");
+        assert!(get(&filtered, "z_accuracy_pct").abs() <= 0.3, "{filtered}");
+        assert!(get(&filtered, "rms_error_pct") <= 0.3, "{filtered}");
+        assert!(get(&filtered, "fill_rate_pct") >= 95.0, "{filtered}");
         // And the filters help.
         assert!(
-            get(filtered, "rms_error_pct") < get(raw, "rms_error_pct"),
-            "{pair:?}"
+            get(&filtered, "rms_error_pct") < get(&raw, "rms_error_pct"),
+            "{raw} {filtered}"
         );
-        assert!(get(filtered, "temporal_noise_pct") < get(raw, "temporal_noise_pct"));
+        assert!(get(&filtered, "temporal_noise_pct") < get(&raw, "temporal_noise_pct"));
     }
 }
 
 #[test]
 fn through_the_wide_lenses_raw_frames_are_rectified_and_measured() {
     // Raw fisheye frames (160° lenses), rectified by the pipeline like real ones.
-    let (ok, out, err) = stereotac(&[
-        "stereo-eval",
-        "--lens",
-        "wide",
-        "--distances",
-        "100,300",
-        "--frames",
-        "6",
-        "--json",
-    ]);
-    assert!(ok, "{err}");
-    let rows: Vec<Value> = serde_json::from_str(&out).expect("JSON rows");
-    assert_eq!(rows.len(), 4);
-    let get = |r: &Value, k: &str| r[k].as_f64().unwrap_or(f64::NAN);
-    for pair in rows.chunks(2) {
-        let (raw, filtered) = (&pair[0], &pair[1]);
+    let pairs = eval_pairs("wide");
+    for (raw, filtered) in &pairs {
         // Rectification through the lens model puts the plane where it is.
         assert!(get(filtered, "z_accuracy_pct").abs() <= 0.1, "{filtered}");
         assert!(get(filtered, "fill_rate_pct") >= 95.0, "{filtered}");
@@ -175,7 +172,8 @@ fn through_the_wide_lenses_raw_frames_are_rectified_and_measured() {
     }
     // The RMS goal holds at 100 mm; at 300 mm the wide lens's lower focal length (294
     // px against the ideal rig's 336) leaves it at about 0.37 % (see the README).
-    assert!(get(&rows[1], "rms_error_pct") <= 0.3, "{}", rows[1]);
+    let at_100 = &pairs[0].1;
+    assert!(get(at_100, "rms_error_pct") <= 0.3, "{at_100}");
 }
 
 #[test]

@@ -16,7 +16,7 @@ fn without_the_feature_the_command_says_how_to_get_it() {
 
 #[cfg(feature = "calibrate")]
 mod with_the_feature {
-    use super::common::{stereotac, temp_dir};
+    use super::common::{stereo_from_files, stereotac, temp_dir};
     use serde_json::Value;
     use stereotac::output::read_npy;
     use stereotac::stereo::StereoCalibration;
@@ -92,18 +92,13 @@ mod with_the_feature {
         save(&dir.join("l.png"), &l);
         save(&dir.join("r.png"), &r);
         let out_dir = dir.join("depth");
-        let (ok, _, err) = stereotac(&[
-            "stereo",
-            "--calib",
-            yaml.to_str().unwrap(),
-            "--left",
-            dir.join("l.png").to_str().unwrap(),
-            "--right",
-            dir.join("r.png").to_str().unwrap(),
-            "--out-dir",
-            out_dir.to_str().unwrap(),
-            "--json",
-        ]);
+        let (ok, _, err) = stereo_from_files(
+            &yaml,
+            &dir.join("l.png"),
+            &dir.join("r.png"),
+            &out_dir,
+            &["--json"],
+        );
         assert!(ok, "{err}");
         let depth = read_npy(&out_dir.join("depth.npy")).unwrap().into_vec();
         let (w, h) = (640, 480);
