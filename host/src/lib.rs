@@ -11,6 +11,7 @@
 //!   handshake with version check, time-sync pings, event collection).
 //! * [`clock`]: host clocks and the device→host clock sync.
 //! * [`device`]: a connected sensor: events on the host clock, reconnect with backoff.
+//! * [`selftest`]: command conformance of any connected sensor (`stereotac selftest`).
 //! * [`matcher`]: which LED phase lit each camera frame.
 //! * [`frames`]: frame sources (simulated camera, replay), live capture, recording.
 //! * [`tactile`]: photometric-stereo reconstruction.
@@ -24,6 +25,7 @@ pub mod device;
 pub mod frames;
 pub mod matcher;
 pub mod output;
+pub mod selftest;
 pub mod sim;
 pub mod stereo;
 pub mod tactile;

@@ -153,6 +153,32 @@ fn version(info: &stereotac_protocol::DeviceInfo) -> String {
     )
 }
 
+/// `stereotac selftest`: the command checks of [`stereotac::selftest`].
+pub fn selftest(device: &DeviceArgs, json: bool) -> Result<()> {
+    let mut opened = open(device)?;
+    let report = stereotac::selftest::run_command_checks(&mut opened.sensor)
+        .context("running the command checks")?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        for c in &report.checks {
+            let mark = if c.passed { "ok  " } else { "FAIL" };
+            println!("{mark} {}", c.name);
+            if !c.passed {
+                println!("     {}", c.detail);
+            }
+        }
+    }
+    let failed = report.failures().count();
+    if failed > 0 {
+        bail!("{failed} of {} checks failed", report.checks.len());
+    }
+    if !json {
+        println!("all {} checks passed", report.checks.len());
+    }
+    Ok(())
+}
+
 /// `stereotac devices --watch`: print sensor arrivals and departures until Ctrl-C.
 pub fn watch_devices(json: bool) -> Result<()> {
     let stop = interrupt_flag()?;

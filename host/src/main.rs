@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 
 mod calibrate_cli;
 mod demo;
+mod demo_stereo;
 mod demo_tactile;
 mod link_cli;
 mod progress;
@@ -38,12 +39,15 @@ enum Command {
         /// Number of phases to run.
         #[arg(long, default_value_t = 12)]
         phases: u32,
-        /// Where the tactile part writes its outputs.
+        /// Where the tactile and stereo parts write their outputs.
         #[arg(long, default_value = "stereotac-demo-out")]
         out: PathBuf,
         /// Skip the tactile part (calibration and reconstruction).
         #[arg(long)]
         no_tactile: bool,
+        /// Skip the stereo part (one vision frame through the wide lenses).
+        #[arg(long)]
+        no_stereo: bool,
     },
     /// List attached sensors (serial number, firmware version, bus path).
     Devices {
@@ -57,6 +61,13 @@ enum Command {
     },
     /// Handshake details, configuration, device counters and clock sync of one sensor.
     Info {
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check that the sensor answers every command as the protocol says (invalid values
+    /// refused with typed errors, configuration read back, then restored).
+    Selftest {
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -155,15 +166,24 @@ fn run(cli: Cli) -> Result<()> {
             phases,
             out,
             no_tactile,
-        } => demo::run(
-            mode,
-            period_ms,
-            phases,
-            (!no_tactile).then_some(out.as_path()),
-        ),
+            no_stereo,
+        } => {
+            demo::run(
+                mode,
+                period_ms,
+                phases,
+                (!no_tactile).then_some(out.as_path()),
+            )?;
+            if no_stereo {
+                Ok(())
+            } else {
+                demo_stereo::run(&out)
+            }
+        }
         Command::Devices { json, watch: true } => link_cli::watch_devices(json),
         Command::Devices { json, watch: false } => link_cli::devices(&cli.device, json),
         Command::Info { json } => link_cli::info(&cli.device, json),
+        Command::Selftest { json } => link_cli::selftest(&cli.device, json),
         Command::Stream { sequence, json } => link_cli::stream(&cli.device, &sequence, json),
         Command::Record(args) => link_cli::record(&cli.device, &args),
         Command::Set(args) => link_cli::set(&cli.device, &args),

@@ -90,7 +90,7 @@ pub struct StereoArgs {
 
 /// What `stereo` reports (also written as `summary.json`).
 #[derive(Debug, Serialize)]
-struct StereoSummary {
+pub(crate) struct StereoSummary {
     width: usize,
     height: usize,
     focal_px: f64,
@@ -98,8 +98,8 @@ struct StereoSummary {
     disparity_range_px: [u32; 2],
     kernel: Kernel,
     stats: MatchStats,
-    fill_rate: f64,
-    points: usize,
+    pub(crate) fill_rate: f64,
+    pub(crate) points: usize,
     outliers_removed: usize,
     holes_filled: usize,
     depth_mm: Option<[f32; 3]>,
@@ -199,7 +199,7 @@ pub fn stereo_cmd(a: StereoArgs) -> Result<()> {
     Ok(())
 }
 
-fn write_outputs(
+pub(crate) fn write_outputs(
     dir: &Path,
     pipeline: &StereoPipeline,
     frame: &StereoFrame,

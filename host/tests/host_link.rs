@@ -161,71 +161,14 @@ fn phase_events_on_the_host_clock_match_what_the_leds_did() {
 fn every_command_and_bad_value_through_the_loopback() {
     let mut rig = rig(LoopbackConfig::default());
     let s = &mut rig.sensor;
-    assert_eq!(s.info().protocol_version, PROTOCOL_VERSION);
     assert_eq!(s.info().board_id, BOARD);
-    let strip = StripSettings {
-        strip: Strip::YPlus,
-        colour: Rgb::new(200, 0, 0),
-        brightness: 90,
-    };
-    let timing = Timing {
-        phase_period_us: 100_000,
-        ..Timing::DEFAULT
-    };
-    for ok in [
-        Request::SetMode(Mode::Gradient),
-        Request::SetTiming(timing),
-        Request::SetStrip(strip),
-        Request::SetLedCount(12),
-        Request::SetPowerBudget(300),
-        Request::SetHostTimeout(2000),
-        Request::Start,
-        Request::Stop,
-    ] {
-        assert_eq!(s.request(ok).unwrap(), Response::Ack, "{ok:?}");
-    }
-    let Response::Config(config) = s.request(Request::GetConfig).unwrap() else {
-        panic!()
-    };
-    assert_eq!(config.timing, timing);
-    assert_eq!(config.strips[Strip::YPlus.index()], strip);
-    assert_eq!(config.leds_per_strip, 12);
-    assert_eq!(config.power_budget_ma, 300);
-    assert_eq!(config.host_timeout_ms, 2000);
-    assert!(matches!(
-        s.request(Request::TimeSync).unwrap(),
-        Response::Time(_)
-    ));
-    let refused = |s: &mut Sensor, r: Request| match s.request(r) {
-        Err(SensorError::Client(stereotac::client::ClientError::Device(e))) => e,
-        other => panic!("{r:?}: {other:?}"),
-    };
-    assert_eq!(
-        refused(s, Request::SetLedCount(0)),
-        DeviceError::InvalidValue(Field::LedCount)
+    let report = stereotac::selftest::run_command_checks(s).unwrap();
+    assert!(
+        report.passed(),
+        "{:#?}",
+        report.failures().collect::<Vec<_>>()
     );
-    assert_eq!(
-        refused(s, Request::SetPowerBudget(0)),
-        DeviceError::InvalidValue(Field::PowerBudget)
-    );
-    assert_eq!(
-        refused(s, Request::SetHostTimeout(5)),
-        DeviceError::InvalidValue(Field::HostTimeout)
-    );
-    assert!(matches!(
-        refused(
-            s,
-            Request::SetTiming(Timing {
-                phase_period_us: 1500,
-                ..Timing::DEFAULT
-            })
-        ),
-        DeviceError::TimingInfeasible { .. }
-    ));
-    s.request(Request::SetMode(Mode::Off)).unwrap();
-    assert_eq!(refused(s, Request::Start), DeviceError::InvalidState);
-    let status = s.status().unwrap();
-    assert_eq!(status.requests_rejected, 5);
+    assert!(report.checks.len() >= 17, "{report:#?}");
     assert_eq!(
         s.request(Request::EnterBootloader).unwrap(),
         Response::Ack,

@@ -1,0 +1,101 @@
+//! The HIL checks against a sensor attached over USB: `STEREOTAC_HIL=device cargo test
+//! -p stereotac-hil-tests`. They go through nusb and the host library's `Sensor`, the
+//! code path users take. `STEREOTAC_HIL_SERIAL` picks one sensor when several are
+//! attached. Without `STEREOTAC_HIL=device` they are skipped with a message.
+//!
+//! These check what the sensor reports of itself (command conformance, the phase
+//! events' timing promises, clock sync). The checks the emulator makes from the pins
+//! (trigger edges and WS2812 bits) need the firmware's loopback probe, not built yet.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use stereotac::clock::{HostClock, MonotonicClock};
+use stereotac::device::{Sensor, SensorConfig, SensorEvent};
+use stereotac::transport::usb::UsbConnector;
+use stereotac_hil_tests::events::check_events;
+use stereotac_hil_tests::setup::{Target, target};
+use stereotac_protocol::{Mode, PhaseEvent, Request, Timing};
+
+fn sensor() -> Option<Sensor> {
+    if target() != Target::Device {
+        eprintln!("set STEREOTAC_HIL=device to run this against an attached sensor; skipped");
+        return None;
+    }
+    let serial = std::env::var("STEREOTAC_HIL_SERIAL").ok();
+    let clock: Arc<dyn HostClock> = Arc::new(MonotonicClock::new());
+    let sensor = Sensor::connect(
+        Box::new(UsbConnector::new(serial)),
+        clock,
+        SensorConfig::default(),
+    )
+    .unwrap_or_else(|e| panic!("STEREOTAC_HIL=device, but no sensor to test: {e}"));
+    Some(sensor)
+}
+
+/// `n` consecutive phase events of a run of `mode` at `timing`.
+fn run(sensor: &mut Sensor, mode: Mode, timing: Timing, n: usize) -> Vec<PhaseEvent> {
+    sensor.request(Request::SetMode(mode)).unwrap();
+    sensor.request(Request::SetTiming(timing)).unwrap();
+    sensor.request(Request::Start).unwrap();
+    let limit = Duration::from_micros(u64::from(timing.phase_period_us) * (n as u64 + 4));
+    let end = std::time::Instant::now() + limit;
+    let mut events = Vec::new();
+    while events.len() < n && std::time::Instant::now() < end {
+        for e in sensor.poll(Duration::from_millis(50)).unwrap() {
+            if let SensorEvent::Phase(p) = e {
+                events.push(p.event);
+            }
+        }
+    }
+    sensor.request(Request::Stop).unwrap();
+    assert!(events.len() >= n, "{} of {n} phase events", events.len());
+    events.truncate(n);
+    events
+}
+
+#[test]
+fn answers_every_command() {
+    let Some(mut s) = sensor() else { return };
+    let report = stereotac::selftest::run_command_checks(&mut s).unwrap();
+    assert!(
+        report.passed(),
+        "{:#?}",
+        report.failures().collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn gradient_mode_at_4_hz_keeps_its_promises() {
+    let Some(mut s) = sensor() else { return };
+    let events = run(&mut s, Mode::Gradient, Timing::DEFAULT, 41);
+    let t =
+        check_events(&events, Mode::Gradient, &Timing::DEFAULT).unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("{t:?}");
+}
+
+#[test]
+fn interleaved_mode_at_10_hz_keeps_its_promises() {
+    let Some(mut s) = sensor() else { return };
+    let timing = Timing {
+        phase_period_us: 100_000,
+        ..Timing::DEFAULT
+    };
+    let events = run(&mut s, Mode::Interleaved, timing, 30);
+    check_events(&events, Mode::Interleaved, &timing).unwrap_or_else(|e| panic!("{e}"));
+}
+
+#[test]
+fn the_clock_sync_settles() {
+    let Some(mut s) = sensor() else { return };
+    let events = run(&mut s, Mode::Vision, Timing::DEFAULT, 12);
+    assert_eq!(events.len(), 12);
+    let fit = *s.clock_fit().expect("a clock fit after three seconds");
+    // Full-speed USB: 1 ms frames bound the round trip, and the fit narrows below it.
+    assert!(fit.uncertainty_us < 1000.0, "{fit:?}");
+    assert!(
+        (fit.slope - 1.0).abs() < 200e-6,
+        "drift {:.1} ppm",
+        (fit.slope - 1.0) * 1e6
+    );
+}
