@@ -33,8 +33,10 @@ fn sensor() -> Option<Sensor> {
     Some(sensor)
 }
 
-/// `n` consecutive phase events of a run of `mode` at `timing`.
+/// `n` consecutive phase events of a run of `mode` at `timing`; the sensor's mode and
+/// timing are put back afterwards.
 fn run(sensor: &mut Sensor, mode: Mode, timing: Timing, n: usize) -> Vec<PhaseEvent> {
+    let before = sensor.config().unwrap();
     sensor.request(Request::SetMode(mode)).unwrap();
     sensor.request(Request::SetTiming(timing)).unwrap();
     sensor.request(Request::Start).unwrap();
@@ -49,6 +51,8 @@ fn run(sensor: &mut Sensor, mode: Mode, timing: Timing, n: usize) -> Vec<PhaseEv
         }
     }
     sensor.request(Request::Stop).unwrap();
+    sensor.request(Request::SetTiming(before.timing)).unwrap();
+    sensor.request(Request::SetMode(before.mode)).unwrap();
     assert!(events.len() >= n, "{} of {n} phase events", events.len());
     events.truncate(n);
     events

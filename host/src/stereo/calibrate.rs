@@ -403,11 +403,20 @@ fn solve(
     session.set_input(dataset).map_err(|e| solver(&e))?;
     run_calibration(&mut session).map_err(|e| solver(&e))?;
     let export = session.export().map_err(|e| solver(&e))?;
-    let [left, right] = [0, 1].map(|i| camera(&export.cameras[i], sizes[i]));
-    let (left, right) = (left?, right?);
-    // cam_se3_rig[1] maps the left camera's (rig) coordinates into the right camera's:
-    // OpenCV's R and T.
-    let pose = &export.cam_se3_rig[1];
+    let (Some(left), Some(right), Some(pose)) = (
+        export.cameras.first(),
+        export.cameras.get(1),
+        // cam_se3_rig[1] maps the left camera's (rig) coordinates into the right
+        // camera's: OpenCV's R and T.
+        export.cam_se3_rig.get(1),
+    ) else {
+        return Err(CalibrateError::Unusable(format!(
+            "the solver returned {} cameras and {} poses for a pair",
+            export.cameras.len(),
+            export.cam_se3_rig.len()
+        )));
+    };
+    let (left, right) = (camera(left, sizes[0])?, camera(right, sizes[1])?);
     let r = *pose.rotation.to_rotation_matrix().matrix();
     let t = pose.translation.vector * 1000.0;
     let calibration = StereoCalibration { left, right, r, t };
