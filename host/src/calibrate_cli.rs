@@ -69,6 +69,7 @@ mod with_solver {
     use anyhow::{Context, Result, bail};
     use serde::Serialize;
     use stereotac::stereo::board::{Checkerboard, render_board_capture};
+    use stereotac::stereo::calib::CalibrationDifference;
     use stereotac::stereo::calibrate::{
         CalibrateOptions, CalibrationResult, LensModel, calibrate_stereo,
     };
@@ -99,14 +100,6 @@ mod with_solver {
     }
 
     #[derive(Serialize)]
-    struct Truth {
-        focal_error_percent: f64,
-        principal_point_error_px: f64,
-        baseline_error_percent: f64,
-        rotation_error_deg: f64,
-    }
-
-    #[derive(Serialize)]
     struct Report {
         out: String,
         pairs: usize,
@@ -117,7 +110,7 @@ mod with_solver {
         left: CameraReport,
         right: CameraReport,
         skipped: Vec<Skipped>,
-        truth: Option<Truth>,
+        truth: Option<CalibrationDifference>,
     }
 
     fn camera_report(c: &Camera, error_px: f64) -> CameraReport {
@@ -132,27 +125,6 @@ mod with_solver {
             },
             distortion: c.distortion.coefficients(),
             error_px,
-        }
-    }
-
-    /// How far `got` is from `truth`: worst focal length (%), worst principal point
-    /// (px), baseline (%), relative rotation (degrees).
-    fn compare(got: &StereoCalibration, truth: &StereoCalibration) -> Truth {
-        let mut focal: f64 = 0.0;
-        let mut centre: f64 = 0.0;
-        for (g, t) in [(&got.left, &truth.left), (&got.right, &truth.right)] {
-            for i in 0..2 {
-                focal = focal.max(((g.k[(i, i)] - t.k[(i, i)]) / t.k[(i, i)]).abs() * 100.0);
-                centre = centre.max((g.k[(i, 2)] - t.k[(i, 2)]).abs());
-            }
-        }
-        let cos = ((got.r.transpose() * truth.r).trace() - 1.0) / 2.0;
-        Truth {
-            focal_error_percent: focal,
-            principal_point_error_px: centre,
-            baseline_error_percent: (got.baseline() - truth.baseline()).abs() / truth.baseline()
-                * 100.0,
-            rotation_error_deg: cos.clamp(-1.0, 1.0).acos().to_degrees(),
         }
     }
 
@@ -252,7 +224,7 @@ mod with_solver {
                 .enumerate()
                 .filter_map(|(pair, p)| p.note.clone().map(|reason| Skipped { pair, reason }))
                 .collect(),
-            truth: truth.map(|t| compare(c, t)),
+            truth: truth.map(|t| c.difference_from(t)),
         }
     }
 

@@ -10,7 +10,8 @@
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use super::calib::StereoCalibration;
-use super::scene::{self, Membrane, RayGrid, Surface, View};
+use super::scene::{self, Membrane, Surface};
+use super::synthetic::RawRig;
 use crate::tactile::grid::Grid;
 use crate::tactile::render::Rng;
 
@@ -166,12 +167,6 @@ impl Surface for PlacedBoard {
     }
 }
 
-/// The right camera's pose in the world (the left camera's frame).
-pub fn world_from_right(calib: &StereoCalibration) -> Isometry3<f64> {
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&calib.r));
-    Isometry3::from_parts(Translation3::from(calib.t), rotation).inverse()
-}
-
 /// A built-in set of checkerboard views, with the corners' true pixels.
 #[derive(Debug, Clone)]
 pub struct BoardCapture {
@@ -197,7 +192,7 @@ pub fn calibration_poses(
     count: usize,
     seed: u64,
 ) -> Vec<Isometry3<f64>> {
-    let right_pose = world_from_right(calib);
+    let right_pose = calib.world_from_right();
     let left = &calib.left;
     let f = left.k[(0, 0)];
     let board_width = (board.cols + 3) as f64 * board.square_mm;
@@ -269,19 +264,7 @@ pub fn render_board_capture(
     seed: u64,
 ) -> BoardCapture {
     let poses = calibration_poses(calib, board, count, seed);
-    let rays = (RayGrid::new(&calib.left), RayGrid::new(&calib.right));
-    let views = [
-        View {
-            rays: &rays.0,
-            world_from_camera: Isometry3::identity(),
-            camera_id: 1,
-        },
-        View {
-            rays: &rays.1,
-            world_from_camera: world_from_right(calib),
-            camera_id: 2,
-        },
-    ];
+    let rig = RawRig::new(calib);
     let mut capture = BoardCapture {
         poses: poses.clone(),
         left: Vec::with_capacity(poses.len()),
@@ -292,12 +275,9 @@ pub fn render_board_capture(
             board: *board,
             world_from_board: *pose,
         };
-        capture
-            .left
-            .push(scene::render(&views[0], &surface, membrane, 4, n as u64));
-        capture
-            .right
-            .push(scene::render(&views[1], &surface, membrane, 4, n as u64));
+        let (left, right) = rig.render_sampled(&surface, membrane, 4, n as u64);
+        capture.left.push(left);
+        capture.right.push(right);
     }
     capture
 }
@@ -309,7 +289,7 @@ pub fn true_corners(
     board: &Checkerboard,
     pose: &Isometry3<f64>,
 ) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
-    let right_from_board = world_from_right(calib).inverse() * pose;
+    let right_from_board = calib.world_from_right().inverse() * pose;
     let project = |camera: &super::camera::Camera, to_camera: &Isometry3<f64>| {
         board
             .corners()

@@ -9,7 +9,7 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::{Matrix3, Matrix3x4, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix3x4, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use super::camera::{Camera, Distortion};
 use super::yaml::{self, Value, YamlError};
@@ -65,6 +65,48 @@ impl StereoCalibration {
     /// Distance between the optical centres, in the file's unit.
     pub fn baseline(&self) -> f64 {
         self.t.norm()
+    }
+
+    /// The right camera's pose in the left camera's frame: right-camera coordinates to
+    /// left-camera coordinates (the inverse of `R`, `T`).
+    pub fn world_from_right(&self) -> Isometry3<f64> {
+        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&self.r));
+        Isometry3::from_parts(Translation3::from(self.t), rotation).inverse()
+    }
+}
+
+/// How far one calibration is from another, e.g. a solve from its ground truth.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct CalibrationDifference {
+    /// Largest focal-length error over `fx` and `fy` of both cameras, %.
+    pub focal_error_percent: f64,
+    /// Largest principal-point error over `cx` and `cy` of both cameras, pixels.
+    pub principal_point_error_px: f64,
+    /// Baseline length error, %.
+    pub baseline_error_percent: f64,
+    /// Angle of the rotation between the two `R`, degrees.
+    pub rotation_error_deg: f64,
+}
+
+impl StereoCalibration {
+    /// How far `self` is from `truth`.
+    pub fn difference_from(&self, truth: &StereoCalibration) -> CalibrationDifference {
+        let mut focal: f64 = 0.0;
+        let mut centre: f64 = 0.0;
+        for (g, t) in [(&self.left, &truth.left), (&self.right, &truth.right)] {
+            for i in 0..2 {
+                focal = focal.max(((g.k[(i, i)] - t.k[(i, i)]) / t.k[(i, i)]).abs() * 100.0);
+                centre = centre.max((g.k[(i, 2)] - t.k[(i, 2)]).abs());
+            }
+        }
+        let cos = ((self.r.transpose() * truth.r).trace() - 1.0) / 2.0;
+        CalibrationDifference {
+            focal_error_percent: focal,
+            principal_point_error_px: centre,
+            baseline_error_percent: (self.baseline() - truth.baseline()).abs() / truth.baseline()
+                * 100.0,
+            rotation_error_deg: cos.clamp(-1.0, 1.0).acos().to_degrees(),
+        }
     }
 }
 
@@ -528,5 +570,26 @@ pub(crate) mod tests {
         assert!(e.to_string().contains("not a rotation"), "{e}");
         let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
         assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
+    }
+
+    #[test]
+    fn differences_are_measured_as_documented() {
+        let truth = sensor_pair(Distortion::NONE);
+        let zero = truth.difference_from(&truth);
+        assert_eq!(zero.focal_error_percent, 0.0);
+        assert_eq!(zero.principal_point_error_px, 0.0);
+        assert_eq!(zero.baseline_error_percent, 0.0);
+        assert!(zero.rotation_error_deg < 1e-6);
+        let mut other = truth;
+        other.right.k[(1, 1)] *= 1.02;
+        other.left.k[(0, 2)] += 3.0;
+        other.t *= 1.01;
+        other.r =
+            *Rotation3::from_axis_angle(&Vector3::y_axis(), 0.5f64.to_radians()).matrix() * truth.r;
+        let d = other.difference_from(&truth);
+        assert!((d.focal_error_percent - 2.0).abs() < 1e-9, "{d:?}");
+        assert!((d.principal_point_error_px - 3.0).abs() < 1e-9, "{d:?}");
+        assert!((d.baseline_error_percent - 1.0).abs() < 1e-9, "{d:?}");
+        assert!((d.rotation_error_deg - 0.5).abs() < 1e-6, "{d:?}");
     }
 }

@@ -20,6 +20,7 @@ use serde::Serialize;
 
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::postfilter::{SpatialFilter, TemporalParams};
+use super::rectify::Rectification;
 use super::synthetic::{
     Membrane, Plane, RawRig, StereoRig, TexturedPlane, render_pair, wide_fisheye_calibration,
 };
@@ -283,8 +284,8 @@ pub fn run_synthetic(
             (*raw.calibration(), Some(raw))
         }
     };
-    // The rectified left camera the depth maps are in.
-    let rectification = *StereoPipeline::new(&calib, base)?.rectification();
+    // The rectified left camera the depth maps are in (as every pipeline below has it).
+    let rectification = Rectification::bouguet(&calib, base.rectify_scale)?;
     let (width, height) = (rectification.width as usize, rectification.height as usize);
     let roi = Region::central(width, height, eval.roi);
     let intrinsics = Intrinsics {
@@ -292,19 +293,17 @@ pub fn run_synthetic(
         centre: (rectification.p1[(0, 2)], rectification.p1[(1, 2)]),
     };
     let mut rows = Vec::new();
+    // The wide lens's targets face the rectified left camera: Z_rect = distance.
+    let to_raw = rectification.r1.transpose();
     for &distance in &eval.distances_mm {
+        let target = TexturedPlane {
+            point: Point3::from(to_raw * Vector3::new(0.0, 0.0, distance)),
+            normal: to_raw * Vector3::z(),
+        };
         let captures: Vec<_> = (0..eval.frames as u64)
             .map(|k| match &raw {
                 None => render_pair(&eval.rig, &Plane::facing(distance), &eval.membrane, k + 1),
-                Some(raw) => {
-                    // Facing the rectified left camera: Z_rect = distance.
-                    let to_raw = rectification.r1.transpose();
-                    let target = TexturedPlane {
-                        point: Point3::from(to_raw * Vector3::new(0.0, 0.0, distance)),
-                        normal: to_raw * Vector3::z(),
-                    };
-                    raw.render(&target, &eval.membrane, k + 1)
-                }
+                Some(raw) => raw.render(&target, &eval.membrane, k + 1),
             })
             .collect();
         for (variant, config) in variants(base) {

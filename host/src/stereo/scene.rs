@@ -131,43 +131,57 @@ pub fn render(
     sub: usize,
     frame: u64,
 ) -> Grid<u8> {
-    let (w, h) = (view.rays.width, view.rays.height);
     let sub = sub.max(1);
     let origin = view.world_from_camera * Point3::origin();
     let rotation = view.world_from_camera.rotation;
-    let mut data = vec![0u8; w * h];
-    data.par_chunks_mut(w.max(1))
+    let (w, h) = (view.rays.width, view.rays.height);
+    expose(w, h, view.camera_id, membrane, frame, |u, v| {
+        let Some([a, b, c, d]) = view.rays.pixel(u, v) else {
+            return BACKGROUND;
+        };
+        let mut sum = 0.0;
+        for j in 0..sub {
+            let ty = (j as f64 + 0.5) / sub as f64;
+            let left = a + (c - a) * ty;
+            let right = b + (d - b) * ty;
+            for i in 0..sub {
+                let tx = (i as f64 + 0.5) / sub as f64;
+                let dir = rotation * (left + (right - left) * tx);
+                sum += surface.shade(&origin, &dir).unwrap_or(BACKGROUND);
+            }
+        }
+        sum / (sub * sub) as f64
+    })
+}
+
+/// The `width × height` image camera `camera_id` records when pixel `(u, v)` sees the
+/// scene at `brightness(u, v)` (0 black … 1 white) behind `membrane`: the skin's haze and
+/// pattern mixed in, then the sensor noise of `frame`. Rows run in parallel, each with
+/// its own noise stream, so the image does not depend on the thread count.
+pub fn expose(
+    width: usize,
+    height: usize,
+    camera_id: u64,
+    membrane: &Membrane,
+    frame: u64,
+    brightness: impl Fn(usize, usize) -> f64 + Sync,
+) -> Grid<u8> {
+    let mut data = vec![0u8; width * height];
+    data.par_chunks_mut(width.max(1))
         .enumerate()
         .for_each(|(v, row)| {
             let mut rng =
-                Rng::new(frame.wrapping_mul(0x1_0000_0001) ^ (view.camera_id << 40) ^ v as u64);
+                Rng::new(frame.wrapping_mul(0x1_0000_0001) ^ (camera_id << 40) ^ v as u64);
             for (u, px) in row.iter_mut().enumerate() {
-                let brightness = match view.rays.pixel(u, v) {
-                    None => BACKGROUND,
-                    Some([a, b, c, d]) => {
-                        let mut sum = 0.0;
-                        for j in 0..sub {
-                            let ty = (j as f64 + 0.5) / sub as f64;
-                            let left = a + (c - a) * ty;
-                            let right = b + (d - b) * ty;
-                            for i in 0..sub {
-                                let tx = (i as f64 + 0.5) / sub as f64;
-                                let dir = rotation * (left + (right - left) * tx);
-                                sum += surface.shade(&origin, &dir).unwrap_or(BACKGROUND);
-                            }
-                        }
-                        sum / (sub * sub) as f64
-                    }
-                };
-                let scene = BLACK + (WHITE - BLACK) * brightness;
-                let skin = SKIN + membrane.pattern * skin_pattern(view.camera_id, u, v);
+                let scene = BLACK + (WHITE - BLACK) * brightness(u, v);
+                let skin = SKIN + membrane.pattern * skin_pattern(camera_id, u, v);
                 let value = (1.0 - membrane.haze) * scene
                     + membrane.haze * skin
                     + membrane.noise * rng.gaussian();
                 *px = value.round().clamp(0.0, 255.0) as u8;
             }
         });
-    Grid::from_vec(w, h, data).expect("size matches")
+    Grid::from_vec(width, height, data).expect("size matches")
 }
 
 /// Where the ray `origin + λ·dir` (λ > 0) meets the plane through `point` with normal
@@ -187,7 +201,7 @@ pub fn hit_plane(
 }
 
 /// The skin's own faint pattern in camera `camera`'s pixel `(u, v)`, in −1..1.
-pub(crate) fn skin_pattern(camera: u64, u: usize, v: usize) -> f64 {
+fn skin_pattern(camera: u64, u: usize, v: usize) -> f64 {
     let (x, y) = (u as f64, v as f64);
     value_noise(x / 3.0, y / 3.0, 100 + camera) + value_noise(x / 40.0, y / 40.0, 200 + camera)
         - 1.0

@@ -12,16 +12,13 @@
 //! the target's contrast; each frame adds Gaussian noise.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Vector3};
-use rayon::prelude::*;
 
 use super::calib::StereoCalibration;
 use super::camera::{Camera, Distortion};
 use crate::tactile::grid::Grid;
-use crate::tactile::render::Rng;
 
-use super::board::world_from_right;
 pub use super::scene::Membrane;
-use super::scene::{self, RayGrid, Surface, View, skin_pattern, value_noise};
+use super::scene::{self, RayGrid, Surface, View, value_noise};
 
 /// An ideal rectified pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -196,36 +193,23 @@ fn render_view(
     const SUB: usize = 3;
     let (cx, cy) = rig.centre();
     let f = rig.focal_px;
-    let w = rig.width;
-    let mut data = vec![0u8; w * rig.height];
-    data.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(v, row)| {
-            let mut rng = Rng::new(frame.wrapping_mul(0x1_0000_0001) ^ (camera << 40) ^ v as u64);
-            for (u, px) in row.iter_mut().enumerate() {
-                let mut sum = 0.0;
-                for j in 0..SUB {
-                    for i in 0..SUB {
-                        let su = u as f64 + (i as f64 + 0.5) / SUB as f64 - 0.5;
-                        let sv = v as f64 + (j as f64 + 0.5) / SUB as f64 - 0.5;
-                        let (a, b) = ((su - cx) / f, (sv - cy) / f);
-                        let z = plane.depth_along(a, b, x0);
-                        sum += if z > 0.0 {
-                            target_texture(x0 + a * z, b * z)
-                        } else {
-                            0.0
-                        };
-                    }
-                }
-                let target = 30.0 + 200.0 * sum / (SUB * SUB) as f64;
-                let skin = 170.0 + membrane.pattern * skin_pattern(camera, u, v);
-                let value = (1.0 - membrane.haze) * target
-                    + membrane.haze * skin
-                    + membrane.noise * rng.gaussian();
-                *px = value.round().clamp(0.0, 255.0) as u8;
+    scene::expose(rig.width, rig.height, camera, membrane, frame, |u, v| {
+        let mut sum = 0.0;
+        for j in 0..SUB {
+            for i in 0..SUB {
+                let su = u as f64 + (i as f64 + 0.5) / SUB as f64 - 0.5;
+                let sv = v as f64 + (j as f64 + 0.5) / SUB as f64 - 0.5;
+                let (a, b) = ((su - cx) / f, (sv - cy) / f);
+                let z = plane.depth_along(a, b, x0);
+                sum += if z > 0.0 {
+                    target_texture(x0 + a * z, b * z)
+                } else {
+                    0.0
+                };
             }
-        });
-    Grid::from_vec(w, rig.height, data).expect("size matches")
+        }
+        sum / (SUB * SUB) as f64
+    })
 }
 
 /// A flat target through `point` with normal `normal` (world = the left camera's
@@ -280,6 +264,17 @@ impl RawRig {
         membrane: &Membrane,
         frame: u64,
     ) -> (Grid<u8>, Grid<u8>) {
+        self.render_sampled(surface, membrane, 3, frame)
+    }
+
+    /// [`Self::render`] with `sub × sub` rays per pixel.
+    pub fn render_sampled(
+        &self,
+        surface: &impl Surface,
+        membrane: &Membrane,
+        sub: usize,
+        frame: u64,
+    ) -> (Grid<u8>, Grid<u8>) {
         let left = View {
             rays: &self.left,
             world_from_camera: Isometry3::identity(),
@@ -287,12 +282,12 @@ impl RawRig {
         };
         let right = View {
             rays: &self.right,
-            world_from_camera: world_from_right(&self.calib),
+            world_from_camera: self.calib.world_from_right(),
             camera_id: 2,
         };
         rayon::join(
-            || scene::render(&left, surface, membrane, 3, frame),
-            || scene::render(&right, surface, membrane, 3, frame),
+            || scene::render(&left, surface, membrane, sub, frame),
+            || scene::render(&right, surface, membrane, sub, frame),
         )
     }
 }
