@@ -5,10 +5,35 @@
 //! mode's order (from whichever kind comes first: after a reconfiguration the sequence
 //! may start anywhere in its cycle).
 //!
-//! The emulated tests add what only the pin trace shows (edges, bits, colours); the
-//! tests against a real sensor (`STEREOTAC_HIL=device`) run these on their own.
+//! [`collect_phases`] gathers the events from any sensor. The emulated tests add what
+//! only the pin trace shows (edges, bits, colours); the tests against a real sensor
+//! (`STEREOTAC_HIL=device`) run these on their own.
 
+use std::time::Duration;
+
+use stereotac::device::{Sensor, SensorEvent};
 use stereotac_protocol::{Mode, Phase, PhaseEvent, Timing, TriggerOutcome};
+
+/// Polls `sensor` until `n` phase events arrived or `limit` of the sensor's host clock
+/// passed: the phase events, and every other event seen meanwhile.
+pub fn collect_phases(
+    sensor: &mut Sensor,
+    n: usize,
+    limit: Duration,
+) -> (Vec<PhaseEvent>, Vec<SensorEvent>) {
+    let end = sensor.clock().now_us() + limit.as_micros() as u64;
+    let mut phases = Vec::new();
+    let mut others = Vec::new();
+    while phases.len() < n && sensor.clock().now_us() < end {
+        for e in sensor.poll(Duration::from_millis(50)).unwrap() {
+            match e {
+                SensorEvent::Phase(p) => phases.push(p.event),
+                other => others.push(other),
+            }
+        }
+    }
+    (phases, others)
+}
 
 /// The phase kinds `mode` cycles through.
 pub fn cycle(mode: Mode) -> &'static [Phase] {

@@ -11,9 +11,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, MonotonicClock};
-use stereotac::device::{Sensor, SensorConfig, SensorEvent};
+use stereotac::device::{Sensor, SensorConfig};
 use stereotac::transport::usb::UsbConnector;
-use stereotac_hil_tests::events::check_events;
+use stereotac_hil_tests::events::{check_events, collect_phases};
 use stereotac_hil_tests::setup::{Target, target};
 use stereotac_protocol::{Mode, PhaseEvent, Request, Timing};
 
@@ -41,15 +41,7 @@ fn run(sensor: &mut Sensor, mode: Mode, timing: Timing, n: usize) -> Vec<PhaseEv
     sensor.request(Request::SetTiming(timing)).unwrap();
     sensor.request(Request::Start).unwrap();
     let limit = Duration::from_micros(u64::from(timing.phase_period_us) * (n as u64 + 4));
-    let end = std::time::Instant::now() + limit;
-    let mut events = Vec::new();
-    while events.len() < n && std::time::Instant::now() < end {
-        for e in sensor.poll(Duration::from_millis(50)).unwrap() {
-            if let SensorEvent::Phase(p) = e {
-                events.push(p.event);
-            }
-        }
-    }
+    let (mut events, _) = collect_phases(sensor, n, limit);
     sensor.request(Request::Stop).unwrap();
     sensor.request(Request::SetTiming(before.timing)).unwrap();
     sensor.request(Request::SetMode(before.mode)).unwrap();

@@ -8,7 +8,7 @@ use stereotac::device::{Sensor, SensorConfig, SensorEvent, hex};
 use stereotac_firmware::pins::PINS;
 use stereotac_firmware::sequencer::WS2812_RESET_US;
 use stereotac_hil_tests::emulator::{ControlOutcome, lock};
-use stereotac_hil_tests::events::check_events;
+use stereotac_hil_tests::events::{check_events, collect_phases};
 use stereotac_hil_tests::setup::{HOST_OFFSET_US, HOST_PPM, Rig, Target, target};
 use stereotac_hil_tests::ws2812::{Ws2812Frame, decode};
 use stereotac_protocol::{
@@ -30,22 +30,6 @@ fn rig() -> Option<Rig> {
         }
         Target::Emulator => Some(Rig::boot().unwrap_or_else(|e| panic!("{e}"))),
     }
-}
-
-/// Poll until `n` phase events arrived (or `limit` of host time passed).
-fn phases(sensor: &mut Sensor, n: usize, limit: Duration) -> (Vec<PhaseEvent>, Vec<SensorEvent>) {
-    let end = sensor.clock().now_us() + limit.as_micros() as u64;
-    let mut phases = Vec::new();
-    let mut others = Vec::new();
-    while phases.len() < n && sensor.clock().now_us() < end {
-        for e in sensor.poll(Duration::from_millis(50)).unwrap() {
-            match e {
-                SensorEvent::Phase(p) => phases.push(p.event),
-                other => others.push(other),
-            }
-        }
-    }
-    (phases, others)
 }
 
 /// Every frame each strip received so far, decoded from the trace.
@@ -270,7 +254,7 @@ fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u6
 fn run_mode(s: &mut Sensor, mode: Mode, n: usize) -> Vec<PhaseEvent> {
     s.request(Request::SetMode(mode)).unwrap();
     s.request(Request::Start).unwrap();
-    let (events, _) = phases(s, n, Duration::from_secs(20));
+    let (events, _) = collect_phases(s, n, Duration::from_secs(20));
     assert!(events.len() >= n, "{mode:?}: {} phases", events.len());
     events
 }
@@ -328,7 +312,7 @@ fn interleaved_then_vision_with_the_period_changed_while_running() {
     // Halve the period while running: the sequence re-plans and keeps its promises.
     config.timing.phase_period_us = 50_000;
     s.request(Request::SetTiming(config.timing)).unwrap();
-    let (after, _) = phases(&mut s, 14, Duration::from_secs(5));
+    let (after, _) = collect_phases(&mut s, 14, Duration::from_secs(5));
     // The phases that started after the change (the first may still be the old plan).
     let changed: Vec<PhaseEvent> = after
         .iter()
@@ -432,7 +416,7 @@ fn a_host_that_stops_reading_loses_events_not_timing() {
     // 2 s of phases (100) with bulk IN stalled: the device's queue fills.
     idle_for(&s, 2_000_000);
     lock(&rig.emulator).set_reading(true).unwrap();
-    let (after, _) = phases(&mut s, 5, Duration::from_secs(2));
+    let (after, _) = collect_phases(&mut s, 5, Duration::from_secs(2));
     let status = s.status().unwrap();
     assert!(status.events_dropped > 0, "{status:?}");
     let lost = s.counters().link.lost_events;
@@ -458,7 +442,7 @@ fn clock_sync_against_the_emulated_clock() {
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
     s.request(Request::SetMode(Mode::Vision)).unwrap();
     s.request(Request::Start).unwrap();
-    let _ = phases(&mut s, 24, Duration::from_secs(8));
+    let _ = collect_phases(&mut s, 24, Duration::from_secs(8));
     let fit = *s.clock_fit().expect("a clock fit");
     // Truth: host = offset + sim · (1 + 30 ppm); the device timer counts simulated µs.
     let mut worst: f64 = 0.0;
