@@ -9,8 +9,8 @@
 
 use stereotac_protocol::{
     Capabilities, Config, DeviceError, DeviceInfo, DeviceMessage, DeviceMicros, Event, Fault,
-    FaultKind, Field, FrameError, HostMessage, Mode, PROTOCOL_VERSION, Phase, PhaseEvent, Request,
-    Response, Status, Timing, decode, peek_request_id,
+    FaultKind, Field, FrameError, HostMessage, Mode, PROTOCOL_VERSION, Phase, PhaseEvent,
+    ProbeEvent, Request, Response, Status, Timing, decode, peek_request_id,
 };
 
 use crate::leds::{DEFAULT_STRIPS, PhaseFrame, compose_phase};
@@ -81,6 +81,7 @@ impl Controller {
             power_budget_ma: DEFAULT_POWER_BUDGET_MA,
             host_timeout_ms: DEFAULT_HOST_TIMEOUT_MS,
             power_scale: 255,
+            probe: false,
         };
         config.power_scale = lowest_power_scale(&config);
         Self {
@@ -250,6 +251,15 @@ impl Controller {
                 self.sequencer.stop();
                 ack(Effect::EnterBootloader)
             }
+            Request::SetProbe(_)
+                if !self.identity.capabilities.has(Capabilities::LOOPBACK_PROBE) =>
+            {
+                (Err(DeviceError::InvalidState), Effect::None)
+            }
+            Request::SetProbe(on) => {
+                self.config.probe = on;
+                ack(Effect::None)
+            }
         }
     }
 
@@ -277,6 +287,11 @@ impl Controller {
     pub fn heartbeat(&mut self, now: DeviceMicros) -> DeviceMessage {
         let status = self.status(now);
         self.event(Event::Heartbeat(status))
+    }
+
+    /// The event for what the loopback probe saw, if the host asked for probe events.
+    pub fn probe_event(&mut self, probe: ProbeEvent) -> Option<DeviceMessage> {
+        self.config.probe.then(|| self.event(Event::Probe(probe)))
     }
 
     /// The board could not queue an event (the host is not reading): count it. Its

@@ -8,6 +8,7 @@
 //! * [`leds`]: which strip shows what in each phase, and the LED current budget.
 //! * [`sequencer`]: the absolute, drift-free phase schedule and the trigger decision.
 //! * [`controller`]: requests in, replies and events out; counters; host-silence timeout.
+//! * [`probe`]: the loopback probe's edge times and WS2812 decoding.
 //! * [`version`]: firmware version and git hash baked in at build time.
 //!
 //! The board code (`src/main.rs`, RP2040 only) is a thin layer of embassy tasks around
@@ -18,6 +19,7 @@
 pub mod controller;
 pub mod leds;
 pub mod pins;
+pub mod probe;
 pub mod sequencer;
 pub mod version;
 

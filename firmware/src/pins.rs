@@ -10,6 +10,12 @@ pub struct PinMap {
     pub trigger: u8,
     /// On-board status LED.
     pub status_led: u8,
+    /// Loopback probe input for the trigger: wire it to `trigger` to have the firmware
+    /// time its own trigger edges (pulled down when unconnected).
+    pub probe_trigger: u8,
+    /// Loopback probe input for strip 1's data: wire it to `strips[0]` to have the
+    /// firmware decode what it sent (pulled down when unconnected).
+    pub probe_strip: u8,
 }
 
 /// The board's wiring.
@@ -17,4 +23,6 @@ pub const PINS: PinMap = PinMap {
     strips: [2, 3, 4, 5],
     trigger: 6,
     status_led: 25,
+    probe_trigger: 7,
+    probe_strip: 8,
 };

@@ -18,9 +18,13 @@
 //  2. VREG_AND_CHIP_RESET is unimplemented: stubbed. XIP_CTRL (0x14000000) too.
 //  3. PIO runs on its own timer loop, not simulated time: each enabled state machine is
 //     stepped here, in time order with the CPU, honouring its clock divider and delays.
+//     A machine stalled on an empty TX FIFO or on a WAIT for a pin is not stepped until
+//     a FIFO write or that pin's change releases it.
 //  4. A device-mode OUT buffer's AVAILABLE bit is cleared when the firmware arms it:
 //     it is kept set until the host delivers data (embassy-rp polls it).
 //  5. STALL is never reported to the host side: the host model watches for it.
+// The probe inputs are wired as on a bench sensor: GPIO6 (trigger) drives GPIO7 and
+// GPIO2 (strip 1) drives GPIO8, with no delay.
 // Debugging: HIL_TRACE_USB=1 logs USB traffic, HIL_TRACE_DMA=1 DMA channel triggers, on
 // stderr with simulated ns.
 // The RP2040 boot ROM is not loaded (its licence forbids use off the chip): a tiny ROM
@@ -32,6 +36,12 @@ import { RP2040 } from 'rp2040js';
 
 const NS_PER_CYCLE = 8; // 125 MHz
 const TRACED_PINS = [2, 3, 4, 5, 6, 25];
+// The loopback wiring of the firmware's probe inputs (README, "Hardware-in-loop tests"):
+// the trigger (GPIO6) to GPIO7, strip 1's data (GPIO2) to GPIO8.
+const LOOPBACK = new Map([
+  [6, 7],
+  [2, 8],
+]);
 
 // ---------------------------------------------------------------- ELF loading
 function loadElf(mcu, bytes) {
@@ -191,9 +201,11 @@ for (const pio of mcu.pio) {
     pio.checkChangedPins();
   };
 }
-// rp2040js's WaitType values for a pull and an autopull out on an empty TX FIFO.
+// rp2040js's WaitType values for a pull and an autopull out on an empty TX FIFO, and
+// for a WAIT on a pin.
 const WAIT_TX_FIFO = 3;
 const WAIT_OUT = 5;
+const WAIT_PIN = 1;
 function periodNs(m) {
   const div = m.sm.clockDivInt === 0 ? 65536 : m.sm.clockDivInt + m.sm.clockDivFrac / 256;
   return (div * 1e9) / mcu.clkSys;
@@ -216,9 +228,32 @@ function stepPio(now) {
       if (sm.waiting && (sm.waitType === WAIT_TX_FIFO || sm.waitType === WAIT_OUT)) {
         // Stalled on an empty TX FIFO: only a FIFO write releases it.
         m.idle = true;
+        m.waitPin = undefined;
+      } else if (
+        sm.waiting &&
+        sm.waitType === WAIT_PIN &&
+        mcu.gpio[sm.waitIndex].inputValue !== sm.waitPolarity
+      ) {
+        // Waiting for a pin level it does not have yet: only that pin's change releases
+        // it (wakePinWaiters). rp2040js enters the wait even when the level is already
+        // there; that wait ends on the next step.
+        m.idle = true;
+        m.waitPin = sm.waitIndex;
       } else {
         m.readyNs += Math.max(1, sm.cycles - cycles) * periodNs(m);
       }
+    }
+  }
+}
+
+// Release the machines waiting on `pin`: its input changed at `now`.
+function wakePinWaiters(pin, now) {
+  for (const m of machines) {
+    // rp2040js may already have ended the wait itself when the input changed.
+    if (m.idle && m.waitPin === pin) {
+      m.idle = false;
+      m.waitPin = undefined;
+      m.readyNs = now;
     }
   }
 }
@@ -392,6 +427,11 @@ for (const pin of TRACED_PINS) {
     if (level !== last) {
       last = level;
       edges.push(clock.nanos, pin, level);
+      const wired = LOOPBACK.get(pin);
+      if (wired !== undefined) {
+        mcu.gpio[wired].setInputValue(level === 1);
+        wakePinWaiters(wired, clock.nanos);
+      }
     }
   });
 }

@@ -6,7 +6,9 @@
 //! like USB: the tests use the same host code as a real sensor. The emulator also
 //! traces the LED and trigger pins with simulated timestamps ([`trace`]), which
 //! [`ws2812`] decodes into the colours each strip latched. [`events`] checks what the
-//! sensor's own phase events promise, for the emulator and a real sensor alike.
+//! sensor's own phase events promise, for the emulator and a real sensor alike;
+//! [`probe`] checks what the firmware's loopback probe saw on its own pins, which is
+//! how a real sensor gets the pin checks.
 //!
 //! `cargo test -p stereotac-hil-tests` runs the emulated tests; they build the firmware
 //! (`cargo fw`) and install the emulator (`npm ci`) on first use. See the README for
@@ -14,6 +16,7 @@
 
 pub mod emulator;
 pub mod events;
+pub mod probe;
 pub mod setup;
 pub mod trace;
 pub mod ws2812;

@@ -4,18 +4,25 @@
 //! attached. Without `STEREOTAC_HIL=device` they are skipped with a message.
 //!
 //! These check what the sensor reports of itself (command conformance, the phase
-//! events' timing promises, clock sync). The checks the emulator makes from the pins
-//! (trigger edges and WS2812 bits) need the firmware's loopback probe, not built yet.
+//! events' timing promises, clock sync), and what its pins do, through the firmware's
+//! loopback probe: wire GPIO6 (trigger) to GPIO7 and GPIO2 (strip 1 data) to GPIO8
+//! (README, "Hardware-in-loop tests"). The emulated tests run the same probe checks.
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, MonotonicClock};
+use stereotac::device::SensorEvent;
 use stereotac::device::{Sensor, SensorConfig};
 use stereotac::transport::usb::UsbConnector;
 use stereotac_hil_tests::events::{check_events, collect_phases};
+use stereotac_hil_tests::probe::{
+    ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
+};
 use stereotac_hil_tests::setup::{Target, target};
-use stereotac_protocol::{Mode, PhaseEvent, Request, Timing};
+use stereotac_protocol::{Capabilities, FaultKind, Mode, PhaseEvent, Request, Timing};
+
+const WIRING: &str = "is GPIO6 wired to GPIO7 and GPIO2 to GPIO8 (README)?";
 
 fn sensor() -> Option<Sensor> {
     if target() != Target::Device {
@@ -94,4 +101,65 @@ fn the_clock_sync_settles() {
         "drift {:.1} ppm",
         (fit.slope - 1.0) * 1e6
     );
+}
+
+/// Turns the loopback probe on; a firmware without it fails the test.
+fn probe_on(sensor: &mut Sensor) {
+    assert!(
+        sensor.info().capabilities.has(Capabilities::LOOPBACK_PROBE),
+        "this sensor's firmware has no loopback probe: flash the current firmware"
+    );
+    sensor.request(Request::SetProbe(true)).unwrap();
+}
+
+#[test]
+fn the_probed_pins_keep_gradient_mode_at_4_hz_exact_and_lit_right() {
+    let Some(mut s) = sensor() else { return };
+    let before = s.config().unwrap();
+    probe_on(&mut s);
+    s.request(Request::SetTiming(Timing::DEFAULT)).unwrap();
+    s.request(Request::SetMode(Mode::Gradient)).unwrap();
+    s.request(Request::Start).unwrap();
+    let (events, probe, _) = collect_with_probe(&mut s, 41, Duration::from_secs(15));
+    let config = s.config().unwrap();
+    s.request(Request::Stop).unwrap();
+    s.request(Request::SetProbe(before.probe)).unwrap();
+    s.request(Request::SetMode(before.mode)).unwrap();
+    assert_eq!(events.len(), 41, "phase events");
+    let t = check_probe(&events, &probe, &config, s.info().max_leds_per_strip)
+        .unwrap_or_else(|e| panic!("{e}; {WIRING}"));
+    eprintln!("{t:?}");
+}
+
+#[test]
+fn host_silence_turns_the_probed_strip_dark() {
+    let Some(mut s) = sensor() else { return };
+    let before = s.config().unwrap();
+    probe_on(&mut s);
+    s.request(Request::SetHostTimeout(300)).unwrap();
+    s.request(Request::SetMode(Mode::ContactShape)).unwrap();
+    s.request(Request::Start).unwrap();
+    let (_, others) = collect_phases(&mut s, 2, Duration::from_secs(3));
+    let mut probe = ProbeRecord::default();
+    probe.extend(&others);
+    // Say nothing for a second: no requests, no clock pings.
+    std::thread::sleep(Duration::from_secs(1));
+    let mut events = Vec::new();
+    let end = s.clock().now_us() + 300_000;
+    while s.clock().now_us() < end {
+        events.extend(s.poll(Duration::from_millis(50)).unwrap());
+    }
+    probe.extend(&events);
+    s.request(Request::SetHostTimeout(before.host_timeout_ms))
+        .unwrap();
+    s.request(Request::SetProbe(before.probe)).unwrap();
+    s.request(Request::SetMode(before.mode)).unwrap();
+    let fault = events
+        .iter()
+        .find_map(|e| match e {
+            SensorEvent::Fault(f, _) if f.kind == FaultKind::HostTimeout => Some(*f),
+            _ => None,
+        })
+        .expect("a host-timeout fault");
+    check_dark_after_fault(&probe, fault.at_us).unwrap_or_else(|e| panic!("{e}; {WIRING}"));
 }

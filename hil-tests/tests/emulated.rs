@@ -9,6 +9,9 @@ use stereotac_firmware::pins::PINS;
 use stereotac_firmware::sequencer::WS2812_RESET_US;
 use stereotac_hil_tests::emulator::{ControlOutcome, lock};
 use stereotac_hil_tests::events::{check_events, collect_phases};
+use stereotac_hil_tests::probe::{
+    ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
+};
 use stereotac_hil_tests::setup::{HOST_OFFSET_US, HOST_PPM, Rig, Target, target};
 use stereotac_hil_tests::ws2812::{Ws2812Frame, decode};
 use stereotac_protocol::{
@@ -24,7 +27,7 @@ fn rig() -> Option<Rig> {
         }
         Target::Device => {
             eprintln!(
-                "STEREOTAC_HIL=device: the device run is not implemented yet (see the README); skipped"
+                "STEREOTAC_HIL=device: the emulated tests are skipped (tests/device.rs runs)"
             );
             None
         }
@@ -352,15 +355,93 @@ fn interleaved_then_vision_with_the_period_changed_while_running() {
 }
 
 #[test]
+fn the_loopback_probe_sees_what_the_pins_show() {
+    let Some(rig) = rig() else { return };
+    let mut s = rig.sensor(SensorConfig::default()).unwrap();
+    assert_eq!(s.request(Request::SetProbe(true)).unwrap(), Response::Ack);
+    let mut config = config(&mut s);
+    assert!(config.probe);
+    config.timing.phase_period_us = 50_000;
+    s.request(Request::SetTiming(config.timing)).unwrap();
+    s.request(Request::SetMode(Mode::Gradient)).unwrap();
+    s.request(Request::Start).unwrap();
+    let (events, probe, _) = collect_with_probe(&mut s, 16, Duration::from_secs(5));
+    assert_eq!(events.len(), 16);
+    let frame_leds = s.info().max_leds_per_strip;
+    // The checks a bench sensor gets, from the probe alone.
+    let t = check_probe(&events, &probe, &config, frame_leds).unwrap_or_else(|e| panic!("{e}"));
+    // The probe against the pins themselves.
+    let emulator = lock(&rig.emulator);
+    let trace = emulator.trace();
+    let first_ns = events[0].scheduled_us * 1000;
+    let last_ns = events.last().unwrap().scheduled_us * 1000 + 50_000_000;
+    let rises = trace.trigger_rises_in(first_ns..last_ns);
+    let probed = probe.edges_in(first_ns..last_ns);
+    assert_eq!(probed.len(), rises.len());
+    let edge_error = rises
+        .iter()
+        .zip(&probed)
+        .map(|(r, p)| *p as i64 - *r as i64)
+        .collect::<Vec<_>>();
+    let frames: Vec<Ws2812Frame> = decode(&trace.pin(PINS.strips[0]))
+        .into_iter()
+        .filter(|f| (first_ns..last_ns).contains(&f.end_ns))
+        .collect();
+    let probed_frames = probe.frames_in(first_ns..last_ns);
+    assert_eq!(probed_frames.len(), frames.len());
+    let mut end_error = Vec::new();
+    for (traced, probed) in frames.iter().zip(&probed_frames) {
+        assert_eq!(usize::from(probed.pixels), traced.pixels.len());
+        assert_eq!(probed.first, traced.pixels[0]);
+        let lit = traced.pixels.iter().filter(|p| **p != Rgb::new(0, 0, 0));
+        assert_eq!(usize::from(probed.lit), lit.count());
+        end_error.push(probed.end_ns as i64 - traced.end_ns as i64);
+    }
+    drop(emulator);
+    let range = |v: &[i64]| (*v.iter().min().unwrap(), *v.iter().max().unwrap());
+    let (edge_lo, edge_hi) = range(&edge_error);
+    let (end_lo, end_hi) = range(&end_error);
+    eprintln!(
+        "probe: {} phases, probed edge − traced edge {edge_lo}..{edge_hi} ns, probed frame end − traced last edge {end_lo}..{end_hi} ns; {t:?}",
+        events.len()
+    );
+    // Edges are timed to a few PIO cycles; a frame's end is seen when the decoder
+    // samples the last bit (up to 0.5 µs after a short 0-bit pulse falls).
+    assert!(edge_lo >= -100 && edge_hi <= 100, "{edge_error:?}");
+    assert!(end_lo >= -100 && end_hi <= 600, "{end_error:?}");
+
+    // The same checks fail on a sensor that does not do what it was told.
+    let mut wrong_colour = config;
+    wrong_colour.strips[0].colour = Rgb::new(0, 255, 0);
+    let e = check_probe(&events, &probe, &wrong_colour, frame_leds).unwrap_err();
+    assert!(e.contains("expected"), "{e}");
+    let mut wrong_period = config;
+    wrong_period.timing.phase_period_us = 50_001;
+    assert!(check_probe(&events, &probe, &wrong_period, frame_leds).is_err());
+    let missing = ProbeRecord {
+        edges: probe.edges[1..].to_vec(),
+        frames: probe.frames.clone(),
+    };
+    let e = check_probe(&events, &missing, &config, frame_leds).unwrap_err();
+    assert!(e.contains("0 trigger edges"), "{e}");
+}
+
+#[test]
 fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
     let Some(rig) = rig() else { return };
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
     s.request(Request::SetHostTimeout(300)).unwrap();
-    run_mode(&mut s, Mode::ContactShape, 2);
+    s.request(Request::SetProbe(true)).unwrap();
+    let mut probe = ProbeRecord::default();
+    s.request(Request::SetMode(Mode::ContactShape)).unwrap();
+    s.request(Request::Start).unwrap();
+    let (_, others) = collect_phases(&mut s, 2, Duration::from_secs(20));
+    probe.extend(&others);
     // From here on the host says nothing.
     let silent_from_ns = lock(&rig.emulator).now_ns();
     idle_for(&s, 1_500_000);
     let events = s.poll(Duration::from_millis(50)).unwrap();
+    probe.extend(&events);
     let fault = events
         .iter()
         .find_map(|e| match e {
@@ -402,6 +483,11 @@ fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
     // The defmt log says why.
     let log = lock(&rig.emulator).log().unwrap();
     assert!(log.iter().any(|l| l.contains("host silent")), "{log:?}");
+    // The probe, which is what a bench sensor has, saw the same.
+    check_dark_after_fault(&probe, fault.at_us).unwrap_or_else(|e| panic!("{e}"));
+    let mut still_lit = probe.clone();
+    still_lit.frames.pop();
+    assert!(check_dark_after_fault(&still_lit, fault.at_us).is_err());
 }
 
 #[test]

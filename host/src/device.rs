@@ -11,8 +11,8 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac_protocol::{
-    Config, DeviceInfo, DeviceMicros, Event, Fault, PhaseEvent, Request, Response, Status,
-    TriggerOutcome,
+    Config, DeviceInfo, DeviceMicros, Event, Fault, PhaseEvent, ProbeEvent, Request, Response,
+    Status, TriggerOutcome,
 };
 
 use crate::client::{Client, ClientError, LinkCounters};
@@ -173,6 +173,9 @@ pub enum SensorEvent {
     Heartbeat(Status),
     /// A fault, with its host time.
     Fault(Fault, f64),
+    /// What the loopback probe saw (device time: it is checked against the device's
+    /// own phase events).
+    Probe(ProbeEvent),
     /// The link dropped and came back (after `attempts` tries).
     Reconnected {
         /// Attempts it took.
@@ -347,7 +350,8 @@ impl Sensor {
             | Request::SetTiming(_)
             | Request::SetLedCount(_)
             | Request::SetPowerBudget(_)
-            | Request::SetHostTimeout(_) => {
+            | Request::SetHostTimeout(_)
+            | Request::SetProbe(_) => {
                 let kind = std::mem::discriminant(&request);
                 self.applied.retain(|r| std::mem::discriminant(r) != kind);
                 self.applied.push(request);
@@ -377,6 +381,7 @@ impl Sensor {
                 Event::Phase(p) => SensorEvent::Phase(HostPhase::map(p, map, uncertainty_us)),
                 Event::Heartbeat(s) => SensorEvent::Heartbeat(s),
                 Event::Fault(f) => SensorEvent::Fault(f, map(f.at_us)),
+                Event::Probe(p) => SensorEvent::Probe(p),
             });
         }
         Ok(out)

@@ -426,7 +426,7 @@ pub fn stream(device: &DeviceArgs, seq: &SequenceArgs, json: bool) -> Result<()>
                         stop.store(true, Ordering::SeqCst);
                     }
                 }
-                SensorEvent::Heartbeat(_) => {}
+                SensorEvent::Heartbeat(_) | SensorEvent::Probe(_) => {}
                 SensorEvent::Fault(f, at) => {
                     eprintln!("fault {:?} at host {at:.0} µs", f.kind)
                 }

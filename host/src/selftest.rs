@@ -10,8 +10,8 @@
 
 use serde::Serialize;
 use stereotac_protocol::{
-    Config, DeviceError, Field, Mode, PROTOCOL_VERSION, Request, Response, Rgb, Strip,
-    StripSettings, Timing,
+    Capabilities, Config, DeviceError, Field, Mode, PROTOCOL_VERSION, Request, Response, Rgb,
+    Strip, StripSettings, Timing,
 };
 
 use crate::client::ClientError;
@@ -96,7 +96,14 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
         12
     };
     let leds = leds.min(sensor.info().max_leds_per_strip.max(1));
-    for request in [
+    let has_probe = has_probe(sensor);
+    // The probe flips where there is one; the other settings change to fixed values.
+    let probe = if has_probe {
+        !original.probe
+    } else {
+        original.probe
+    };
+    let mut requests = vec![
         Request::SetMode(Mode::Gradient),
         Request::SetTiming(timing),
         Request::SetStrip(strip),
@@ -105,7 +112,11 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
         Request::SetHostTimeout(2000),
         Request::Start,
         Request::Stop,
-    ] {
+    ];
+    if has_probe {
+        requests.push(Request::SetProbe(probe));
+    }
+    for request in requests {
         let answer = sensor.request(request);
         report.record(
             format!("{request:?} acknowledged"),
@@ -126,6 +137,7 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
             strips
         },
         power_scale: config.power_scale,
+        probe,
     };
     report.record(
         "configuration reads back as set",
@@ -164,8 +176,16 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
             "TimingInfeasible",
         ),
     ];
+    let probe_refusal: (Request, IsExpected, &str) = (
+        Request::SetProbe(true),
+        |e| *e == DeviceError::InvalidState,
+        "InvalidState (no loopback probe)",
+    );
     let mut refused = 0;
-    for (request, wanted, name) in refusals {
+    for (request, wanted, name) in refusals
+        .into_iter()
+        .chain((!has_probe).then_some(probe_refusal))
+    {
         let answer = sensor.request(request);
         let ok = matches!(&answer, Err(SensorError::Client(ClientError::Device(e))) if wanted(e));
         refused += u32::from(ok);
@@ -219,5 +239,13 @@ fn restore(sensor: &mut Sensor, config: &Config) -> Result<(), SensorError> {
         sensor.request(Request::SetStrip(strip))?;
     }
     sensor.request(Request::SetMode(config.mode))?;
+    if has_probe(sensor) {
+        sensor.request(Request::SetProbe(config.probe))?;
+    }
     Ok(())
+}
+
+/// Whether the sensor has the loopback probe inputs.
+fn has_probe(sensor: &Sensor) -> bool {
+    sensor.info().capabilities.has(Capabilities::LOOPBACK_PROBE)
 }

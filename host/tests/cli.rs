@@ -36,7 +36,10 @@ fn info_stream_set_and_record_against_the_simulated_sensor() {
     let (ok, info, err) = stereotac(&["--sim", "info"]);
     assert!(ok, "{err}");
     assert!(
-        info.contains("protocol v1") && info.contains("clock sync"),
+        info.contains(&format!(
+            "protocol v{}",
+            stereotac_protocol::PROTOCOL_VERSION
+        )) && info.contains("clock sync"),
         "{info}"
     );
 

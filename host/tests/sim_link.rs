@@ -137,5 +137,6 @@ fn version_mismatch_is_refused_naming_both_versions() {
         "{err:?}"
     );
     let text = err.to_string();
-    assert!(text.contains("v1") && text.contains("v7"), "{text}");
+    let host = format!("v{PROTOCOL_VERSION}");
+    assert!(text.contains(&host) && text.contains("v7"), "{text}");
 }

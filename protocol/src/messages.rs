@@ -19,6 +19,10 @@ pub type RequestId = u32;
 /// Microseconds on the device's 1 MHz timer since it booted.
 pub type DeviceMicros = u64;
 
+/// Nanoseconds on the same clock as [`DeviceMicros`] (the loopback probe resolves
+/// edges finer than the timer's microsecond).
+pub type DeviceNanos = u64;
+
 macro_rules! wire_type {
     ($(#[$meta:meta])* $vis:vis $kind:ident $name:ident $($body:tt)*) => {
         $(#[$meta])*
@@ -71,6 +75,10 @@ wire_type! {
         /// Reboot into the RP2040's USB mass-storage bootloader (UF2 flashing).
         /// Acknowledged before the reboot.
         EnterBootloader,
+        /// Report what the loopback probe inputs see ([`Event::Probe`]): on, or off
+        /// (the default). Needs [`Capabilities::LOOPBACK_PROBE`], else
+        /// [`DeviceError::InvalidState`].
+        SetProbe(bool),
     }
 }
 
@@ -165,6 +173,9 @@ impl Capabilities {
     pub const BOOTLOADER: u32 = 1 << 3;
     /// A hardware watchdog resets the MCU if the firmware stalls.
     pub const WATCHDOG: u32 = 1 << 4;
+    /// Loopback probe inputs: the trigger and strip 1's data line, wired back to two
+    /// spare pins, are timed and decoded by the firmware ([`Request::SetProbe`]).
+    pub const LOOPBACK_PROBE: u32 = 1 << 5;
 
     /// Whether every bit of `flag` is set.
     pub const fn has(self, flag: u32) -> bool {
@@ -301,6 +312,8 @@ wire_type! {
         pub host_timeout_ms: u32,
         /// Brightness scale 0..=255 actually applied after the power budget (255: uncapped).
         pub power_scale: u8,
+        /// Whether loopback probe events are sent ([`Request::SetProbe`]).
+        pub probe: bool,
     }
 }
 
@@ -341,6 +354,43 @@ wire_type! {
         Phase(PhaseEvent),
         /// Something went wrong.
         Fault(Fault),
+        /// What a loopback probe input saw (only while [`Config::probe`] is on).
+        Probe(ProbeEvent),
+    }
+}
+
+wire_type! {
+    /// What the loopback probe saw on the wires looped back to its inputs: the camera
+    /// trigger, and strip 1's WS2812 data. Times come from the probe's own PIO counter,
+    /// not from the code that drives the outputs, so they check that code.
+    pub enum ProbeEvent {
+        /// A rising edge of the looped-back trigger.
+        TriggerEdge {
+            /// When the edge reached the probe input.
+            at_ns: DeviceNanos,
+        },
+        /// One WS2812 frame on the looped-back strip 1 data line, decoded.
+        StripFrame(StripFrameProbe),
+    }
+}
+
+wire_type! {
+    /// One decoded WS2812 frame (a burst of bits ended by the line staying low).
+    pub struct StripFrameProbe {
+        /// The falling edge that ended the frame's last bit.
+        pub end_ns: DeviceNanos,
+        /// Whole 24-bit pixels received.
+        pub pixels: u16,
+        /// Pixels that were not black.
+        pub lit: u16,
+        /// Lit pixels in an unbroken run from the first pixel.
+        pub leading_lit: u16,
+        /// Colour of the first pixel.
+        pub first: Rgb,
+        /// Lit pixels whose colour differs from the first pixel's.
+        pub mismatched: u16,
+        /// Bits after the last whole pixel (0 for a well-formed frame).
+        pub stray_bits: u8,
     }
 }
 

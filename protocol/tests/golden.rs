@@ -51,9 +51,10 @@ fn request_kind(r: &Request) -> usize {
         Request::Stop => 10,
         Request::TimeSync => 11,
         Request::EnterBootloader => 12,
+        Request::SetProbe(_) => 13,
     }
 }
-const REQUEST_KINDS: usize = 13;
+const REQUEST_KINDS: usize = 14;
 
 /// Index of a device message kind (reply variants, errors and events), exhaustive.
 fn device_kind(m: &DeviceMessage) -> usize {
@@ -80,10 +81,12 @@ fn device_kind(m: &DeviceMessage) -> usize {
                 ..
             }) => 11,
             Event::Fault(_) => 12,
+            Event::Probe(ProbeEvent::TriggerEdge { .. }) => 13,
+            Event::Probe(ProbeEvent::StripFrame(_)) => 14,
         },
     }
 }
-const DEVICE_KINDS: usize = 13;
+const DEVICE_KINDS: usize = 15;
 
 fn host_examples() -> Vec<(&'static str, HostMessage)> {
     let r = |id, request| HostMessage { id, request };
@@ -119,6 +122,7 @@ fn host_examples() -> Vec<(&'static str, HostMessage)> {
         ("host/stop", r(11, Request::Stop)),
         ("host/time_sync", r(0xFFFF_FFFF, Request::TimeSync)),
         ("host/enter_bootloader", r(300, Request::EnterBootloader)),
+        ("host/set_probe_on", r(301, Request::SetProbe(true))),
     ]
 }
 
@@ -163,6 +167,7 @@ fn device_examples() -> Vec<(&'static str, DeviceMessage)> {
         power_budget_ma: 400,
         host_timeout_ms: 5000,
         power_scale: 255,
+        probe: false,
     };
     let phase = |trigger| PhaseEvent {
         index: 41,
@@ -232,6 +237,30 @@ fn device_examples() -> Vec<(&'static str, DeviceMessage)> {
                     at_us: 15_000_000,
                     kind: FaultKind::HostTimeout,
                 }),
+            ),
+        ),
+        (
+            "device/event_probe_trigger_edge",
+            ev(
+                104,
+                Event::Probe(ProbeEvent::TriggerEdge {
+                    at_ns: 10_251_043_016,
+                }),
+            ),
+        ),
+        (
+            "device/event_probe_strip_frame",
+            ev(
+                105,
+                Event::Probe(ProbeEvent::StripFrame(StripFrameProbe {
+                    end_ns: 10_250_042_875,
+                    pixels: 32,
+                    lit: 8,
+                    leading_lit: 8,
+                    first: Rgb::new(0, 0, 255),
+                    mismatched: 0,
+                    stray_bits: 0,
+                })),
             ),
         ),
     ]

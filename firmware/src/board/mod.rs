@@ -6,6 +6,8 @@
 //! | `link_rx` | bulk OUT endpoint | frames in → [`Controller`] → replies out |
 //! | `link_tx` | bulk IN endpoint | sends queued replies and events |
 //! | `led_strips` | PIO0, 4 state machines, DMA 0..3 | writes the four strips together |
+//! | `probe_trigger` | PIO1 state machine 1 | times the trigger looped back to GPIO7 |
+//! | `probe_strip` | PIO1 state machine 2 | decodes strip 1 looped back to GPIO8 |
 //! | `sequencer` | the schedule | plans phases, asks for LED frames, arms the trigger |
 //! | `supervisor` | watchdog, status LED | host-silence timeout, heartbeat, watchdog feed |
 //! | `bootloader` | – | reboots into the USB bootloader on request |
@@ -16,6 +18,7 @@
 
 mod leds;
 mod link;
+mod probe;
 mod sequencing;
 mod shared;
 mod supervisor;
@@ -26,9 +29,10 @@ use embassy_executor::Spawner;
 use embassy_rp::flash::{Blocking, Flash};
 use embassy_rp::gpio::{Level, Output};
 use embassy_rp::peripherals::{DMA_CH0, DMA_CH1, DMA_CH2, DMA_CH3, PIO0, PIO1, USB};
-use embassy_rp::pio::Pio;
+use embassy_rp::pio::{Common, Pio};
 use embassy_rp::watchdog::{ResetReason, Watchdog};
 use embassy_rp::{bind_interrupts, dma, pio, usb};
+use static_cell::StaticCell;
 use stereotac_firmware::pins::PINS;
 use stereotac_firmware::{Controller, Identity, MAX_LEDS_PER_STRIP};
 use stereotac_protocol::Capabilities;
@@ -63,7 +67,8 @@ async fn main(spawner: Spawner) {
             | Capabilities::PIO_LEDS
             | Capabilities::INTERLEAVED
             | Capabilities::BOOTLOADER
-            | Capabilities::WATCHDOG,
+            | Capabilities::WATCHDOG
+            | Capabilities::LOOPBACK_PROBE,
     );
     shared::init(Controller::new(
         Identity {
@@ -91,15 +96,29 @@ async fn main(spawner: Spawner) {
         "pin map and board code disagree"
     );
 
-    // Camera trigger: PIO1 state machine 0 with side-set on the trigger pin.
-    let pio1 = Pio::new(p.PIO1, Irqs);
-    let trigger = trigger::TriggerPio::new(pio1, p.PIN_6);
+    // PIO1: the camera trigger (state machine 0, side-set on the trigger pin) and the
+    // loopback probe (state machines 1 and 2).
+    let Pio {
+        common,
+        sm0,
+        sm1,
+        sm2,
+        irq1,
+        irq2,
+        ..
+    } = Pio::new(p.PIO1, Irqs);
+    // Kept alive for the program's lifetime: in embassy-rp 0.10 dropping one PIO block's
+    // `Common` resets the other block's pins.
+    static PIO1_COMMON: StaticCell<Common<'static, PIO1>> = StaticCell::new();
+    let common = PIO1_COMMON.init(common);
+    let trigger = trigger::TriggerPio::new(common, sm0, p.PIN_6);
     defmt::assert_eq!(
         trigger.pin(),
         PINS.trigger,
         "pin map and board code disagree"
     );
     trigger::install(trigger);
+    let probe = probe::Probe::new(common, (sm1, irq1), (sm2, irq2), p.PIN_7, p.PIN_8);
 
     let status_led = Output::new(p.PIN_25, Level::Low);
 
@@ -109,6 +128,8 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap!(link::link_rx(link.rx)));
     spawner.spawn(unwrap!(link::link_tx(link.tx)));
     spawner.spawn(unwrap!(leds::led_strips(strips)));
+    spawner.spawn(unwrap!(probe::probe_trigger(probe.trigger)));
+    spawner.spawn(unwrap!(probe::probe_strip(probe.strip)));
     spawner.spawn(unwrap!(sequencing::sequencer()));
     spawner.spawn(unwrap!(supervisor::supervisor(watchdog, status_led)));
     spawner.spawn(unwrap!(supervisor::bootloader()));

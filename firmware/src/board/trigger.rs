@@ -23,7 +23,7 @@ use embassy_rp::Peri;
 use embassy_rp::clocks::clk_sys_freq;
 use embassy_rp::gpio::Pin;
 use embassy_rp::peripherals::{PIN_6, PIO1};
-use embassy_rp::pio::{Common, Config, Direction, Pio, StateMachine};
+use embassy_rp::pio::{Common, Config, Direction, StateMachine};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Instant;
@@ -39,21 +39,18 @@ static TRIGGER: Mutex<CriticalSectionRawMutex, RefCell<Option<TriggerPio>>> =
 
 /// The trigger state machine.
 pub struct TriggerPio {
-    // Kept alive for the program's lifetime (see `leds::Strips`).
-    _common: Common<'static, PIO1>,
     sm: StateMachine<'static, PIO1, 0>,
     cycles_per_us: u32,
     pin: u8,
 }
 
 impl TriggerPio {
-    /// Load the program into PIO1 and drive `pin` low.
-    pub fn new(pio: Pio<'static, PIO1>, pin: Peri<'static, PIN_6>) -> Self {
-        let Pio {
-            mut common,
-            mut sm0,
-            ..
-        } = pio;
+    /// Load the program into PIO1 and drive `pin` low with state machine 0.
+    pub fn new(
+        common: &mut Common<'static, PIO1>,
+        mut sm0: StateMachine<'static, PIO1, 0>,
+        pin: Peri<'static, PIN_6>,
+    ) -> Self {
         let number = pin.pin();
         let side_set = pio::SideSet::new(false, 1, false);
         let mut a: pio::Assembler<32> = pio::Assembler::new_with_side_set(side_set);
@@ -82,7 +79,6 @@ impl TriggerPio {
         sm0.set_pins(embassy_rp::gpio::Level::Low, &[&pin]);
         sm0.set_enable(true);
         Self {
-            _common: common,
             sm: sm0,
             cycles_per_us: clk_sys_freq() / 1_000_000,
             pin: number,

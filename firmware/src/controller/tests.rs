@@ -375,3 +375,45 @@ fn a_phase_runs_through_plan_begin_finish() {
     let s = c.status(0);
     assert_eq!((s.phases, s.triggers, s.overruns), (1, 1, 0));
 }
+
+#[test]
+fn probe_events_are_sent_only_when_asked_for_and_only_with_a_probe() {
+    let edge = ProbeEvent::TriggerEdge { at_ns: 1_234 };
+    // A board without the probe refuses to turn it on, and sends nothing.
+    let mut c = controller();
+    assert_eq!(
+        call(&mut c, 1, Request::SetProbe(true), 0),
+        Err(DeviceError::InvalidState)
+    );
+    assert!(!c.config().probe);
+    assert_eq!(c.probe_event(edge), None);
+
+    let mut c = Controller::new(
+        Identity {
+            board_id: [0; 8],
+            capabilities: Capabilities(Capabilities::LOOPBACK_PROBE),
+        },
+        MAX_LEDS_PER_STRIP,
+    );
+    assert_eq!(c.probe_event(edge), None, "off by default");
+    assert_eq!(
+        call(&mut c, 2, Request::SetProbe(true), 0),
+        Ok(Response::Ack)
+    );
+    assert!(c.config().probe);
+    let first = c.probe_event(edge).unwrap();
+    let second = c.probe_event(edge).unwrap();
+    assert_eq!(
+        first,
+        DeviceMessage::Event {
+            seq: 0,
+            event: Event::Probe(edge)
+        }
+    );
+    assert!(matches!(second, DeviceMessage::Event { seq: 1, .. }));
+    assert_eq!(
+        call(&mut c, 3, Request::SetProbe(false), 0),
+        Ok(Response::Ack)
+    );
+    assert_eq!(c.probe_event(edge), None);
+}
