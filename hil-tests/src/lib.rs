@@ -8,7 +8,8 @@
 //! [`ws2812`] decodes into the colours each strip latched. [`events`] checks what the
 //! sensor's own phase events promise, for the emulator and a real sensor alike;
 //! [`probe`] checks what the firmware's loopback probe saw on its own pins, which is
-//! how a real sensor gets the pin checks.
+//! how a real sensor gets the pin checks; [`scenarios`] holds the runs both kinds of
+//! test drive.
 //!
 //! `cargo test -p stereotac-hil-tests` runs the emulated tests; they build the firmware
 //! (`cargo fw`) and install the emulator (`npm ci`) on first use. See the README for
@@ -17,6 +18,7 @@
 pub mod emulator;
 pub mod events;
 pub mod probe;
+pub mod scenarios;
 pub mod setup;
 pub mod trace;
 pub mod ws2812;

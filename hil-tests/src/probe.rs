@@ -42,6 +42,12 @@ impl ProbeRecord {
         }
     }
 
+    /// Add another record's events after these.
+    pub fn extend_from(&mut self, other: &ProbeRecord) {
+        self.edges.extend_from_slice(&other.edges);
+        self.frames.extend_from_slice(&other.frames);
+    }
+
     /// The trigger edges within `range` (ns).
     pub fn edges_in(&self, range: std::ops::Range<u64>) -> Vec<u64> {
         self.edges

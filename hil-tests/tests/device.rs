@@ -19,8 +19,9 @@ use stereotac_hil_tests::events::{check_events, collect_phases};
 use stereotac_hil_tests::probe::{
     ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
 };
+use stereotac_hil_tests::scenarios::{check_malformed_frames, run_not_reading, run_period_change};
 use stereotac_hil_tests::setup::{Target, target};
-use stereotac_protocol::{Capabilities, FaultKind, Mode, PhaseEvent, Request, Timing};
+use stereotac_protocol::{Capabilities, Config, FaultKind, Mode, PhaseEvent, Request, Timing};
 
 const WIRING: &str = "is GPIO6 wired to GPIO7 and GPIO2 to GPIO8 (README)?";
 
@@ -103,6 +104,14 @@ fn the_clock_sync_settles() {
     );
 }
 
+/// Stops the sensor and puts back the probe, timing and mode of `before`.
+fn put_back(s: &mut Sensor, before: &Config) {
+    s.request(Request::Stop).unwrap();
+    s.request(Request::SetProbe(before.probe)).unwrap();
+    s.request(Request::SetTiming(before.timing)).unwrap();
+    s.request(Request::SetMode(before.mode)).unwrap();
+}
+
 /// Turns the loopback probe on; a firmware without it fails the test.
 fn probe_on(sensor: &mut Sensor) {
     assert!(
@@ -122,9 +131,7 @@ fn the_probed_pins_keep_gradient_mode_at_4_hz_exact_and_lit_right() {
     s.request(Request::Start).unwrap();
     let (events, probe, _) = collect_with_probe(&mut s, 41, Duration::from_secs(15));
     let config = s.config().unwrap();
-    s.request(Request::Stop).unwrap();
-    s.request(Request::SetProbe(before.probe)).unwrap();
-    s.request(Request::SetMode(before.mode)).unwrap();
+    put_back(&mut s, &before);
     assert_eq!(events.len(), 41, "phase events");
     let t = check_probe(&events, &probe, &config, s.info().max_leds_per_strip)
         .unwrap_or_else(|e| panic!("{e}; {WIRING}"));
@@ -152,8 +159,7 @@ fn host_silence_turns_the_probed_strip_dark() {
     probe.extend(&events);
     s.request(Request::SetHostTimeout(before.host_timeout_ms))
         .unwrap();
-    s.request(Request::SetProbe(before.probe)).unwrap();
-    s.request(Request::SetMode(before.mode)).unwrap();
+    put_back(&mut s, &before);
     let fault = events
         .iter()
         .find_map(|e| match e {
@@ -162,4 +168,51 @@ fn host_silence_turns_the_probed_strip_dark() {
         })
         .expect("a host-timeout fault");
     check_dark_after_fault(&probe, fault.at_us).unwrap_or_else(|e| panic!("{e}; {WIRING}"));
+}
+
+#[test]
+fn malformed_frames_are_counted_and_the_sensor_keeps_answering() {
+    let Some(mut s) = sensor() else { return };
+    let status = check_malformed_frames(&mut s).unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("{status:?}");
+}
+
+#[test]
+fn interleaved_then_vision_with_the_period_changed_while_running() {
+    let Some(mut s) = sensor() else { return };
+    let before = s.config().unwrap();
+    probe_on(&mut s);
+    let run = run_period_change(&mut s);
+    put_back(&mut s, &before);
+    let run = run.unwrap_or_else(|e| panic!("{e}"));
+    let frame_leds = s.info().max_leds_per_strip;
+    for (events, config) in [
+        (&run.interleaved, &run.interleaved_config),
+        (&run.changed, &run.changed_config),
+        (&run.vision, &run.changed_config),
+    ] {
+        check_probe(events, &run.probe, config, frame_leds)
+            .unwrap_or_else(|e| panic!("{e}; {WIRING}"));
+    }
+}
+
+#[test]
+fn a_host_that_stops_reading_loses_events_not_timing() {
+    let Some(mut s) = sensor() else { return };
+    let before = s.config().unwrap();
+    probe_on(&mut s);
+    // Neither reading nor writing for 2 s: the host library's few queued USB transfers
+    // fill, then the sensor's queue does.
+    let run = run_not_reading(&mut s, |_| std::thread::sleep(Duration::from_secs(2)));
+    put_back(&mut s, &before);
+    let run = run.unwrap_or_else(|e| panic!("{e}"));
+    let frame_leds = s.info().max_leds_per_strip;
+    for events in [&run.before, &run.after] {
+        check_probe(events, &run.probe, &run.config, frame_leds)
+            .unwrap_or_else(|e| panic!("{e}; {WIRING}"));
+    }
+    eprintln!(
+        "{} events dropped on the sensor, {} seen lost",
+        run.status.events_dropped, run.lost
+    );
 }

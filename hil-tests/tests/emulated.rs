@@ -12,6 +12,9 @@ use stereotac_hil_tests::events::{check_events, collect_phases};
 use stereotac_hil_tests::probe::{
     ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
 };
+use stereotac_hil_tests::scenarios::{
+    check_malformed_frames, probe_on_if_present, run_not_reading, run_period_change,
+};
 use stereotac_hil_tests::setup::{HOST_OFFSET_US, HOST_PPM, Rig, Target, target};
 use stereotac_hil_tests::ws2812::{Ws2812Frame, decode};
 use stereotac_protocol::{
@@ -96,18 +99,8 @@ fn enumerates_handshakes_and_answers_every_command() {
         "{:#?}",
         report.failures().collect::<Vec<_>>()
     );
-    let rejected = s.status().unwrap().requests_rejected;
-    // Malformed frames: garbage, a bad CRC, an oversize run. The firmware counts them
-    // and keeps answering.
-    {
-        let mut emulator = lock(&rig.emulator);
-        emulator.send(&[0x13, 0x37, 0x42, 0x00]).unwrap();
-        emulator.send(&[0x01; 600]).unwrap();
-        emulator.send(&[0x00]).unwrap();
-    }
-    let status = s.status().unwrap();
-    assert!(status.frames_rejected >= 2, "{status:?}");
-    assert_eq!(status.requests_rejected, rejected, "{status:?}");
+    // Malformed frames: counted, not answered, and the firmware keeps answering.
+    check_malformed_frames(&mut s).unwrap_or_else(|e| panic!("{e}"));
     // A descriptor the device does not have is stalled, and the host model sees it.
     let other_speed = [0x80, 6, 0x00, 0x07, 0, 0, 9, 0];
     assert_eq!(
@@ -303,55 +296,28 @@ fn gradient_mode_at_4_hz_is_exact_lit_right_and_reported_truthfully() {
 fn interleaved_then_vision_with_the_period_changed_while_running() {
     let Some(rig) = rig() else { return };
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
-    let mut config = config(&mut s);
-    config.timing.phase_period_us = 100_000;
-    s.request(Request::SetTiming(config.timing)).unwrap();
-    let events = run_mode(&mut s, Mode::Interleaved, 12);
-    check_events(&events, Mode::Interleaved, &config.timing).unwrap_or_else(|e| panic!("{e}"));
-    idle_for(&s, 100_000);
-    let m = check_phases(&rig, &events, &config, 100_000);
-    eprintln!("interleaved at 10 Hz: period {:?} ns", m.period_ns);
-
-    // Halve the period while running: the sequence re-plans and keeps its promises.
-    config.timing.phase_period_us = 50_000;
-    s.request(Request::SetTiming(config.timing)).unwrap();
-    let (after, _) = collect_phases(&mut s, 14, Duration::from_secs(5));
-    // The phases that started after the change (the first may still be the old plan).
-    let changed: Vec<PhaseEvent> = after
-        .iter()
-        .skip_while(|e| {
-            after
-                .iter()
-                .any(|n| n.index == e.index + 1 && n.scheduled_us - e.scheduled_us != 50_000)
-        })
-        .copied()
-        .collect();
-    assert!(
-        changed.len() >= 10,
-        "{} phases at the new period",
-        changed.len()
-    );
-    idle_for(&s, 50_000);
-    let m = check_phases(&rig, &changed, &config, 50_000);
-    eprintln!(
-        "interleaved at 20 Hz after the change: period {:?} ns",
-        m.period_ns
-    );
-    let status = s.status().unwrap();
-    assert_eq!(status.overruns, 0, "{status:?}");
-
-    // Vision: strips dark, the cameras still triggered.
-    let events = run_mode(&mut s, Mode::Vision, 8);
-    let vision: Vec<PhaseEvent> = events
-        .iter()
-        .skip_while(|e| e.phase != Phase::Dark)
-        .skip(1) // the first may follow the mode change at any time
-        .copied()
-        .collect();
-    assert!(vision.iter().all(|e| e.phase == Phase::Dark));
-    idle_for(&s, 50_000);
-    check_phases(&rig, &vision, &config, 50_000);
-    assert_eq!(s.counters().link.lost_events, 0);
+    assert!(probe_on_if_present(&mut s).unwrap());
+    let run = run_period_change(&mut s).unwrap_or_else(|e| panic!("{e}"));
+    let frame_leds = s.info().max_leds_per_strip;
+    let stages = [
+        (
+            "interleaved at 10 Hz",
+            &run.interleaved,
+            &run.interleaved_config,
+        ),
+        (
+            "interleaved at 20 Hz after the change",
+            &run.changed,
+            &run.changed_config,
+        ),
+        ("vision at 20 Hz", &run.vision, &run.changed_config),
+    ];
+    for (name, events, config) in stages {
+        let m = check_phases(&rig, events, config, config.timing.phase_period_us.into());
+        check_probe(events, &run.probe, config, frame_leds)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        eprintln!("{name}: period {:?} ns", m.period_ns);
+    }
 }
 
 #[test]
@@ -494,30 +460,29 @@ fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
 fn a_host_that_stops_reading_loses_events_not_timing() {
     let Some(rig) = rig() else { return };
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
-    let mut config = config(&mut s);
-    config.timing.phase_period_us = 20_000;
-    s.request(Request::SetTiming(config.timing)).unwrap();
-    let before = run_mode(&mut s, Mode::Gradient, 5);
-    lock(&rig.emulator).set_reading(false).unwrap();
-    // 2 s of phases (100) with bulk IN stalled: the device's queue fills.
-    idle_for(&s, 2_000_000);
-    lock(&rig.emulator).set_reading(true).unwrap();
-    let (after, _) = collect_phases(&mut s, 5, Duration::from_secs(2));
-    let status = s.status().unwrap();
-    assert!(status.events_dropped > 0, "{status:?}");
-    let lost = s.counters().link.lost_events;
-    assert!(lost >= u64::from(status.events_dropped), "{lost} lost");
-    assert_eq!(status.overruns, 0, "{status:?}");
+    assert!(probe_on_if_present(&mut s).unwrap());
+    let run = run_not_reading(&mut s, |s| {
+        lock(&rig.emulator).set_reading(false).unwrap();
+        // 2 s of phases (100) with bulk IN stalled: the device's queue fills.
+        idle_for(s, 2_000_000);
+        lock(&rig.emulator).set_reading(true).unwrap();
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let frame_leds = s.info().max_leds_per_strip;
+    for events in [&run.before, &run.after] {
+        check_probe(events, &run.probe, &run.config, frame_leds).unwrap_or_else(|e| panic!("{e}"));
+    }
     // The trigger kept its 20 ms period through it all, not one edge missing.
-    let from = before[0].write_start_us * 1000;
-    let to = after.last().unwrap().write_start_us * 1000;
+    let from = run.before[0].write_start_us * 1000;
+    let to = run.after.last().unwrap().write_start_us * 1000;
     let rises = lock(&rig.emulator).trace().trigger_rises_in(from..to);
     let expected = (to - from) / 20_000_000;
     assert_eq!(rises.len() as u64, expected, "trigger edges");
     check_periods(&rises, 20_000_000);
     eprintln!(
-        "not reading for 2 s: {} events dropped on the device, {lost} seen lost by the host, {} trigger edges at 20 ms",
-        status.events_dropped,
+        "not reading for 2 s: {} events dropped on the device, {} seen lost by the host, {} trigger edges at 20 ms",
+        run.status.events_dropped,
+        run.lost,
         rises.len()
     );
 }

@@ -281,6 +281,16 @@ impl Sensor {
         self.client.clock()
     }
 
+    /// Send `bytes` down the link exactly as given, not framed: for link tests that
+    /// check how the firmware handles corrupt or oversize frames. Whatever the device
+    /// answers arrives through [`Sensor::poll`] and the requests that follow.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(), SensorError> {
+        self.client
+            .transport_mut()
+            .send(bytes)
+            .map_err(|e| SensorError::Client(e.into()))
+    }
+
     /// The current device→host clock fit.
     pub fn clock_fit(&self) -> Option<&ClockFit> {
         self.sync.fit()
