@@ -35,7 +35,8 @@ use embassy_rp::gpio::Pull;
 use embassy_rp::pac;
 use embassy_rp::peripherals::{PIN_7, PIN_8, PIO1};
 use embassy_rp::pio::{
-    Common, Config, Direction, Irq, ShiftConfig, ShiftDirection, StateMachine, StatusSource,
+    Common, Config, Direction, Irq, LoadedProgram, Pin, PioPin, ShiftConfig, ShiftDirection,
+    StateMachine, StatusSource,
 };
 use stereotac_firmware::probe::{FrameTally, StampClock, bits_from_count_word, is_pixel_word};
 use stereotac_protocol::ProbeEvent;
@@ -126,18 +127,12 @@ impl Probe {
         let edge = loaded.origin + program.public_defines.edge as u8;
         let cycle_ps = 1_000_000_000_000 / u64::from(clk_sys_freq());
 
-        let mut trigger_in = common.make_pio_pin(trigger_in);
-        trigger_in.set_pull(Pull::Down);
-        let mut cfg = Config::default();
-        cfg.use_program(&loaded, &[]);
+        let trigger_in = probe_input(common, trigger_in);
+        let mut cfg = stamping_config(&loaded, &trigger_in, 32);
         let mut exec = cfg.get_exec();
         exec.wrap_bottom = edge;
         // SAFETY: the wrap stays inside the loaded program.
         unsafe { cfg.set_exec(exec) };
-        cfg.set_in_pins(&[&trigger_in]);
-        cfg.shift_in = stamp_shift(32);
-        cfg.status_sel = StatusSource::TxFifoLevel;
-        cfg.status_n = 1;
         timer_sm.set_config(&cfg);
         timer_sm.set_pin_dirs(Direction::In, &[&trigger_in]);
         let jump = pio::InstructionOperands::JMP {
@@ -148,16 +143,10 @@ impl Probe {
         unsafe { timer_sm.exec_instr(jump.encode()) };
         timer_sm.set_enable(true);
 
-        let mut strip_in = common.make_pio_pin(strip_in);
-        strip_in.set_pull(Pull::Down);
-        let mut cfg = Config::default();
-        cfg.use_program(&loaded, &[]);
-        cfg.set_in_pins(&[&strip_in]);
+        let strip_in = probe_input(common, strip_in);
+        let mut cfg = stamping_config(&loaded, &strip_in, 24);
         cfg.set_jmp_pin(&strip_in);
         cfg.clock_divider = DECODER_DIVIDER.into();
-        cfg.shift_in = stamp_shift(24);
-        cfg.status_sel = StatusSource::TxFifoLevel;
-        cfg.status_n = 1;
         decoder_sm.set_config(&cfg);
         decoder_sm.set_pin_dirs(Direction::In, &[&strip_in]);
         decoder_sm.set_enable(true);
@@ -185,13 +174,35 @@ impl Probe {
     }
 }
 
-/// Shift left (first bit ends up most significant), autopush at `threshold` bits.
-fn stamp_shift(threshold: u8) -> ShiftConfig {
-    ShiftConfig {
-        threshold,
+/// A probe input handed to PIO1, pulled down so an unwired input stays low.
+fn probe_input(
+    common: &mut Common<'static, PIO1>,
+    pin: Peri<'static, impl PioPin + 'static>,
+) -> Pin<'static, PIO1> {
+    let mut pin = common.make_pio_pin(pin);
+    pin.set_pull(Pull::Down);
+    pin
+}
+
+/// What both machines share: the program, `input` as their IN pin, shifting left (the
+/// first bit ends up most significant) with autopush every `push_bits` bits, and STATUS
+/// all ones while the TX FIFO is empty (the stamp loop's test).
+fn stamping_config(
+    loaded: &LoadedProgram<'static, PIO1>,
+    input: &Pin<'static, PIO1>,
+    push_bits: u8,
+) -> Config<'static, PIO1> {
+    let mut cfg = Config::default();
+    cfg.use_program(loaded, &[]);
+    cfg.set_in_pins(&[input]);
+    cfg.shift_in = ShiftConfig {
+        threshold: push_bits,
         direction: ShiftDirection::Left,
         auto_fill: true,
-    }
+    };
+    cfg.status_sel = StatusSource::TxFifoLevel;
+    cfg.status_n = 1;
+    cfg
 }
 
 /// Push the stamp token right after the next tick of the 1 MHz timer, with interrupts
