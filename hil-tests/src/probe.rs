@@ -20,6 +20,7 @@ use stereotac_protocol::{
 };
 
 use crate::events::collect_phases;
+use crate::trace::{check_no_drift, check_periods};
 
 /// Everything the probe reported, in order.
 #[derive(Debug, Clone, Default)]
@@ -69,17 +70,17 @@ impl ProbeRecord {
 
 /// Polls `sensor` for `n` phase events and the probe events of those phases (it waits
 /// for one more phase, whose LED write comes after the last checked phase's probe
-/// events). Returns the `n` phases, the probe record and every other event.
+/// events). Returns the `n` phases and the probe record; other events are dropped.
 pub fn collect_with_probe(
     sensor: &mut Sensor,
     n: usize,
     limit: Duration,
-) -> (Vec<PhaseEvent>, ProbeRecord, Vec<SensorEvent>) {
+) -> (Vec<PhaseEvent>, ProbeRecord) {
     let (mut phases, others) = collect_phases(sensor, n + 1, limit);
     phases.truncate(n);
     let mut probe = ProbeRecord::default();
     probe.extend(&others);
-    (phases, probe, others)
+    (phases, probe)
 }
 
 /// Worst cases over the checked phases.
@@ -187,23 +188,8 @@ pub fn check_probe(
         rises.push(edge);
     }
     let period = period_ns as i64;
-    for w in rises.windows(2) {
-        let d = w[1] as i64 - w[0] as i64;
-        if (d - period).abs() > 1_000 {
-            return Err(format!("trigger period {d} ns, not {period} ns"));
-        }
-        t.period_ns = (t.period_ns.0.min(d), t.period_ns.1.max(d));
-    }
-    if let (Some(first), Some(last)) = (rises.first(), rises.last()) {
-        t.drift_ns = (*last as i64 - *first as i64) - (rises.len() as i64 - 1) * period;
-        if t.drift_ns.abs() > 1_000 {
-            return Err(format!(
-                "trigger drift {} ns over {} edges",
-                t.drift_ns,
-                rises.len()
-            ));
-        }
-    }
+    t.period_ns = check_periods(&rises, period)?;
+    t.drift_ns = check_no_drift(&rises, period)?;
     Ok(t)
 }
 

@@ -5,12 +5,13 @@
 
 use std::time::Duration;
 
-use stereotac::device::Sensor;
+use stereotac::device::{Sensor, SensorEvent};
 use stereotac_protocol::{
-    Capabilities, Config, Mode, Phase, PhaseEvent, Request, Status, TriggerOutcome,
+    Capabilities, Config, Fault, FaultKind, Mode, Phase, PhaseEvent, Request, Status,
+    TriggerOutcome,
 };
 
-use crate::events::check_events;
+use crate::events::{check_events, collect_phases};
 use crate::probe::{ProbeRecord, collect_with_probe};
 
 /// Turn `r`'s error into a sentence naming what failed.
@@ -28,7 +29,7 @@ pub fn probe_on_if_present(s: &mut Sensor) -> Result<bool, String> {
 }
 
 /// Start `mode` with phases of `period_us`; returns the configuration in effect.
-fn start(s: &mut Sensor, mode: Mode, period_us: u32) -> Result<Config, String> {
+pub fn start(s: &mut Sensor, mode: Mode, period_us: u32) -> Result<Config, String> {
     let mut config = step("GetConfig", s.config())?;
     config.timing.phase_period_us = period_us;
     step("SetTiming", s.request(Request::SetTiming(config.timing)))?;
@@ -84,7 +85,7 @@ pub fn run_period_change(s: &mut Sensor) -> Result<PeriodChangeRun, String> {
     let mut probe = ProbeRecord::default();
     let interleaved_config = start(s, Mode::Interleaved, 100_000)?;
     let mut config = interleaved_config;
-    let (interleaved, p, _) = collect_with_probe(s, 12, Duration::from_secs(20));
+    let (interleaved, p) = collect_with_probe(s, 12, Duration::from_secs(20));
     probe.extend_from(&p);
     if interleaved.len() < 12 {
         return Err(format!("{} of 12 interleaved phases", interleaved.len()));
@@ -94,7 +95,7 @@ pub fn run_period_change(s: &mut Sensor) -> Result<PeriodChangeRun, String> {
     config.timing.phase_period_us = 50_000;
     step("SetTiming", s.request(Request::SetTiming(config.timing)))?;
     let changed_config = step("GetConfig", s.config())?;
-    let (after, p, _) = collect_with_probe(s, 14, Duration::from_secs(5));
+    let (after, p) = collect_with_probe(s, 14, Duration::from_secs(5));
     probe.extend_from(&p);
     // The phases that started after the change (the first may still be the old plan).
     let changed: Vec<PhaseEvent> = after
@@ -113,7 +114,7 @@ pub fn run_period_change(s: &mut Sensor) -> Result<PeriodChangeRun, String> {
 
     step("SetMode", s.request(Request::SetMode(Mode::Vision)))?;
     step("Start", s.request(Request::Start))?;
-    let (events, p, _) = collect_with_probe(s, 8, Duration::from_secs(5));
+    let (events, p) = collect_with_probe(s, 8, Duration::from_secs(5));
     probe.extend_from(&p);
     let vision: Vec<PhaseEvent> = events
         .iter()
@@ -144,6 +145,43 @@ pub fn run_period_change(s: &mut Sensor) -> Result<PeriodChangeRun, String> {
     })
 }
 
+/// Polls for the first `n` phases that began after `resumed_us` on the host clock (when
+/// the host read again: the events it missed are behind them), and the probe events
+/// that came with them. Too few within `limit` is an error.
+fn collect_phases_after(
+    s: &mut Sensor,
+    resumed_us: u64,
+    n: usize,
+    limit: Duration,
+) -> Result<(Vec<PhaseEvent>, ProbeRecord), String> {
+    let end = s.clock().now_us() + limit.as_micros() as u64;
+    let mut after = Vec::new();
+    let mut probe = ProbeRecord::default();
+    // One more phase than asked for: its event comes after the last checked phase's
+    // probe events.
+    while after.len() <= n {
+        if s.clock().now_us() >= end {
+            return Err(format!(
+                "{} phases began after the host read again, within {limit:?}",
+                after.len()
+            ));
+        }
+        for e in step("poll", s.poll(Duration::from_millis(50)))? {
+            match e {
+                SensorEvent::Phase(p) => {
+                    let began = s.to_host(p.event.scheduled_us);
+                    if began.is_some_and(|h| h >= resumed_us as f64) {
+                        after.push(p.event);
+                    }
+                }
+                other => probe.extend([&other]),
+            }
+        }
+    }
+    after.truncate(n);
+    Ok((after, probe))
+}
+
 /// What [`run_not_reading`] saw.
 #[derive(Debug, Clone)]
 pub struct NotReadingRun {
@@ -162,7 +200,8 @@ pub struct NotReadingRun {
 }
 
 /// Gradient mode at 50 Hz; after 5 phases the host stops reading for as long as
-/// `stall` takes (it must not send anything either), then reads 5 more. The device
+/// `stall` takes (it must not send anything either), then reads again and takes the
+/// first 5 phases that began after that, past the dropped events. The device
 /// must have dropped and counted events, the host must see at least as many lost,
 /// with no overrun, and the phases after must sit on the same `t0 + k·T` grid as the
 /// ones before with one trigger per phase in between. Leaves the sensor stopped.
@@ -171,9 +210,10 @@ pub fn run_not_reading(
     stall: impl FnOnce(&mut Sensor),
 ) -> Result<NotReadingRun, String> {
     let config = start(s, Mode::Gradient, 20_000)?;
-    let (before, mut probe, _) = collect_with_probe(s, 5, Duration::from_secs(5));
+    let (before, mut probe) = collect_with_probe(s, 5, Duration::from_secs(5));
     stall(s);
-    let (after, p, _) = collect_with_probe(s, 5, Duration::from_secs(5));
+    let resumed_us = s.clock().now_us();
+    let (after, p) = collect_phases_after(s, resumed_us, 5, Duration::from_secs(5))?;
     probe.extend_from(&p);
     step("Stop", s.request(Request::Stop))?;
     let status = step("status", s.status())?;
@@ -227,4 +267,44 @@ pub fn run_not_reading(
         lost,
         probe,
     })
+}
+
+/// What [`run_host_silence`] saw.
+#[derive(Debug, Clone)]
+pub struct HostSilenceRun {
+    /// The host-timeout fault.
+    pub fault: Fault,
+    /// What the probe saw, before and after the fault (empty without a probe).
+    pub probe: ProbeRecord,
+}
+
+/// Contact-shape mode (all strips lit) with a 300 ms host timeout; after 2 phases the
+/// host says nothing for as long as `silence` takes (no requests, no clock pings), then
+/// reads for 300 ms of its clock. The sensor must have reported a host-timeout fault.
+/// The host timeout stays at 300 ms; the sequencer is stopped by the fault.
+pub fn run_host_silence(
+    s: &mut Sensor,
+    silence: impl FnOnce(&mut Sensor),
+) -> Result<HostSilenceRun, String> {
+    step("SetHostTimeout", s.request(Request::SetHostTimeout(300)))?;
+    step("SetMode", s.request(Request::SetMode(Mode::ContactShape)))?;
+    step("Start", s.request(Request::Start))?;
+    let (_, others) = collect_phases(s, 2, Duration::from_secs(20));
+    let mut probe = ProbeRecord::default();
+    probe.extend(&others);
+    silence(s);
+    let mut events = Vec::new();
+    let end = s.clock().now_us() + 300_000;
+    while s.clock().now_us() < end {
+        events.extend(step("poll", s.poll(Duration::from_millis(50)))?);
+    }
+    probe.extend(&events);
+    let fault = events
+        .iter()
+        .find_map(|e| match e {
+            SensorEvent::Fault(f, _) if f.kind == FaultKind::HostTimeout => Some(*f),
+            _ => None,
+        })
+        .ok_or("no host-timeout fault after the silence")?;
+    Ok(HostSilenceRun { fault, probe })
 }

@@ -12,16 +12,18 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, MonotonicClock};
-use stereotac::device::SensorEvent;
 use stereotac::device::{Sensor, SensorConfig};
 use stereotac::transport::usb::UsbConnector;
-use stereotac_hil_tests::events::{check_events, collect_phases};
+use stereotac_hil_tests::events::check_events;
 use stereotac_hil_tests::probe::{
     ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
 };
-use stereotac_hil_tests::scenarios::{check_malformed_frames, run_not_reading, run_period_change};
+use stereotac_hil_tests::scenarios::{
+    check_malformed_frames, probe_on_if_present, run_host_silence, run_not_reading,
+    run_period_change,
+};
 use stereotac_hil_tests::setup::{Target, target};
-use stereotac_protocol::{Capabilities, Config, FaultKind, Mode, PhaseEvent, Request, Timing};
+use stereotac_protocol::{Config, Mode, PhaseEvent, Request, Timing};
 
 const WIRING: &str = "is GPIO6 wired to GPIO7 and GPIO2 to GPIO8 (README)?";
 
@@ -41,21 +43,25 @@ fn sensor() -> Option<Sensor> {
     Some(sensor)
 }
 
-/// `n` consecutive phase events of a run of `mode` at `timing`; the sensor's mode and
-/// timing are put back afterwards.
-fn run(sensor: &mut Sensor, mode: Mode, timing: Timing, n: usize) -> Vec<PhaseEvent> {
+/// `n` consecutive phase events of a run of `mode` at `timing`, what the probe saw of
+/// them (nothing unless it was turned on) and the configuration in effect; the sensor's
+/// settings are put back afterwards.
+fn run(
+    sensor: &mut Sensor,
+    mode: Mode,
+    timing: Timing,
+    n: usize,
+) -> (Vec<PhaseEvent>, ProbeRecord, Config) {
     let before = sensor.config().unwrap();
     sensor.request(Request::SetMode(mode)).unwrap();
     sensor.request(Request::SetTiming(timing)).unwrap();
     sensor.request(Request::Start).unwrap();
-    let limit = Duration::from_micros(u64::from(timing.phase_period_us) * (n as u64 + 4));
-    let (mut events, _) = collect_phases(sensor, n, limit);
-    sensor.request(Request::Stop).unwrap();
-    sensor.request(Request::SetTiming(before.timing)).unwrap();
-    sensor.request(Request::SetMode(before.mode)).unwrap();
+    let config = sensor.config().unwrap();
+    let limit = Duration::from_micros(u64::from(timing.phase_period_us) * (n as u64 + 5));
+    let (events, probe) = collect_with_probe(sensor, n, limit);
+    put_back(sensor, &before);
     assert!(events.len() >= n, "{} of {n} phase events", events.len());
-    events.truncate(n);
-    events
+    (events, probe, config)
 }
 
 #[test]
@@ -72,7 +78,7 @@ fn answers_every_command() {
 #[test]
 fn gradient_mode_at_4_hz_keeps_its_promises() {
     let Some(mut s) = sensor() else { return };
-    let events = run(&mut s, Mode::Gradient, Timing::DEFAULT, 41);
+    let (events, _, _) = run(&mut s, Mode::Gradient, Timing::DEFAULT, 41);
     let t =
         check_events(&events, Mode::Gradient, &Timing::DEFAULT).unwrap_or_else(|e| panic!("{e}"));
     eprintln!("{t:?}");
@@ -85,14 +91,14 @@ fn interleaved_mode_at_10_hz_keeps_its_promises() {
         phase_period_us: 100_000,
         ..Timing::DEFAULT
     };
-    let events = run(&mut s, Mode::Interleaved, timing, 30);
+    let (events, _, _) = run(&mut s, Mode::Interleaved, timing, 30);
     check_events(&events, Mode::Interleaved, &timing).unwrap_or_else(|e| panic!("{e}"));
 }
 
 #[test]
 fn the_clock_sync_settles() {
     let Some(mut s) = sensor() else { return };
-    let events = run(&mut s, Mode::Vision, Timing::DEFAULT, 12);
+    let (events, _, _) = run(&mut s, Mode::Vision, Timing::DEFAULT, 12);
     assert_eq!(events.len(), 12);
     let fit = *s.clock_fit().expect("a clock fit after three seconds");
     // Full-speed USB: 1 ms frames bound the round trip, and the fit narrows below it.
@@ -104,35 +110,35 @@ fn the_clock_sync_settles() {
     );
 }
 
-/// Stops the sensor and puts back the probe, timing and mode of `before`.
+/// Stops the sensor and puts back the probe, host timeout, timing and mode of `before`.
 fn put_back(s: &mut Sensor, before: &Config) {
     s.request(Request::Stop).unwrap();
     s.request(Request::SetProbe(before.probe)).unwrap();
+    s.request(Request::SetHostTimeout(before.host_timeout_ms))
+        .unwrap();
     s.request(Request::SetTiming(before.timing)).unwrap();
     s.request(Request::SetMode(before.mode)).unwrap();
 }
 
-/// Turns the loopback probe on; a firmware without it fails the test.
-fn probe_on(sensor: &mut Sensor) {
+/// Runs `f` with the loopback probe on (a firmware without it fails the test), then puts
+/// the sensor's settings back, whatever `f` returned.
+fn with_probe<R>(s: &mut Sensor, f: impl FnOnce(&mut Sensor) -> R) -> R {
+    let before = s.config().unwrap();
+    let present = probe_on_if_present(s).unwrap_or_else(|e| panic!("{e}"));
     assert!(
-        sensor.info().capabilities.has(Capabilities::LOOPBACK_PROBE),
+        present,
         "this sensor's firmware has no loopback probe: flash the current firmware"
     );
-    sensor.request(Request::SetProbe(true)).unwrap();
+    let result = f(s);
+    put_back(s, &before);
+    result
 }
 
 #[test]
 fn the_probed_pins_keep_gradient_mode_at_4_hz_exact_and_lit_right() {
     let Some(mut s) = sensor() else { return };
-    let before = s.config().unwrap();
-    probe_on(&mut s);
-    s.request(Request::SetTiming(Timing::DEFAULT)).unwrap();
-    s.request(Request::SetMode(Mode::Gradient)).unwrap();
-    s.request(Request::Start).unwrap();
-    let (events, probe, _) = collect_with_probe(&mut s, 41, Duration::from_secs(15));
-    let config = s.config().unwrap();
-    put_back(&mut s, &before);
-    assert_eq!(events.len(), 41, "phase events");
+    let (events, probe, config) =
+        with_probe(&mut s, |s| run(s, Mode::Gradient, Timing::DEFAULT, 41));
     let t = check_probe(&events, &probe, &config, s.info().max_leds_per_strip)
         .unwrap_or_else(|e| panic!("{e}; {WIRING}"));
     eprintln!("{t:?}");
@@ -141,33 +147,12 @@ fn the_probed_pins_keep_gradient_mode_at_4_hz_exact_and_lit_right() {
 #[test]
 fn host_silence_turns_the_probed_strip_dark() {
     let Some(mut s) = sensor() else { return };
-    let before = s.config().unwrap();
-    probe_on(&mut s);
-    s.request(Request::SetHostTimeout(300)).unwrap();
-    s.request(Request::SetMode(Mode::ContactShape)).unwrap();
-    s.request(Request::Start).unwrap();
-    let (_, others) = collect_phases(&mut s, 2, Duration::from_secs(3));
-    let mut probe = ProbeRecord::default();
-    probe.extend(&others);
     // Say nothing for a second: no requests, no clock pings.
-    std::thread::sleep(Duration::from_secs(1));
-    let mut events = Vec::new();
-    let end = s.clock().now_us() + 300_000;
-    while s.clock().now_us() < end {
-        events.extend(s.poll(Duration::from_millis(50)).unwrap());
-    }
-    probe.extend(&events);
-    s.request(Request::SetHostTimeout(before.host_timeout_ms))
-        .unwrap();
-    put_back(&mut s, &before);
-    let fault = events
-        .iter()
-        .find_map(|e| match e {
-            SensorEvent::Fault(f, _) if f.kind == FaultKind::HostTimeout => Some(*f),
-            _ => None,
-        })
-        .expect("a host-timeout fault");
-    check_dark_after_fault(&probe, fault.at_us).unwrap_or_else(|e| panic!("{e}; {WIRING}"));
+    let run = with_probe(&mut s, |s| {
+        run_host_silence(s, |_| std::thread::sleep(Duration::from_secs(1)))
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    check_dark_after_fault(&run.probe, run.fault.at_us).unwrap_or_else(|e| panic!("{e}; {WIRING}"));
 }
 
 #[test]
@@ -180,11 +165,7 @@ fn malformed_frames_are_counted_and_the_sensor_keeps_answering() {
 #[test]
 fn interleaved_then_vision_with_the_period_changed_while_running() {
     let Some(mut s) = sensor() else { return };
-    let before = s.config().unwrap();
-    probe_on(&mut s);
-    let run = run_period_change(&mut s);
-    put_back(&mut s, &before);
-    let run = run.unwrap_or_else(|e| panic!("{e}"));
+    let run = with_probe(&mut s, run_period_change).unwrap_or_else(|e| panic!("{e}"));
     let frame_leds = s.info().max_leds_per_strip;
     for (events, config) in [
         (&run.interleaved, &run.interleaved_config),
@@ -199,13 +180,12 @@ fn interleaved_then_vision_with_the_period_changed_while_running() {
 #[test]
 fn a_host_that_stops_reading_loses_events_not_timing() {
     let Some(mut s) = sensor() else { return };
-    let before = s.config().unwrap();
-    probe_on(&mut s);
     // Neither reading nor writing for 2 s: the host library's few queued USB transfers
     // fill, then the sensor's queue does.
-    let run = run_not_reading(&mut s, |_| std::thread::sleep(Duration::from_secs(2)));
-    put_back(&mut s, &before);
-    let run = run.unwrap_or_else(|e| panic!("{e}"));
+    let run = with_probe(&mut s, |s| {
+        run_not_reading(s, |_| std::thread::sleep(Duration::from_secs(2)))
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
     let frame_leds = s.info().max_leds_per_strip;
     for events in [&run.before, &run.after] {
         check_probe(events, &run.probe, &run.config, frame_leds)

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use stereotac::device::{Sensor, SensorConfig, SensorEvent, hex};
+use stereotac::device::{Sensor, SensorConfig, hex};
 use stereotac_firmware::pins::PINS;
 use stereotac_firmware::sequencer::WS2812_RESET_US;
 use stereotac_hil_tests::emulator::{ControlOutcome, lock};
@@ -13,13 +13,15 @@ use stereotac_hil_tests::probe::{
     ProbeRecord, check_dark_after_fault, check_probe, collect_with_probe,
 };
 use stereotac_hil_tests::scenarios::{
-    check_malformed_frames, probe_on_if_present, run_not_reading, run_period_change,
+    HostSilenceRun, check_malformed_frames, probe_on_if_present, run_host_silence, run_not_reading,
+    run_period_change, start,
 };
 use stereotac_hil_tests::setup::{HOST_OFFSET_US, HOST_PPM, Rig, Target, target};
+use stereotac_hil_tests::trace::{check_no_drift, check_periods};
 use stereotac_hil_tests::ws2812::{Ws2812Frame, decode};
 use stereotac_protocol::{
-    Config, FaultKind, Mode, PROTOCOL_VERSION, Phase, PhaseEvent, Request, Response, Rgb,
-    TriggerOutcome, USB_PID, USB_VID,
+    Config, Mode, PROTOCOL_VERSION, Phase, PhaseEvent, Request, Response, Rgb, TriggerOutcome,
+    USB_PID, USB_VID,
 };
 
 fn rig() -> Option<Rig> {
@@ -54,18 +56,6 @@ fn frames_at(strips: &[Vec<Ws2812Frame>; 4], write_us: u64) -> [Ws2812Frame; 4] 
             .cloned()
             .unwrap_or_else(|| panic!("no frame on GPIO{} after {write_us} µs", PINS.strips[i]))
     })
-}
-
-/// Assert every interval between `rises` is `period_ns` within 1 µs; returns the shortest
-/// and longest.
-fn check_periods(rises: &[u64], period_ns: i64) -> (i64, i64) {
-    let mut range = (i64::MAX, i64::MIN);
-    for w in rises.windows(2) {
-        let d = w[1] as i64 - w[0] as i64;
-        assert!((d - period_ns).abs() <= 1_000, "trigger period {d} ns");
-        range = (range.0.min(d), range.1.max(d));
-    }
-    range
 }
 
 /// The colour of the strip's `leds` pixels when they all show one lit colour; the
@@ -169,15 +159,10 @@ fn check_phases(rig: &Rig, events: &[PhaseEvent], config: &Config, period_us: u6
     assert_eq!(rises.len(), events.len(), "one trigger edge per phase");
     let period_ns = period_us as i64 * 1000;
     let mut m = Measured {
-        period_ns: check_periods(&rises, period_ns),
+        period_ns: check_periods(&rises, period_ns).unwrap_or_else(|e| panic!("{e}")),
         ..Measured::default()
     };
-    let span = *rises.last().unwrap() as i64 - rises[0] as i64;
-    assert!(
-        (span - (rises.len() as i64 - 1) * period_ns).abs() <= 1_000,
-        "drift over {} phases: {span} ns",
-        rises.len()
-    );
+    check_no_drift(&rises, period_ns).unwrap_or_else(|e| panic!("{e}"));
     let settle_ns = u64::from(config.timing.led_settle_us) * 1000;
     let leds = usize::from(config.leds_per_strip);
     let strips = strip_frames(rig);
@@ -325,13 +310,9 @@ fn the_loopback_probe_sees_what_the_pins_show() {
     let Some(rig) = rig() else { return };
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
     assert_eq!(s.request(Request::SetProbe(true)).unwrap(), Response::Ack);
-    let mut config = config(&mut s);
+    let config = start(&mut s, Mode::Gradient, 50_000).unwrap_or_else(|e| panic!("{e}"));
     assert!(config.probe);
-    config.timing.phase_period_us = 50_000;
-    s.request(Request::SetTiming(config.timing)).unwrap();
-    s.request(Request::SetMode(Mode::Gradient)).unwrap();
-    s.request(Request::Start).unwrap();
-    let (events, probe, _) = collect_with_probe(&mut s, 16, Duration::from_secs(5));
+    let (events, probe) = collect_with_probe(&mut s, 16, Duration::from_secs(5));
     assert_eq!(events.len(), 16);
     let frame_leds = s.info().max_leds_per_strip;
     // The checks a bench sensor gets, from the probe alone.
@@ -396,26 +377,14 @@ fn the_loopback_probe_sees_what_the_pins_show() {
 fn host_silence_turns_the_leds_dark_and_reports_a_fault() {
     let Some(rig) = rig() else { return };
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
-    s.request(Request::SetHostTimeout(300)).unwrap();
-    s.request(Request::SetProbe(true)).unwrap();
-    let mut probe = ProbeRecord::default();
-    s.request(Request::SetMode(Mode::ContactShape)).unwrap();
-    s.request(Request::Start).unwrap();
-    let (_, others) = collect_phases(&mut s, 2, Duration::from_secs(20));
-    probe.extend(&others);
-    // From here on the host says nothing.
-    let silent_from_ns = lock(&rig.emulator).now_ns();
-    idle_for(&s, 1_500_000);
-    let events = s.poll(Duration::from_millis(50)).unwrap();
-    probe.extend(&events);
-    let fault = events
-        .iter()
-        .find_map(|e| match e {
-            SensorEvent::Fault(f, _) => Some(*f),
-            _ => None,
-        })
-        .expect("a fault event");
-    assert_eq!(fault.kind, FaultKind::HostTimeout);
+    assert!(probe_on_if_present(&mut s).unwrap());
+    let mut silent_from_ns = 0;
+    let HostSilenceRun { fault, probe } = run_host_silence(&mut s, |s| {
+        // From here on the host says nothing.
+        silent_from_ns = lock(&rig.emulator).now_ns();
+        idle_for(s, 1_500_000);
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
     let fault_ns = fault.at_us * 1000;
     // Checked every 100 ms: the timeout fires 300..400 ms after the last host message.
     assert!(
@@ -478,7 +447,7 @@ fn a_host_that_stops_reading_loses_events_not_timing() {
     let rises = lock(&rig.emulator).trace().trigger_rises_in(from..to);
     let expected = (to - from) / 20_000_000;
     assert_eq!(rises.len() as u64, expected, "trigger edges");
-    check_periods(&rises, 20_000_000);
+    check_periods(&rises, 20_000_000).unwrap_or_else(|e| panic!("{e}"));
     eprintln!(
         "not reading for 2 s: {} events dropped on the device, {} seen lost by the host, {} trigger edges at 20 ms",
         run.status.events_dropped,
