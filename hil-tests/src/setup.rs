@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::{Arc, Mutex, OnceLock};
 
-use stereotac::device::{Sensor, SensorConfig, SensorError, connect_once};
+use stereotac::device::{Sensor, SensorConfig, SensorError};
+use stereotac::transport::connect_once;
 
 use crate::emulator::{EmulatedClock, EmulatedTransport, Emulator, SharedEmulator, harness_dir};
 

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use stereotac::device::{Sensor, SensorConfig, hex};
+use stereotac::device::{Sensor, SensorConfig, serial_number};
 use stereotac_firmware::pins::PINS;
 use stereotac_firmware::sequencer::WS2812_RESET_US;
 use stereotac_hil_tests::emulator::{ControlOutcome, lock};
@@ -80,7 +80,7 @@ fn enumerates_handshakes_and_answers_every_command() {
     let mut s = rig.sensor(SensorConfig::default()).unwrap();
     assert_eq!(s.info().protocol_version, PROTOCOL_VERSION);
     assert_eq!(
-        hex(&s.info().board_id),
+        serial_number(&s.info().board_id),
         lock(&rig.emulator).enumeration().serial
     );
     let report = stereotac::selftest::run_command_checks(&mut s).unwrap();

@@ -3,11 +3,11 @@
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use stereotac::rng::Rng;
 use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
 use stereotac::tactile::poisson::{PoissonSolver, SolverKind};
-use stereotac::tactile::render::Rng;
 
 fn poisson(c: &mut Criterion) {
     let mut g = c.benchmark_group("poisson");

@@ -11,63 +11,16 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac_protocol::{
-    Config, DeviceInfo, DeviceMicros, Event, Fault, PhaseEvent, ProbeEvent, Request, Response,
-    Status, TriggerOutcome,
+    Config, DeviceInfo, DeviceMicros, Event, Fault, Mode, PhaseEvent, ProbeEvent, Request,
+    Response, Status, Timing, TriggerOutcome,
 };
 
 use crate::client::{Client, ClientError, LinkCounters};
 use crate::clock::{ClockFit, ClockSync, HostClock, HostMicros};
-use crate::transport::usb::OpenError;
-use crate::transport::{Transport, TransportError};
+use crate::transport::{BoxedTransport, Connector, OpenError, Transport, TransportError};
 
 /// Pings start at a random delay below this (one USB full-speed frame), µs.
 const PING_DITHER_US: u64 = 1000;
-
-/// A boxed transport, so one [`Sensor`] type serves USB, loopback and emulation.
-pub type BoxedTransport = Box<dyn Transport + Send>;
-
-/// Opens (and reopens) the transport to one sensor.
-///
-/// Any `FnMut() -> Result<BoxedTransport, OpenError>` closure is a `Connect`; a USB
-/// connector ([`crate::transport::usb::UsbConnector`]) also wakes the reconnect loop as
-/// soon as the operating system reports the sensor back (hotplug) instead of sleeping
-/// through the whole backoff delay.
-pub trait Connect: Send {
-    /// Open the transport.
-    fn open(&mut self) -> Result<BoxedTransport, OpenError>;
-    /// Wait before the next reconnect attempt: until `deadline` (host µs), or earlier
-    /// when the device is known to be back. The default sleeps on `clock`.
-    fn wait_for_device(&mut self, clock: &dyn HostClock, deadline: HostMicros) {
-        clock.sleep_until(deadline);
-    }
-}
-
-impl<F> Connect for F
-where
-    F: FnMut() -> Result<BoxedTransport, OpenError> + Send,
-{
-    fn open(&mut self) -> Result<BoxedTransport, OpenError> {
-        self()
-    }
-}
-
-/// A boxed [`Connect`].
-pub type Connector = Box<dyn Connect>;
-
-/// A connector that hands out `transport` once; later opens find no sensor, as after
-/// an unplug with nothing coming back (simulations, emulation, tests).
-pub fn connect_once(transport: impl Transport + Send + 'static) -> Connector {
-    let mut transport = Some(transport);
-    Box::new(move || {
-        transport
-            .take()
-            .map(|t| Box::new(t) as BoxedTransport)
-            .ok_or(OpenError::NotFound {
-                serial: None,
-                present: vec![],
-            })
-    })
-}
 
 /// Why a sensor operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -214,7 +167,7 @@ pub struct Sensor {
 impl std::fmt::Debug for Sensor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Sensor")
-            .field("board_id", &hex(&self.info.board_id))
+            .field("board_id", &serial_number(&self.info.board_id))
             .field("running", &self.running)
             .field("reconnects", &self.reconnects)
             .finish_non_exhaustive()
@@ -237,9 +190,28 @@ pub fn status_line(s: &Status) -> String {
     )
 }
 
-/// Upper-case hex, as the USB serial number.
+/// Bytes as lower-case hex.
 pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02X}")).collect()
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A board's serial number as its USB descriptor shows it: the board id in upper-case
+/// hex (what `--serial` takes and `devices` lists).
+pub fn serial_number(board_id: &[u8; 8]) -> String {
+    hex(board_id).to_uppercase()
+}
+
+/// The firmware version and build of `info`: `MAJOR.MINOR.PATCH (githash10[+dirty])`.
+pub fn firmware_version(info: &DeviceInfo) -> String {
+    let v = info.firmware_version;
+    format!(
+        "{}.{}.{} ({}{})",
+        v.major,
+        v.minor,
+        v.patch,
+        &hex(&info.git_hash)[..10],
+        if info.git_dirty { "+dirty" } else { "" }
+    )
 }
 
 impl Sensor {
@@ -454,8 +426,8 @@ impl Sensor {
         let info = client.handshake()?;
         if info.board_id != self.info.board_id {
             return Err(SensorError::DifferentBoard {
-                expected: hex(&self.info.board_id),
-                found: hex(&info.board_id),
+                expected: serial_number(&self.info.board_id),
+                found: serial_number(&info.board_id),
             });
         }
         self.client = client;
@@ -484,5 +456,18 @@ impl Sensor {
             Response::Status(s) => Ok(s),
             other => Err(ClientError::UnexpectedReply(Box::new(other)).into()),
         }
+    }
+
+    /// Starts the lighting sequence in `mode` with phases `period_us` long (the trigger
+    /// pulse and LED settle time stay as the device has them).
+    pub fn start_sequence(&mut self, mode: Mode, period_us: u32) -> Result<(), SensorError> {
+        let timing = Timing {
+            phase_period_us: period_us,
+            ..self.config()?.timing
+        };
+        self.request(Request::SetTiming(timing))?;
+        self.request(Request::SetMode(mode))?;
+        self.request(Request::Start)?;
+        Ok(())
     }
 }

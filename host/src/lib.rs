@@ -1,33 +1,43 @@
 //! # stereotac (host library)
 //!
-//! The host side of the stereotac visuotactile sensor.
+//! The host side of the stereotac visuotactile sensor. The `stereotac` CLI
+//! (`src/bin/stereotac/`) is a thin layer over it: one command a file, parsing arguments
+//! and printing; everything else lives here.
 //!
-//! * [`sim`]: a simulated sensor that runs the firmware's own command handling and
-//!   sequencer on a virtual clock, behind the real wire framing. It is the device end of
-//!   the in-memory link used by the demo and the tests.
-//! * [`transport`]: byte pipes to a sensor: USB (nusb), the in-memory loopback with
-//!   simulated USB timing and a drifting device clock.
-//! * [`client`]: the protocol client over any transport (request/reply matching,
-//!   handshake with version check, time-sync pings, event collection).
-//! * [`clock`]: host clocks and the device→host clock sync.
-//! * [`device`]: a connected sensor: events on the host clock, reconnect with backoff.
-//! * [`selftest`]: command conformance of any connected sensor (`stereotac selftest`).
-//! * [`matcher`]: which LED phase lit each camera frame.
-//! * [`frames`]: frame sources (simulated camera, replay), live capture, recording.
-//! * [`tactile`]: photometric-stereo reconstruction.
-//! * [`uf2`]: converts the firmware ELF into a UF2 image for drag-and-drop flashing and
-//!   reports its flash and RAM footprint.
+//! From the foundations up (a module uses only those above it in this list):
+//!
+//! * Shared foundations: [`grid`] (row-major 2-D arrays), [`rng`] (a deterministic
+//!   random generator), [`timing`] (median timings for the benchmarks), [`output`] (NPY,
+//!   PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
+//!   (firmware ELF to UF2 image, flash and RAM footprint).
+//! * The link: [`transport`] (byte pipes to a sensor: USB through nusb or libusb; owns
+//!   [`transport::Transport`] and the connectors), [`client`] (the protocol client:
+//!   request/reply matching, handshake, time-sync pings, event collection), [`device`]
+//!   (a connected sensor: events on the host clock, reconnect with backoff),
+//!   [`describe`] (protocol values in plain words and JSON), [`selftest`] (command
+//!   conformance of any connected sensor).
+//! * Frames: [`matcher`] (which LED phase lit each camera frame), [`frames`] (frame
+//!   sources, live capture, recording and replay).
+//! * Pipelines: [`tactile`] (photometric stereo: dx/dy images to depth of the imprint),
+//!   [`stereo`] (stereo depth through the skin: calibration, rectification, matching,
+//!   point clouds, evaluation).
+//! * [`sim`]: the simulated sensor, its USB link and its camera, one place: test inputs
+//!   and the demo's data, reached through the same code paths as hardware.
 #![warn(missing_docs)]
 
 pub mod client;
 pub mod clock;
+pub mod describe;
 pub mod device;
 pub mod frames;
+pub mod grid;
 pub mod matcher;
 pub mod output;
+pub mod rng;
 pub mod selftest;
 pub mod sim;
 pub mod stereo;
 pub mod tactile;
+pub mod timing;
 pub mod transport;
 pub mod uf2;

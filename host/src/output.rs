@@ -1,12 +1,13 @@
 //! Files people open elsewhere, shared by the tactile and stereo pipelines: NumPy
 //! `.npy` (f32, H×W), 16-bit grey PNG at a chosen scale, false-colour PNG, and binary
-//! PLY point clouds; and reading `.npy` arrays back.
+//! PLY point clouds; 8-bit grey images (the stereo pipeline's input and rectified views);
+//! and reading `.npy` arrays and grey images back.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -49,6 +50,28 @@ fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '
         path: path.to_path_buf(),
         source,
     }
+}
+
+/// Reads an image as 8-bit grey (colour is converted to luma).
+pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
+    let img = image::open(path).map_err(image_error(path))?.into_luma8();
+    let (w, h) = img.dimensions();
+    Grid::from_vec(w as usize, h as usize, img.into_raw()).ok_or_else(|| OutputError::Format {
+        path: path.to_path_buf(),
+        why: format!("a {w}×{h} image whose pixels do not fill it"),
+    })
+}
+
+/// Writes `grid` as an 8-bit grey PNG.
+pub fn write_grey_png(path: &Path, grid: &Grid<u8>) -> Result<(), OutputError> {
+    image::GrayImage::from_raw(
+        grid.width() as u32,
+        grid.height() as u32,
+        grid.as_slice().to_vec(),
+    )
+    .expect("a grid holds width × height pixels")
+    .save(path)
+    .map_err(image_error(path))
 }
 
 /// Writes `grid` as a little-endian f32 `.npy` array of shape `(height, width)`.

@@ -15,6 +15,7 @@ use stereotac_protocol::{
 };
 
 use crate::client::ClientError;
+use crate::describe;
 use crate::device::{Sensor, SensorError};
 
 /// One check and its outcome.
@@ -119,9 +120,9 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
     for request in requests {
         let answer = sensor.request(request);
         report.record(
-            format!("{request:?} acknowledged"),
+            format!("{} acknowledged", describe::request(&request)),
             matches!(answer, Ok(Response::Ack)),
-            format!("{answer:?}"),
+            describe::answer(&answer),
         );
     }
     let config = sensor.config()?;
@@ -142,13 +143,17 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
     report.record(
         "configuration reads back as set",
         config == expected,
-        format!("read {config:?}, expected {expected:?}"),
+        format!(
+            "read {}, expected {}",
+            describe::config_line(&config),
+            describe::config_line(&expected)
+        ),
     );
     let time = sensor.request(Request::TimeSync);
     report.record(
-        "TimeSync answered with the device time",
+        "time sync answered with the device time",
         matches!(time, Ok(Response::Time(_))),
-        format!("{time:?}"),
+        describe::answer(&time),
     );
     let infeasible = Timing {
         phase_period_us: 1500,
@@ -190,9 +195,9 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
         let ok = matches!(&answer, Err(SensorError::Client(ClientError::Device(e))) if wanted(e));
         refused += u32::from(ok);
         report.record(
-            format!("{request:?} refused with {name}"),
+            format!("{} refused with {name}", describe::request(&request)),
             ok,
-            format!("{answer:?}"),
+            describe::answer(&answer),
         );
     }
     sensor.request(Request::SetMode(Mode::Off))?;
@@ -205,9 +210,9 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
     );
     refused += u32::from(ok);
     report.record(
-        "Start with mode Off refused with InvalidState",
+        "start with mode off refused with InvalidState",
         ok,
-        format!("{answer:?}"),
+        describe::answer(&answer),
     );
     let rejected = sensor.status()?.requests_rejected - rejected_before;
     report.record(
@@ -223,7 +228,11 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
             power_scale: original.power_scale,
             ..after
         } == original,
-        format!("now {after:?}, was {original:?}"),
+        format!(
+            "now {}, was {}",
+            describe::config_line(&after),
+            describe::config_line(&original)
+        ),
     );
     Ok(report)
 }

@@ -5,14 +5,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, VirtualClock};
-use stereotac::device::{Sensor, SensorConfig, connect_once};
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
 use stereotac::frames::replay::{Recorder, ReplaySource};
-use stereotac::frames::sim::{PhaseImages, SimClocking, SimulatedCamera};
 use stereotac::matcher::{CameraSync, Label, MatcherConfig};
+use stereotac::sim::camera::{PhaseImages, SimClocking, SimulatedCamera};
+use stereotac::sim::link::LoopbackConfig;
 use stereotac::tactile::render::{Optics, builtin_scenes};
-use stereotac::transport::loopback::{Loopback, LoopbackConfig};
 use stereotac_protocol::{Mode, Phase, Request};
 
 /// A triggered camera 40 µs after the edge, and the matcher that expects it.
@@ -38,21 +37,16 @@ struct Run {
 
 fn run(mode: Mode, (clocking, sync): (SimClocking, CameraSync), drop_every: Option<u64>) -> Run {
     let clock = VirtualClock::starting_at(5_000_000);
-    let link = Loopback::new(
+    let rig = stereotac::sim::connect(
         [3; 8],
         Arc::new(clock.clone()),
         LoopbackConfig {
             drift_ppm: 40.0,
             ..LoopbackConfig::default()
         },
-    );
-    let timeline = link.timeline();
-    let mut sensor = Sensor::connect(
-        connect_once(link),
-        Arc::new(clock.clone()),
-        SensorConfig::default(),
     )
     .unwrap();
+    let (mut sensor, timeline) = (rig.sensor, rig.timeline);
     let images = images();
     let mut camera = SimulatedCamera::new(
         timeline,

@@ -60,7 +60,15 @@ fn info_stream_set_and_record_against_the_simulated_sensor() {
     let (ok, _, err) = stereotac(&["--sim", "set", "--leds", "0"]);
     assert!(!ok && err.contains("invalid value for LED count"), "{err}");
     let (ok, out, err) = stereotac(&["--sim", "set", "--period-ms", "100", "--mode", "vision"]);
-    assert!(ok && out.contains("SetMode(Vision)"), "{err}");
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("ok: set mode vision") && out.contains("period 100000 µs"),
+        "{out}"
+    );
+    assert!(
+        !out.contains("SetMode") && !out.contains('{'),
+        "debug text: {out}"
+    );
 
     let dir = std::env::temp_dir().join(format!("stereotac-cli-rec-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -156,4 +164,56 @@ fn cameras_and_backends_this_build_lacks_are_refused_with_the_fix() {
     assert!(!ok && err.contains("cannot be used with"), "{err}");
     let (ok, _, err) = stereotac(&["--sim", "record", "--out", "/tmp/x", "--size", "64"]);
     assert!(!ok && err.contains("640x480"), "{err}");
+}
+
+#[test]
+fn sensor_options_belong_to_the_sensor_commands_and_json_is_json() {
+    // Before the command word, accepted for sensor commands and refused for the others.
+    let (ok, _, err) = stereotac(&[
+        "--sim",
+        "calibrate",
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        "/nonexistent/model.json",
+        "/nonexistent",
+    ]);
+    assert!(!ok && err.contains("does not talk to a sensor"), "{err}");
+    // After it, only the sensor commands know them.
+    let (ok, _, err) = stereotac(&["stereo-eval", "--sim"]);
+    assert!(!ok && err.contains("unexpected argument '--sim'"), "{err}");
+    let (ok, help, _) = stereotac(&["reconstruct", "--help"]);
+    assert!(ok && !help.contains("--sim"), "{help}");
+    let (ok, help, _) = stereotac(&["stream", "--help"]);
+    assert!(
+        ok && help.contains("--sim") && help.contains("--serial"),
+        "{help}"
+    );
+
+    let (ok, out, err) = stereotac(&["info", "--sim", "--json"]);
+    assert!(ok, "{err}");
+    let info: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(info["config"]["mode"], "off", "{out}");
+    assert_eq!(info["config"]["strips"][0]["strip"], 1, "{out}");
+    assert_eq!(info["config"]["strips"][0]["side"], "x−", "{out}");
+    assert!(info["status"]["phases"].is_u64(), "{out}");
+    assert!(
+        !out.contains("Config {") && !out.contains("XMinus"),
+        "{out}"
+    );
+
+    let (ok, out, err) = stereotac(&["--sim", "selftest", "--json"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let names: Vec<&str> = report["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert!(names.contains(&"set strip 4 (y+): colour #c80000, brightness 90 acknowledged"));
+    assert!(
+        names.iter().all(|n| !n.contains('{') && !n.contains("Set")),
+        "{names:?}"
+    );
 }

@@ -6,9 +6,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use stereotac::clock::{HostClock, VirtualClock};
-use stereotac::device::{Connector, Sensor, SensorConfig, SensorError, SensorEvent, connect_once};
-use stereotac::transport::loopback::{LedTimeline, Loopback, LoopbackConfig, PlugHandle};
-use stereotac::transport::usb::OpenError;
+use stereotac::device::{Sensor, SensorConfig, SensorError, SensorEvent};
+use stereotac::sim::SimulatedRig;
+use stereotac::sim::link::{LedTimeline, Loopback, LoopbackConfig, PlugHandle};
+use stereotac::transport::{Connector, OpenError};
 use stereotac_protocol::*;
 
 const BOARD: [u8; 8] = [0xE6, 0x61, 0x41, 0x04, 0x03, 0x2F, 0x1A, 0x2B];
@@ -22,15 +23,11 @@ struct Rig {
 
 fn rig(config: LoopbackConfig) -> Rig {
     let clock = VirtualClock::starting_at(10_000_000);
-    let link = Loopback::new(BOARD, Arc::new(clock.clone()), config);
-    let plug = link.plug_handle();
-    let timeline = link.timeline();
-    let sensor = Sensor::connect(
-        connect_once(link),
-        Arc::new(clock.clone()),
-        SensorConfig::default(),
-    )
-    .expect("connect");
+    let SimulatedRig {
+        sensor,
+        timeline,
+        plug,
+    } = stereotac::sim::connect(BOARD, Arc::new(clock.clone()), config).expect("connect");
     Rig {
         clock,
         plug,

@@ -3,7 +3,7 @@
 use std::time::Duration;
 
 use stereotac::client::{Client, ClientError};
-use stereotac::sim::SimulatedSensor;
+use stereotac::sim::sensor::SimulatedSensor;
 use stereotac::transport::{Transport, TransportError};
 use stereotac_protocol::*;
 

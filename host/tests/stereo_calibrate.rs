@@ -18,10 +18,10 @@ fn without_the_feature_the_command_says_how_to_get_it() {
 mod with_the_feature {
     use super::common::{stereo_from_files, stereotac, temp_dir};
     use serde_json::Value;
+    use stereotac::grid::Grid;
     use stereotac::output::read_npy;
     use stereotac::stereo::StereoCalibration;
     use stereotac::stereo::synthetic::{Membrane, RawRig, TexturedPlane, wide_fisheye_calibration};
-    use stereotac::tactile::grid::Grid;
 
     fn save(path: &std::path::Path, g: &Grid<u8>) {
         image::GrayImage::from_raw(g.width() as u32, g.height() as u32, g.as_slice().to_vec())

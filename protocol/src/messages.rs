@@ -262,6 +262,36 @@ impl Strip {
     pub const fn index(self) -> usize {
         self as usize
     }
+
+    /// The strip's number, 1 to 4: its one name on the board, in the docs and the CLI.
+    pub const fn number(self) -> u8 {
+        self as u8 + 1
+    }
+
+    /// The strip numbered `n` (1 to 4).
+    pub const fn from_number(n: u8) -> Option<Strip> {
+        match n {
+            1..=4 => Some(Self::ALL[(n - 1) as usize]),
+            _ => None,
+        }
+    }
+
+    /// The side of the skin it lights: `x−`, `y−`, `x+` or `y+`.
+    pub const fn side(self) -> &'static str {
+        match self {
+            Strip::XMinus => "x−",
+            Strip::YMinus => "y−",
+            Strip::XPlus => "x+",
+            Strip::YPlus => "y+",
+        }
+    }
+}
+
+/// `strip N (side)`, e.g. `strip 1 (x−)`.
+impl core::fmt::Display for Strip {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "strip {} ({})", self.number(), self.side())
+    }
 }
 
 wire_type! {

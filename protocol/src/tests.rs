@@ -212,3 +212,16 @@ mod postcard {
         ::postcard::to_slice(value, &mut buf).unwrap().to_vec()
     }
 }
+
+/// Strips are numbered 1 to 4 in wiring order, and the number names them back.
+#[test]
+fn strip_numbers_follow_the_wiring_order() {
+    for (i, strip) in Strip::ALL.into_iter().enumerate() {
+        assert_eq!(usize::from(strip.number()), i + 1);
+        assert_eq!(Strip::from_number(strip.number()), Some(strip));
+    }
+    assert_eq!(Strip::from_number(0), None);
+    assert_eq!(Strip::from_number(5), None);
+    assert_eq!(Strip::XMinus.to_string(), "strip 1 (x−)");
+    assert_eq!(Strip::YPlus.to_string(), "strip 4 (y+)");
+}

@@ -10,6 +10,9 @@ use std::time::Duration;
 
 use super::{Frame, FrameError, FrameSource};
 use crate::device::{Sensor, SensorError, SensorEvent};
+use stereotac_protocol::Phase;
+
+use crate::clock::HostMicros;
 use crate::matcher::{FrameMatcher, Label, MatchStats, MatchedFrame, MatcherConfig};
 
 /// Why a capture step failed.
@@ -40,6 +43,18 @@ pub struct Step {
     /// Frames labelled in this step.
     pub frames: Vec<LabelledFrame>,
 }
+
+/// A dx frame and the dy frame labelled right after it: one photometric-stereo input.
+#[derive(Debug, Clone)]
+pub struct GradientPair {
+    /// The frame lit by strips 1 and 3.
+    pub dx: LabelledFrame,
+    /// The frame lit by strips 2 and 4.
+    pub dy: LabelledFrame,
+}
+
+/// How often [`Capture::next_gradient_pair`] polls the sensor.
+const PAIR_POLL: Duration = Duration::from_millis(20);
 
 /// A live capture (see the module documentation).
 #[derive(Debug)]
@@ -97,6 +112,41 @@ impl<S: FrameSource> Capture<S> {
         }
         let decided = self.matcher.ready();
         Ok(self.attach(decided))
+    }
+
+    /// Capture until the matcher has labelled a dx frame followed directly by a dy
+    /// frame, both exposed at or after `since_us` (host clock); `None` when the host
+    /// clock reaches `until_us` first. A dy without its dx, or a frame the matcher could
+    /// not label, starts the search over.
+    pub fn next_gradient_pair(
+        &mut self,
+        sensor: &mut Sensor,
+        since_us: HostMicros,
+        until_us: HostMicros,
+    ) -> Result<Option<GradientPair>, CaptureError> {
+        let mut dx: Option<LabelledFrame> = None;
+        while sensor.clock().now_us() < until_us {
+            for frame in self.step(sensor, PAIR_POLL)?.frames {
+                if frame.frame.stamp.timestamp_us < since_us as f64 {
+                    continue; // exposed before the caller's moment
+                }
+                let phase = match frame.label {
+                    Label::Phase { phase, .. } => Some(phase),
+                    _ => None,
+                };
+                match (phase, dx.take()) {
+                    (Some(Phase::Dx), _) => dx = Some(frame),
+                    (Some(Phase::Dy), Some(first)) => {
+                        return Ok(Some(GradientPair {
+                            dx: first,
+                            dy: frame,
+                        }));
+                    }
+                    _ => {}
+                }
+            }
+        }
+        Ok(None)
     }
 
     /// Label every frame still pending (end of capture).

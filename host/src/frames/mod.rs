@@ -7,7 +7,6 @@
 
 pub mod capture;
 pub mod replay;
-pub mod sim;
 #[cfg(all(feature = "v4l2", target_os = "linux"))]
 pub mod v4l2;
 

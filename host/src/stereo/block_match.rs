@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use super::prefilter;
 use super::speckle::filter_speckles;
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// How the sub-pixel offset is fitted to the costs at `d − 1`, `d`, `d + 1`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

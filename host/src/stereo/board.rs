@@ -9,11 +9,11 @@
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use super::calib::StereoCalibration;
+use super::calibration::StereoCalibration;
 use super::scene::{self, Membrane, Surface};
 use super::synthetic::RawRig;
-use crate::tactile::grid::Grid;
-use crate::tactile::render::Rng;
+use crate::grid::Grid;
+use crate::rng::Rng;
 
 /// A checkerboard target.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -24,7 +24,7 @@ use super::rectify::Rectification;
 use super::synthetic::{
     Membrane, Plane, RawRig, StereoRig, TexturedPlane, render_pair, wide_fisheye_calibration,
 };
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// A rectangle of pixels: columns `x0..x1`, rows `y0..y1`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

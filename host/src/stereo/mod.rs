@@ -4,9 +4,11 @@
 //!
 //! - [`yaml`]: the YAML subset calibration files use.
 //! - [`camera`]: camera matrix and lens models (Brown–Conrady, Kannala–Brandt).
-//! - [`calib`]: OpenCV stereo YAML and ROS `camera_info` pairs.
+//! - [`calibration`]: the stereo calibration, read from and written to OpenCV stereo YAML
+//!   and ROS `camera_info` pairs.
 //! - [`board`]: checkerboard targets and built-in views of them.
-//! - `calibrate` (feature `calibrate`): stereo calibration from checkerboard pairs.
+//! - `board_calibration` (feature `calibrate`): the solver that calibrates a stereo pair
+//!   from checkerboard images.
 //! - [`rectify`]: Bouguet rectification and fixed-point remap tables.
 //! - [`prefilter`], [`block_match`], [`speckle`]: disparity by block matching.
 //! - [`postfilter`]: spatial, temporal and hole-filling filters on disparity.
@@ -15,15 +17,21 @@
 //! - [`scene`]: renders surfaces through a calibrated camera, lens model and all.
 //! - [`synthetic`]: built-in captures of textured targets behind the skin.
 //! - [`eval`]: Z-accuracy, RMS error, temporal noise and fill rate of flat targets.
+//! - [`output`]: a processed frame's files (depth and disparity as NPY and PNG, point
+//!   cloud as PLY, `summary.json`).
+//! - [`bench`]: the stereo benchmark (remap, matching per kernel, the whole frame,
+//!   OpenCV's StereoBM in the same run).
 
+pub mod bench;
 pub mod block_match;
 pub mod board;
-pub mod calib;
 #[cfg(feature = "calibrate")]
-pub mod calibrate;
+pub mod board_calibration;
+pub mod calibration;
 pub mod camera;
 pub mod eval;
 pub mod outliers;
+pub mod output;
 pub mod pipeline;
 pub mod postfilter;
 pub mod prefilter;
@@ -35,7 +43,7 @@ pub mod synthetic;
 pub mod yaml;
 
 pub use block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
-pub use calib::{CalibError, StereoCalibration};
+pub use calibration::{CalibError, StereoCalibration};
 pub use camera::{Camera, Distortion};
 pub use pipeline::{StereoConfig, StereoError, StereoFrame, StereoPipeline};
 pub use rectify::{Rectification, RectifyError, RemapTable};

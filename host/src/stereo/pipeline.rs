@@ -7,12 +7,12 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, BlockMatcher, MatchError, MatchStats};
-use super::calib::StereoCalibration;
+use super::calibration::StereoCalibration;
 use super::outliers::{OutlierParams, statistical_inliers};
 use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
 use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
 use super::reproject::{PointCloud, depth_from_disparity, reproject};
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// How the pipeline runs. [`Default`] suits the sensor: depths 5–60 cm, the matcher's
 /// defaults, the spatial filter on, the rest off.

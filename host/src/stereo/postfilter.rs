@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// Edge-preserving smoothing: recursive exponential passes left→right, right→left,
 /// top→bottom and bottom→top that mix a pixel with its filtered neighbour only where the

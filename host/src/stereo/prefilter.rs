@@ -4,7 +4,7 @@
 //! texture measure, the window sum of `|response − cap|`, below which a window has too
 //! little structure to match.
 
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// The x-Sobel response of `image`, clamped to `±cap` and offset by `cap`.
 ///

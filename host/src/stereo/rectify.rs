@@ -14,7 +14,7 @@
 
 use nalgebra::{Matrix3, Matrix3x4, Matrix4, Rotation3, Vector3};
 
-use super::calib::StereoCalibration;
+use super::calibration::StereoCalibration;
 use super::camera::Camera;
 
 /// Why a pair cannot be rectified.
@@ -278,7 +278,7 @@ mod tests {
     use nalgebra::Vector4;
 
     use super::*;
-    use crate::stereo::calib::tests::sensor_pair;
+    use crate::stereo::calibration::tests::sensor_pair;
     use crate::stereo::camera::Distortion;
 
     fn points() -> Vec<Vector3<f64>> {

@@ -5,7 +5,7 @@
 
 use nalgebra::Matrix4;
 
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// Depth (mm) per pixel from disparity (px): `focal_px · baseline / d`.
 pub fn depth_from_disparity(disparity: &Grid<f32>, focal_px: f64, baseline: f64) -> Grid<f32> {

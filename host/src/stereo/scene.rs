@@ -15,8 +15,8 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::camera::Camera;
-use crate::tactile::grid::Grid;
-use crate::tactile::render::Rng;
+use crate::grid::Grid;
+use crate::rng::Rng;
 
 /// The rays through every pixel corner of a camera, computed once.
 #[derive(Debug, Clone)]

@@ -3,7 +3,7 @@
 //! most `max_size` pixels are mismatches on repeated texture or noise and are
 //! invalidated (set to NaN). One pass over the image, O(pixels).
 
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// Invalidates small regions in `disparity` (NaN = invalid, 4-connected); returns how
 /// many pixels it invalidated. `max_size = 0` does nothing.

@@ -13,9 +13,9 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Vector3};
 
-use super::calib::StereoCalibration;
+use super::calibration::StereoCalibration;
 use super::camera::{Camera, Distortion};
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 pub use super::scene::Membrane;
 use super::scene::{self, RayGrid, Surface, View, value_noise};

@@ -9,19 +9,19 @@
 //! Times are medians over repeats on one thread; the machine is shared, so compare the
 //! ratios within one run rather than absolute numbers across runs.
 
-use std::time::Instant;
-
 use realfft::RealFftPlanner;
 use realfft::num_complex::Complex;
 use serde::Serialize;
 
 use super::calibrate::{CalibrationSettings, calibrate};
-use super::grid::{Grid, transpose};
 use super::model::{ModelKind, TactileModel};
 use super::poisson::{PoissonSolver, SolverKind};
 use super::reconstruct::{Reconstructor, StageTimings};
-use super::render::{Optics, Rng, Scene, builtin_scenes, disk, render};
+use super::render::{Optics, Scene, builtin_scenes, disk, render};
 use super::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
+use crate::grid::{Grid, transpose};
+use crate::rng::Rng;
+use crate::timing::{median, median_ms};
 
 /// What to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -294,14 +294,6 @@ pub fn errors(depth: &Grid<f32>, truth: &Grid<f32>) -> DepthErrors {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn median_timings(runs: &[StageTimings]) -> StageTimings {
     let m = |f: fn(&StageTimings) -> f64| median(runs.iter().map(f).collect());
     StageTimings {
@@ -311,21 +303,6 @@ fn median_timings(runs: &[StageTimings]) -> StageTimings {
         solve_ms: m(|t| t.solve_ms),
         total_ms: m(|t| t.total_ms),
     }
-}
-
-/// Median wall time in ms of `repeats` runs of `f`, after one warm-up run (also the
-/// stereo bench's timer).
-pub fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {
-    f(); // warm-up: plans, caches
-    median(
-        (0..repeats.max(1))
-            .map(|_| {
-                let t = Instant::now();
-                f();
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect(),
-    )
 }
 
 /// Smooth slope fields `(p, q)` of a `w × h` frame (the solver benchmarks' input).

@@ -35,6 +35,9 @@ pub enum ImageError {
         /// The partner looked for.
         partner: String,
     },
+    /// One reference frame given without the other.
+    #[error("give both no-contact reference frames (dx and dy), or neither")]
+    HalfReference,
     /// No pairs in the directory.
     #[error("{}: no NAME_dx.png / NAME_dy.png pairs found", path.display())]
     Empty {
@@ -51,6 +54,19 @@ pub fn load_rgb(path: &Path) -> Result<RgbImage, ImageError> {
             path: path.to_path_buf(),
             source,
         })
+}
+
+/// Reads the no-contact reference frames (dx, dy) when both are given; `None` when
+/// neither is.
+pub fn load_references(
+    dx: Option<&Path>,
+    dy: Option<&Path>,
+) -> Result<Option<(RgbImage, RgbImage)>, ImageError> {
+    match (dx, dy) {
+        (Some(dx), Some(dy)) => Ok(Some((load_rgb(dx)?, load_rgb(dy)?))),
+        (None, None) => Ok(None),
+        _ => Err(ImageError::HalfReference),
+    }
 }
 
 /// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored),

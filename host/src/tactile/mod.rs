@@ -12,7 +12,6 @@ pub mod bench;
 pub mod calibrate;
 pub mod colour;
 pub mod contact;
-pub mod grid;
 pub mod images;
 pub mod model;
 pub mod output;

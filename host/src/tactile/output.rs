@@ -11,8 +11,8 @@ pub use crate::output::{OutputError, colour_map, write_npy};
 use crate::output::{io, write_false_colour_png, write_png16};
 
 use super::contact::Roi;
-use super::grid::Grid;
 use super::reconstruct::{Reconstruction, StageTimings};
+use crate::grid::Grid;
 
 /// Writes depth as a 16-bit grey PNG, one count per micrometre (0 … 65.535 mm);
 /// negative depths are written as 0.

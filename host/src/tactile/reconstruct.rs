@@ -13,10 +13,10 @@ use serde::Serialize;
 
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
-use super::grid::Grid;
 use super::model::{ModelKind, TactileModel, colour_features};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
+use crate::grid::Grid;
 
 /// Why a frame pair could not be reconstructed.
 #[derive(Debug, thiserror::Error)]

@@ -4,7 +4,8 @@
 use image::RgbImage;
 
 use super::calibrate::CalibrationPair;
-use super::render::{Optics, Rng, Scene, Shape, render};
+use super::render::{Optics, Scene, Shape, render};
+use crate::rng::Rng;
 
 /// Ball diameter used for the built-in calibration presses (mm).
 pub const CALIBRATION_BALL_MM: f64 = 6.0;

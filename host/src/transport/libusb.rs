@@ -10,9 +10,7 @@ use std::time::Duration;
 use rusb::UsbContext;
 use stereotac_protocol::{USB_PID, USB_SUBCLASS, USB_VID};
 
-use super::usb::{OpenError, UsbSensor};
-use super::{Transport, TransportError};
-use crate::device::{BoxedTransport, Connect};
+use super::{BoxedTransport, Connect, OpenError, Transport, TransportError, UsbSensor};
 
 /// Bulk packet size at full speed; a transfer of a multiple of it ends with a
 /// zero-length packet so the device sees its end.

@@ -22,80 +22,8 @@ use nusb::descriptors::TransferType;
 use nusb::transfer::{Bulk, Direction, In, Out};
 use stereotac_protocol::{USB_PID, USB_SUBCLASS, USB_VID};
 
-use super::{Transport, TransportError};
+use super::{BoxedTransport, Connect, OpenError, Transport, TransportError, UsbSensor};
 use crate::clock::{HostClock, HostMicros};
-use crate::device::{BoxedTransport, Connect};
-
-/// Where the udev rules live, for the permission-denied hint.
-pub const UDEV_RULES: &str = "udev/99-stereotac.rules";
-
-/// A sensor seen on the bus (not opened).
-#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
-pub struct UsbSensor {
-    /// USB serial number (the board id in hex).
-    pub serial: String,
-    /// Bus and address, e.g. `1-4` / `3:12`.
-    pub path: String,
-    /// Product string.
-    pub product: Option<String>,
-    /// Device release number (bcdDevice).
-    pub release: u16,
-}
-
-/// Why a sensor could not be found or opened.
-#[derive(Debug, thiserror::Error)]
-pub enum OpenError {
-    /// No sensor (with that serial number) on the bus.
-    #[error("{}", not_found_message(.serial.as_deref(), .present))]
-    NotFound {
-        /// The serial asked for, if any.
-        serial: Option<String>,
-        /// Serial numbers of the sensors that are present.
-        present: Vec<String>,
-    },
-    /// Several sensors and no serial number to choose.
-    #[error("{} sensors attached ({}); choose one with --serial", .0.len(), .0.join(", "))]
-    Ambiguous(Vec<String>),
-    /// The OS refused access.
-    #[error(
-        "permission denied opening the sensor at {path}: install the udev rules \
-         (sudo cp {UDEV_RULES} /etc/udev/rules.d/ && sudo udevadm control --reload && \
-         sudo udevadm trigger), then replug"
-    )]
-    PermissionDenied {
-        /// Bus path of the device.
-        path: String,
-    },
-    /// Another program holds the interface.
-    #[error("the sensor at {path} is in use by another program")]
-    Busy {
-        /// Bus path of the device.
-        path: String,
-    },
-    /// The device does not look like a stereotac sensor.
-    #[error("the device at {path} has no stereotac interface ({detail})")]
-    NotASensor {
-        /// Bus path.
-        path: String,
-        /// What was missing.
-        detail: String,
-    },
-    /// Another USB failure.
-    #[error("USB error: {0}")]
-    Usb(String),
-}
-
-fn not_found_message(serial: Option<&str>, present: &[String]) -> String {
-    let wanted = serial.map_or_else(
-        || format!("no stereotac sensor found (USB {USB_VID:04x}:{USB_PID:04x})"),
-        |s| format!("no stereotac sensor with serial {s}"),
-    );
-    if present.is_empty() {
-        format!("{wanted}; is it plugged in? (`lsusb` should list {USB_VID:04x}:{USB_PID:04x})")
-    } else {
-        format!("{wanted}; present: {}", present.join(", "))
-    }
-}
 
 fn usb_error(e: nusb::Error, path: &str) -> OpenError {
     match e.kind() {
@@ -380,24 +308,6 @@ impl Connect for UsbConnector {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn errors_tell_the_user_what_to_do() {
-        let none = OpenError::NotFound {
-            serial: None,
-            present: vec![],
-        };
-        assert!(none.to_string().contains("1209:0001"), "{none}");
-        let other = OpenError::NotFound {
-            serial: Some("E66".into()),
-            present: vec!["ABCD".into()],
-        };
-        assert!(other.to_string().contains("E66") && other.to_string().contains("ABCD"));
-        let denied = OpenError::PermissionDenied { path: "1:5".into() };
-        assert!(denied.to_string().contains(UDEV_RULES));
-        let many = OpenError::Ambiguous(vec!["A".into(), "B".into()]);
-        assert!(many.to_string().contains("--serial"));
-    }
 
     #[test]
     fn listing_without_sensors_is_not_an_error() {

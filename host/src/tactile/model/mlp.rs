@@ -8,7 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Sample;
-use crate::tactile::render::Rng;
+use crate::rng::Rng;
 
 /// Pixels evaluated together.
 const BLOCK: usize = 64;

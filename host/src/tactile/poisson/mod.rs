@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 pub use transforms::{DctII, DstII, Real, Scratch, next_smooth};
 
-use super::grid::{Grid, transpose};
+use crate::grid::{Grid, transpose};
 
 /// Which boundary condition / transform to integrate with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

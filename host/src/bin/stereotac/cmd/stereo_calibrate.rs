@@ -1,6 +1,6 @@
-//! CLI front-end of `stereo-calibrate`: checkerboard pairs (files, or built-in views
-//! through the sensor's wide lenses) in, an OpenCV stereo YAML that `stereo --calib`
-//! reads out, with a report of how well it fits.
+//! `stereotac stereo-calibrate`: checkerboard pairs (files, or built-in views through the
+//! sensor's wide lenses) in, an OpenCV stereo YAML that `stereo --calib` reads out, with
+//! a report of how well it fits.
 //!
 //! The solver lives behind the `calibrate` cargo feature (it brings about 300 crates);
 //! without it the command explains how to get it.
@@ -16,9 +16,9 @@ pub enum ModelArg {
     Pinhole,
 }
 
-/// `stereo-calibrate` arguments.
+/// `stereotac stereo-calibrate`.
 #[derive(Debug, Clone, clap::Args)]
-pub struct CalibrateStereoArgs {
+pub struct Args {
     /// Left images of the board (as many as --right, in the same order).
     #[arg(long, num_args = 1.., required_unless_present = "synthetic")]
     pub left: Vec<PathBuf>,
@@ -53,7 +53,7 @@ pub struct CalibrateStereoArgs {
 }
 
 #[cfg(not(feature = "calibrate"))]
-pub fn calibrate_stereo_cmd(_: CalibrateStereoArgs) -> anyhow::Result<()> {
+pub fn run(_: Args) -> anyhow::Result<()> {
     anyhow::bail!(
         "this stereotac was built without stereo calibration; rebuild with the `calibrate` \
          feature: `cargo run --release -p stereotac --features calibrate -- stereo-calibrate …` \
@@ -62,25 +62,25 @@ pub fn calibrate_stereo_cmd(_: CalibrateStereoArgs) -> anyhow::Result<()> {
 }
 
 #[cfg(feature = "calibrate")]
-pub use with_solver::calibrate_stereo_cmd;
+pub use with_solver::run;
 
 #[cfg(feature = "calibrate")]
 mod with_solver {
     use anyhow::{Context, Result, bail};
     use serde::Serialize;
+    use stereotac::grid::Grid;
+    use stereotac::output::{read_grey, write_grey_png};
     use stereotac::stereo::board::{Checkerboard, render_board_capture};
-    use stereotac::stereo::calib::CalibrationDifference;
-    use stereotac::stereo::calibrate::{
+    use stereotac::stereo::board_calibration::{
         CalibrateOptions, CalibrationResult, LensModel, calibrate_stereo,
     };
+    use stereotac::stereo::calibration::CalibrationDifference;
     use stereotac::stereo::scene::Membrane;
     use stereotac::stereo::synthetic::wide_fisheye_calibration;
     use stereotac::stereo::{Camera, Distortion, StereoCalibration};
-    use stereotac::tactile::grid::Grid;
 
-    use super::{CalibrateStereoArgs, ModelArg};
+    use super::{Args, ModelArg};
     use crate::progress::bar;
-    use crate::stereo_cli::{load_grey, save_grey};
 
     #[derive(Serialize)]
     struct CameraReport {
@@ -135,7 +135,7 @@ mod with_solver {
         truth: Option<StereoCalibration>,
     }
 
-    fn inputs(a: &CalibrateStereoArgs, board: &Checkerboard) -> Result<Inputs> {
+    fn inputs(a: &Args, board: &Checkerboard) -> Result<Inputs> {
         if let Some(n) = a.synthetic {
             if n == 0 {
                 bail!("--synthetic takes a number of pairs (at least 1)");
@@ -154,8 +154,8 @@ mod with_solver {
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("creating {}", dir.display()))?;
                 for (i, (l, r)) in capture.left.iter().zip(&capture.right).enumerate() {
-                    save_grey(&dir.join(format!("left_{i:02}.png")), l)?;
-                    save_grey(&dir.join(format!("right_{i:02}.png")), r)?;
+                    write_grey_png(&dir.join(format!("left_{i:02}.png")), l)?;
+                    write_grey_png(&dir.join(format!("right_{i:02}.png")), r)?;
                 }
             }
             return Ok(Inputs {
@@ -168,7 +168,7 @@ mod with_solver {
             bail!("--save-views only applies to --synthetic");
         }
         let load = |files: &[std::path::PathBuf]| -> Result<Vec<Grid<u8>>> {
-            files.iter().map(|f| load_grey(f)).collect()
+            files.iter().map(|f| Ok(read_grey(f)?)).collect()
         };
         Ok(Inputs {
             left: load(&a.left)?,
@@ -177,7 +177,7 @@ mod with_solver {
         })
     }
 
-    pub fn calibrate_stereo_cmd(a: CalibrateStereoArgs) -> Result<()> {
+    pub fn run(a: Args) -> Result<()> {
         let board = Checkerboard::parse(&a.board, a.square_mm)?;
         let Inputs { left, right, truth } = inputs(&a, &board)?;
         let options = CalibrateOptions {

@@ -24,9 +24,9 @@ use vision_calibration_pipeline::rig_extrinsics::{
 use vision_calibration_pipeline::session::CalibrationSession;
 
 use super::board::{BoardError, Checkerboard};
-use super::calib::StereoCalibration;
+use super::calibration::StereoCalibration;
 use super::camera::{Camera, Distortion};
-use crate::tactile::grid::Grid;
+use crate::grid::Grid;
 
 /// The lens model to fit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -555,7 +555,7 @@ mod tests {
 
     #[test]
     fn a_pinhole_pair_is_recovered_from_its_board_views() {
-        let mut calib = crate::stereo::calib::tests::sensor_pair(Distortion::BrownConrady([
+        let mut calib = crate::stereo::calibration::tests::sensor_pair(Distortion::BrownConrady([
             -0.12, 0.05, 0.0005, -0.0003, 0.0, 0.0, 0.0, 0.0,
         ]));
         calib.t = nalgebra::Vector3::new(-14.0, 0.2, 0.1);

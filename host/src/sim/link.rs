@@ -24,11 +24,11 @@ use std::time::Duration;
 
 use stereotac_protocol::Phase;
 
-use super::{Transport, TransportError};
+use super::sensor::{LedChange, SimulatedSensor};
 use crate::clock::{HostClock, HostMicros};
 use crate::device::HostPhase;
-use crate::sim::{LedChange, SimulatedSensor};
-use crate::tactile::render::Rng;
+use crate::rng::Rng;
+use crate::transport::{Transport, TransportError};
 
 /// Simulation step of the device between transfers, µs.
 const TICK_US: u64 = 250;

@@ -8,12 +8,15 @@
 //! are deterministic.
 
 use std::collections::VecDeque;
+use std::time::Duration;
 
 use stereotac_firmware::sequencer::{WS2812_RESET_US, led_write_us};
 use stereotac_firmware::{Controller, Effect, Identity, MAX_LEDS_PER_STRIP};
 use stereotac_protocol::{
     Capabilities, DeviceMessage, FrameDecoder, MAX_FRAME, PhaseEvent, encode,
 };
+
+use crate::transport::{Transport, TransportError};
 
 /// Wake-up latency of the simulated LED task after a phase boundary, µs.
 pub const SIM_WRITE_LATENCY_US: u64 = 3;
@@ -199,5 +202,18 @@ impl SimulatedSensor {
         }
         self.queued_events += 1;
         self.send(message);
+    }
+}
+
+/// The bare simulated sensor: device time stands still while the host talks and moves
+/// only with [`SimulatedSensor::advance_to`].
+impl Transport for SimulatedSensor {
+    fn send(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.write(bytes);
+        Ok(())
+    }
+
+    fn receive(&mut self, _timeout: Duration) -> Result<Vec<u8>, TransportError> {
+        Ok(self.read())
     }
 }

@@ -46,6 +46,17 @@ pub enum CalibError {
     /// The fields disagree with each other.
     #[error("{0}")]
     Inconsistent(String),
+    /// A calibration file could not be read.
+    #[error("reading {file}: {why}")]
+    Read {
+        /// Which file.
+        file: String,
+        /// The cause.
+        why: String,
+    },
+    /// Not one OpenCV file nor a ROS pair.
+    #[error("{0}")]
+    Files(String),
 }
 
 /// A calibrated stereo pair.
@@ -334,6 +345,37 @@ fn extrinsics_from_rectification(
 }
 
 impl StereoCalibration {
+    /// Reads one OpenCV stereo YAML file, or a ROS `camera_info` pair (left, then right).
+    pub fn load(files: &[std::path::PathBuf]) -> Result<Self, CalibError> {
+        let read = |path: &std::path::Path| {
+            let file = path.display().to_string();
+            match std::fs::read_to_string(path) {
+                Ok(text) => Ok((file, text)),
+                Err(e) => Err(CalibError::Read {
+                    file,
+                    why: e.to_string(),
+                }),
+            }
+        };
+        match files {
+            [one] => {
+                let (name, text) = read(one)?;
+                Self::from_opencv_yaml(&name, &text)
+            }
+            [left, right] => {
+                let (l, r) = (read(left)?, read(right)?);
+                Self::from_ros_pair((&l.0, &l.1), (&r.0, &r.1))
+            }
+            [] => Err(CalibError::Files(
+                "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS)".into(),
+            )),
+            _ => Err(CalibError::Files(format!(
+                "--calib takes one OpenCV file or two ROS files, found {}",
+                files.len()
+            ))),
+        }
+    }
+
     /// Read an OpenCV stereo YAML: `K1 D1 K2 D2` and `R T` (or `R1 R2 P1 P2`), the image
     /// size, and optionally `distortion_model` (default `plumb_bob`).
     pub fn from_opencv_yaml(file: &str, text: &str) -> Result<Self, CalibError> {

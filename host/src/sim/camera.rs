@@ -13,11 +13,11 @@ use std::time::Duration;
 use image::RgbImage;
 use stereotac_protocol::Phase;
 
-use super::{Frame, FrameError, FrameSource};
+use super::link::LedTimeline;
 use crate::clock::HostClock;
+use crate::frames::{Frame, FrameError, FrameSource};
 use crate::matcher::{FrameStamp, StampRef};
 use crate::tactile::render::{Optics, Scene, render};
-use crate::transport::loopback::LedTimeline;
 
 /// How the simulated camera is clocked.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,0 +1,123 @@
+//! `stereotac bench`: benchmarks on built-in synthetic data: `tactile` (time per stage
+//! against depth error) and `stereo` (remap, matching per kernel, whole frame, OpenCV in
+//! the same run).
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Subcommand;
+use stereotac::stereo::bench::{self as stereo_bench, BenchOptions};
+use stereotac::tactile::bench::{self as tactile_bench, BenchConfig};
+
+use crate::args::parse_size;
+use crate::console::json_report;
+use crate::progress::bar;
+
+/// `stereotac bench`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub what: BenchWhat,
+}
+
+/// What to benchmark.
+#[derive(Debug, Subcommand)]
+pub enum BenchWhat {
+    /// Tactile pipeline: time per stage against depth error, per scene, model and solver.
+    Tactile(TactileArgs),
+    /// Stereo: remap, matching (per kernel, against OpenCV with --opencv) and the whole
+    /// vision frame on 1 and 2 threads.
+    Stereo(StereoArgs),
+}
+
+/// `stereotac bench tactile`.
+#[derive(Debug, clap::Args)]
+pub struct TactileArgs {
+    /// Print JSON records instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the JSON report to this file.
+    #[arg(long)]
+    pub json_out: Option<PathBuf>,
+    /// Frame sizes (default 640x480 and 1280x960).
+    #[arg(long = "size", value_parser = parse_size)]
+    pub sizes: Vec<(u32, u32)>,
+    /// Repeats per measurement; the median is reported.
+    #[arg(long, default_value_t = 15)]
+    pub repeats: usize,
+}
+
+/// `stereotac bench stereo`.
+#[derive(Debug, clap::Args)]
+pub struct StereoArgs {
+    /// Repeats per measurement; the median is reported.
+    #[arg(long, default_value_t = 15)]
+    pub repeats: usize,
+    /// Also time OpenCV's StereoBM on the same input (needs python3 with opencv-python).
+    #[arg(long)]
+    pub opencv: bool,
+    /// Print JSON instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the JSON report here.
+    #[arg(long)]
+    pub json_out: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    match a.what {
+        BenchWhat::Tactile(a) => tactile(a),
+        BenchWhat::Stereo(a) => stereo(a),
+    }
+}
+
+fn tactile(a: TactileArgs) -> Result<()> {
+    let mut config = BenchConfig {
+        repeats: a.repeats,
+        ..Default::default()
+    };
+    if !a.sizes.is_empty() {
+        config.sizes = a
+            .sizes
+            .iter()
+            .map(|&(w, h)| (w as usize, h as usize))
+            .collect();
+    }
+    let progress = bar(1, "bench");
+    let report = tactile_bench::run(&config, &mut |what, done, total| {
+        progress.set_message(what.to_string());
+        progress.set_length(total as u64);
+        progress.set_position(done as u64);
+    });
+    progress.finish_and_clear();
+    let json = json_report(&report, a.json_out.as_deref())?;
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{}", tactile_bench::format_table(&report));
+    }
+    Ok(())
+}
+
+fn stereo(a: StereoArgs) -> Result<()> {
+    let progress = bar(stereo_bench::STEPS, "benchmarking");
+    let report = stereo_bench::run(
+        BenchOptions {
+            repeats: a.repeats,
+            opencv: a.opencv,
+        },
+        || progress.inc(1),
+    );
+    progress.finish_and_clear();
+    let report = report?;
+    if let Some(why) = &report.opencv_skipped {
+        eprintln!("OpenCV reference skipped: {why}");
+    }
+    let json = json_report(&report.rows, a.json_out.as_deref())?;
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{}", stereo_bench::format_table(&report.rows, a.repeats));
+    }
+    Ok(())
+}

@@ -1,0 +1,111 @@
+//! `stereotac calibrate`: the tactile model from ball presses (a directory of
+//! `NAME_dx.png` / `NAME_dy.png` pairs), with the fitted circle of each press.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, Circle, calibrate};
+use stereotac::tactile::images::{load_pairs, load_references};
+
+use crate::progress::bar;
+
+/// `stereotac calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Directory of pairs.
+    pub dir: PathBuf,
+    /// Diameter of the calibration ball.
+    #[arg(long)]
+    pub ball_diameter_mm: f64,
+    /// Image scale.
+    #[arg(long, default_value_t = 15.0)]
+    pub px_per_mm: f64,
+    /// No-contact dx frame (otherwise the per-pixel median of the pairs).
+    #[arg(long, requires = "ref_dy")]
+    pub ref_dx: Option<PathBuf>,
+    /// No-contact dy frame.
+    #[arg(long, requires = "ref_dx")]
+    pub ref_dy: Option<PathBuf>,
+    /// JSON file of contact circles to use instead of fitted ones:
+    /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
+    #[arg(long)]
+    pub overrides: Option<PathBuf>,
+    /// Model file to write.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let pairs = load_pairs(&a.dir)?;
+    let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
+    let overrides: HashMap<String, Circle> = match &a.overrides {
+        Some(path) => serde_json::from_slice(
+            &std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
+        )
+        .with_context(|| {
+            format!(
+                "{}: expected {{\"NAME\": {{\"cx\": px, \"cy\": px, \"r\": px}}, ...}}",
+                path.display()
+            )
+        })?,
+        None => HashMap::new(),
+    };
+    let settings = CalibrationSettings {
+        ball_diameter_mm: a.ball_diameter_mm,
+        px_per_mm: a.px_per_mm,
+        overrides,
+        ..Default::default()
+    };
+    let epochs = settings.mlp.epochs;
+    let progress = bar(
+        (pairs.len() + 2 * epochs) as u64,
+        "fitting circles, training",
+    );
+    let result = calibrate(
+        &pairs,
+        refs.as_ref().map(|(x, y)| (x, y)),
+        &settings,
+        |p| match p {
+            CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
+            CalibrationProgress::Mlp { axis, epoch, .. } => {
+                progress.set_position((pairs.len() + axis * epochs + epoch) as u64)
+            }
+        },
+    );
+    progress.finish_and_clear();
+    let cal = result?;
+    println!(
+        "{:<16} {:>8} {:>8} {:>8} {:>9} {:>8}",
+        "pair", "cx px", "cy px", "r px", "depth mm", "fit px"
+    );
+    for p in &cal.presses {
+        println!(
+            "{:<16} {:>8.1} {:>8.1} {:>8.1} {:>9.3} {:>8}",
+            p.name,
+            p.circle.cx,
+            p.circle.cy,
+            p.circle.r,
+            p.depth_mm,
+            if p.overridden {
+                "given".to_string()
+            } else {
+                format!("{:.2}", p.fit_rms_px)
+            }
+        );
+    }
+    let f = cal.model.fit;
+    println!(
+        "slope RMS: lut {:.4} (held-out {:.4}), mlp {:.4} (held-out {:.4}); {} training / {} held-out pairs, {} samples per axis",
+        f.lut_train_rms,
+        f.lut_validation_rms,
+        f.mlp_train_rms,
+        f.mlp_validation_rms,
+        f.training_pairs,
+        f.validation_pairs,
+        f.samples_per_axis
+    );
+    cal.model.save(&a.out)?;
+    println!("wrote {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,139 @@
+//! The `stereotac` command-line tool: the command list and dispatch. Each command is one
+//! file in `cmd/` (its arguments and `run`); the work itself is the `stereotac` library's.
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+
+mod args;
+mod cmd;
+mod console;
+mod progress;
+mod sensor_args;
+
+use sensor_args::DeviceArgs;
+
+/// stereotac: visuotactile sensor toolkit (firmware link, tactile and stereo depth).
+#[derive(Debug, Parser)]
+#[command(
+    version,
+    about,
+    long_about = None,
+    after_help = "The commands that talk to a sensor (devices, info, selftest, stream, record, set, \
+                  flash) take --sim, --serial and --libusb, after the command or before it."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// The sensor options may also stand before the command (`stereotac --sim info`);
+    /// they are hidden here and shown on the commands that talk to a sensor.
+    #[command(flatten)]
+    device: DeviceArgs,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run a simulated sensor (the firmware's own logic on a virtual clock, behind the
+    /// real wire protocol) and show its handshake, phase timeline and counters.
+    Demo(cmd::demo::Args),
+    /// List attached sensors (serial number, firmware version, bus path).
+    Devices(cmd::devices::Args),
+    /// Handshake details, configuration, device counters and clock sync of one sensor.
+    Info(cmd::info::Args),
+    /// Check that the sensor answers every command as the protocol says (invalid values
+    /// refused with typed errors, configuration read back, then restored).
+    Selftest(cmd::selftest::Args),
+    /// Run the lighting sequence and print phase events with host-clock timestamps,
+    /// clock-sync uncertainty and drop counters (Ctrl-C stops).
+    Stream(cmd::stream::Args),
+    /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
+    /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
+    Record(cmd::record::Args),
+    /// Change colours, brightness, timing, LED count, power budget or mode.
+    Set(cmd::set::Args),
+    /// Reboot the sensor into its USB bootloader and copy a UF2 file onto the boot drive.
+    Flash(cmd::flash::Args),
+    /// Calibrate the tactile model from ball presses: DIR holds NAME_dx.png / NAME_dy.png.
+    Calibrate(cmd::calibrate::Args),
+    /// Reconstruct the depth of one dx/dy pair into depth.npy, PNGs, PLY and summary.json.
+    Reconstruct(cmd::reconstruct::Args),
+    /// Stereo depth of one rectifiable pair: disparity and depth (.npy, PNG), point cloud
+    /// (PLY) and summary.json. `--synthetic MM` uses a built-in capture instead.
+    Stereo(cmd::stereo::Args),
+    /// Depth-camera metrics (Z-accuracy, RMS error, temporal noise, fill rate) on built-in
+    /// captures of flat targets behind the skin, with and without post-filters.
+    StereoEval(cmd::stereo_eval::Args),
+    /// Stereo calibration from checkerboard pairs (pinhole or fisheye), written as the
+    /// OpenCV YAML `stereo --calib` reads; `--synthetic N` uses built-in views. Needs
+    /// the `calibrate` cargo feature.
+    StereoCalibrate(cmd::stereo_calibrate::Args),
+    /// Benchmarks on built-in synthetic data.
+    Bench(cmd::bench::Args),
+    /// Report a firmware ELF's flash and RAM footprint, and optionally write it as UF2.
+    FirmwareImage(cmd::firmware_image::Args),
+}
+
+impl Command {
+    /// The sensor options of a command that talks to a sensor.
+    fn device_mut(&mut self) -> Option<&mut DeviceArgs> {
+        match self {
+            Command::Devices(a) => Some(&mut a.device),
+            Command::Info(a) => Some(&mut a.device),
+            Command::Selftest(a) => Some(&mut a.device),
+            Command::Stream(a) => Some(&mut a.device),
+            Command::Record(a) => Some(&mut a.device),
+            Command::Set(a) => Some(&mut a.device),
+            Command::Flash(a) => Some(&mut a.device),
+            _ => None,
+        }
+    }
+}
+
+fn run(cli: Cli, name: &str) -> Result<()> {
+    let mut command = cli.command;
+    match command.device_mut() {
+        Some(device) => device.take_before_command(cli.device)?,
+        None => cli.device.refuse_before(name)?,
+    }
+    match command {
+        Command::Demo(a) => cmd::demo::run(a),
+        Command::Devices(a) => cmd::devices::run(a),
+        Command::Info(a) => cmd::info::run(a),
+        Command::Selftest(a) => cmd::selftest::run(a),
+        Command::Stream(a) => cmd::stream::run(a),
+        Command::Record(a) => cmd::record::run(a),
+        Command::Set(a) => cmd::set::run(a),
+        Command::Flash(a) => cmd::flash::run(a),
+        Command::Calibrate(a) => cmd::calibrate::run(a),
+        Command::Reconstruct(a) => cmd::reconstruct::run(a),
+        Command::Stereo(a) => cmd::stereo::run(a),
+        Command::StereoEval(a) => cmd::stereo_eval::run(a),
+        Command::StereoCalibrate(a) => cmd::stereo_calibrate::run(a),
+        Command::Bench(a) => cmd::bench::run(a),
+        Command::FirmwareImage(a) => cmd::firmware_image::run(a),
+    }
+}
+
+/// The parser: the sensor options before the command are accepted but not listed in
+/// the top-level help (each sensor command lists them).
+fn parser() -> clap::Command {
+    let mut top = Cli::command();
+    for id in DeviceArgs::IDS {
+        top = top.mut_arg(id, |a| a.hide(true));
+    }
+    top
+}
+
+fn main() -> ExitCode {
+    let matches = parser().get_matches();
+    let name = matches.subcommand_name().unwrap_or_default().to_string();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    match run(cli, &name) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

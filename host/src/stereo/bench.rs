@@ -1,0 +1,327 @@
+//! The stereo benchmark (`stereotac bench stereo`): remap against a plain copy, block
+//! matching per kernel, the whole vision frame on 1 and 2 threads, and, when asked,
+//! OpenCV's StereoBM on the same images in the same run, with matching quality against
+//! the true disparity of the scene.
+
+use std::path::Path;
+
+use serde::Serialize;
+
+use super::block_match::{BlockMatchParams, BlockMatcher, Kernel, MatchError};
+use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
+use super::rectify::{Rectification, RectifyError};
+use super::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
+use crate::grid::Grid;
+use crate::output::{OutputError, read_npy, write_grey_png};
+use crate::timing::median_ms;
+
+/// The script that times OpenCV's StereoBM (run with `python3`).
+const OPENCV_SCRIPT: &str = include_str!("../../benches/opencv_stereobm.py");
+
+/// Why the benchmark could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// A thread pool could not be built.
+    #[error("building a thread pool: {0}")]
+    Threads(#[from] rayon::ThreadPoolBuildError),
+    /// The fisheye rig could not be rectified.
+    #[error(transparent)]
+    Rectify(#[from] RectifyError),
+    /// The matcher refused its parameters.
+    #[error(transparent)]
+    Match(#[from] MatchError),
+    /// The pipeline failed.
+    #[error(transparent)]
+    Pipeline(#[from] StereoError),
+}
+
+/// What to run.
+#[derive(Debug, Clone, Copy)]
+pub struct BenchOptions {
+    /// Repeats per measurement; the median is reported.
+    pub repeats: usize,
+    /// Also time OpenCV's StereoBM (needs python3 with opencv-python).
+    pub opencv: bool,
+}
+
+/// One measurement.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    /// What was timed.
+    pub what: String,
+    /// Threads it ran on.
+    pub threads: usize,
+    /// Median time, ms.
+    pub median_ms: f64,
+    /// Against the row named in `reference` (time / reference time).
+    pub ratio: Option<f64>,
+    /// The row `ratio` compares with.
+    pub reference: Option<String>,
+    /// Share of pixels with a disparity more than 1 px off the ground truth, among the
+    /// pixels both this matcher and the ground truth cover.
+    pub bad_1px_pct: Option<f64>,
+    /// Share of pixels with a disparity.
+    pub valid_pct: Option<f64>,
+}
+
+/// The benchmark's rows, and why the OpenCV reference was skipped when it was asked for
+/// and could not run.
+#[derive(Debug, Clone)]
+pub struct BenchReport {
+    /// The measurements, in the order they ran.
+    pub rows: Vec<BenchRow>,
+    /// Set when `--opencv` was asked for but OpenCV could not run.
+    pub opencv_skipped: Option<String>,
+}
+
+/// Steps `run` reports through its `step` callback.
+pub const STEPS: u64 = 6;
+
+/// Runs the benchmark on a built-in 640×480 capture; `step` is called after each of
+/// [`STEPS`] steps.
+pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport, BenchError> {
+    let repeats = options.repeats;
+    let rig = StereoRig::sensor();
+    let plane = Plane {
+        z_mm: 120.0,
+        tilt_x: 0.3,
+        tilt_y: 0.1,
+    };
+    let (left, right) = render_pair(&rig, &plane, &Membrane::sensor(), 1);
+    let truth = rig.true_disparity(&plane);
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let two = rayon::ThreadPoolBuilder::new().num_threads(2).build()?;
+    let mut rows: Vec<BenchRow> = Vec::new();
+    let mut opencv_skipped = None;
+    let row = |what: &str, threads, ms, reference: Option<(&str, f64)>| BenchRow {
+        what: what.to_string(),
+        threads,
+        median_ms: ms,
+        ratio: reference.map(|(_, r)| ms / r),
+        reference: reference.map(|(n, _)| n.to_string()),
+        bad_1px_pct: None,
+        valid_pct: None,
+    };
+
+    // Remap: a fisheye camera's map, against a plain copy of the frame.
+    let fisheye_pair = fisheye_calibration();
+    let (table, _) = Rectification::bouguet(&fisheye_pair, 0.8)?.maps(&fisheye_pair);
+    let mut out = vec![0u8; 640 * 480];
+    let copy = one.install(|| {
+        median_ms(repeats, || {
+            out.copy_from_slice(std::hint::black_box(left.as_slice()))
+        })
+    });
+    rows.push(row("frame copy 640×480 (reference)", 1, copy, None));
+    let remap = one.install(|| {
+        median_ms(repeats, || {
+            table.remap(left.as_slice(), &mut out).expect("sizes match")
+        })
+    });
+    rows.push(row(
+        "remap 640×480 (fisheye, 5-bit bilinear)",
+        1,
+        remap,
+        None,
+    ));
+    step();
+
+    // Matching: 64 disparities, 9×9, one thread, each kernel.
+    let params = BlockMatchParams::default();
+    let mut portable_ms = None;
+    for kernel in [Kernel::Portable, Kernel::Avx2] {
+        let Ok(m) = BlockMatcher::new(params)?.with_kernel(kernel) else {
+            continue;
+        };
+        let mut last = None;
+        let ms = one.install(|| {
+            median_ms(repeats, || {
+                last = Some(m.compute(&left, &right).expect("same size"))
+            })
+        });
+        let reference = portable_ms.map(|p| ("match, Portable", p));
+        let mut r = row(&format!("match, {kernel:?} (64 d, 9×9)"), 1, ms, reference);
+        if let Some(d) = last {
+            let (bad, valid) = quality(&d.disparity, &truth);
+            r.bad_1px_pct = Some(bad);
+            r.valid_pct = Some(valid);
+        }
+        rows.push(r);
+        portable_ms.get_or_insert(ms);
+        step();
+    }
+    let best = BlockMatcher::new(params)?;
+    let best_ms = one.install(|| median_ms(repeats, || drop(best.compute(&left, &right))));
+
+    // OpenCV's StereoBM on the same images, same parameters, one thread.
+    if options.opencv {
+        match run_opencv(&left, &right, &truth, &params, repeats) {
+            Ok(cv) => {
+                let mut r = row("OpenCV StereoBM (64 d, 9×9)", 1, cv.median_ms, None);
+                r.bad_1px_pct = Some(cv.bad_1px_pct);
+                r.valid_pct = Some(cv.valid_pct);
+                rows.push(r);
+                rows.push(row(
+                    &format!("match, {:?} vs OpenCV", best.kernel()),
+                    1,
+                    best_ms,
+                    Some(("OpenCV StereoBM", cv.median_ms)),
+                ));
+            }
+            Err(why) => opencv_skipped = Some(why),
+        }
+    }
+    step();
+
+    // The whole vision frame at the sensor's range (5–60 cm), on 1 and 2 threads.
+    for (threads, pool) in [(1, &one), (2, &two)] {
+        let config = StereoConfig {
+            spatial: None,
+            ..StereoConfig::default()
+        };
+        let mut p = StereoPipeline::new(&fisheye_pair, config)?;
+        let ms = pool.install(|| {
+            median_ms(repeats, || {
+                drop(p.process(&left, &right).expect("sizes match"))
+            })
+        });
+        let n = p.matcher().params().num_disparities;
+        rows.push(row(
+            &format!("whole frame: rectify both, match ({n} d), reproject"),
+            threads,
+            ms,
+            None,
+        ));
+        step();
+    }
+    Ok(BenchReport {
+        rows,
+        opencv_skipped,
+    })
+}
+
+/// The rows as a table, headed by the repeat count.
+pub fn format_table(rows: &[BenchRow], repeats: usize) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "stereo bench, 640×480, median of {repeats} runs");
+    let _ = writeln!(
+        s,
+        "{:<52} {:>7} {:>10} {:>8} {:>9} {:>9}",
+        "what", "threads", "ms", "ratio", "bad>1px%", "valid%"
+    );
+    for r in rows {
+        let opt = |v: Option<f64>, p: usize| v.map_or("-".into(), |v| format!("{v:.p$}"));
+        let _ = writeln!(
+            s,
+            "{:<52} {:>7} {:>10.3} {:>8} {:>9} {:>9}",
+            r.what,
+            r.threads,
+            r.median_ms,
+            opt(r.ratio, 2),
+            opt(r.bad_1px_pct, 2),
+            opt(r.valid_pct, 1)
+        );
+    }
+    s
+}
+
+/// Matching quality against the true disparity of the bench scene: (% of valid pixels
+/// more than 1 px off, % of pixels valid).
+fn quality(disparity: &Grid<f32>, truth: &Grid<f32>) -> (f64, f64) {
+    let (mut valid, mut bad) = (0usize, 0usize);
+    for (d, t) in disparity.as_slice().iter().zip(truth.as_slice()) {
+        if d.is_finite() {
+            valid += 1;
+            if (d - t).abs() > 1.0 {
+                bad += 1;
+            }
+        }
+    }
+    let n = disparity.as_slice().len().max(1);
+    (
+        100.0 * bad as f64 / valid.max(1) as f64,
+        100.0 * valid as f64 / n as f64,
+    )
+}
+
+struct OpenCvResult {
+    median_ms: f64,
+    bad_1px_pct: f64,
+    valid_pct: f64,
+}
+
+/// Times OpenCV's StereoBM through python3 (`host/benches/opencv_stereobm.py`) on the
+/// same images and scores its disparity against the same ground truth; the error says
+/// why it could not.
+fn run_opencv(
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    truth: &Grid<f32>,
+    params: &BlockMatchParams,
+    repeats: usize,
+) -> Result<OpenCvResult, String> {
+    let dir = std::env::temp_dir().join(format!("stereotac-bench-{}", std::process::id()));
+    let result = opencv_in(&dir, left, right, truth, params, repeats);
+    let _ = std::fs::remove_dir_all(&dir);
+    result
+}
+
+fn opencv_in(
+    dir: &Path,
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    truth: &Grid<f32>,
+    params: &BlockMatchParams,
+    repeats: usize,
+) -> Result<OpenCvResult, String> {
+    let text = |e: OutputError| e.to_string();
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let (l, r, d, script) = (
+        dir.join("left.png"),
+        dir.join("right.png"),
+        dir.join("opencv_disparity.npy"),
+        dir.join("opencv_stereobm.py"),
+    );
+    write_grey_png(&l, left).map_err(text)?;
+    write_grey_png(&r, right).map_err(text)?;
+    std::fs::write(&script, OPENCV_SCRIPT).map_err(|e| format!("{}: {e}", script.display()))?;
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .args([&l, &r, &d])
+        .args([
+            params.num_disparities.to_string(),
+            params.block_size.to_string(),
+            params.min_disparity.to_string(),
+            repeats.to_string(),
+        ])
+        .output()
+        .map_err(|e| format!("running python3: {e}"))?;
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).trim().to_string());
+    }
+    let reply: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| {
+        format!(
+            "reading the script's reply {:?}: {e}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    })?;
+    let median_ms = reply["median_ms"]
+        .as_f64()
+        .ok_or("no median_ms in the reply")?;
+    let disparity = read_npy(&d).map_err(text)?;
+    if (disparity.width(), disparity.height()) != (left.width(), left.height()) {
+        return Err(format!(
+            "{}: not a {}×{} array",
+            d.display(),
+            left.width(),
+            left.height()
+        ));
+    }
+    let (bad, valid) = quality(&disparity, truth);
+    Ok(OpenCvResult {
+        median_ms,
+        bad_1px_pct: bad,
+        valid_pct: valid,
+    })
+}
