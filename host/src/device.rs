@@ -459,8 +459,15 @@ impl Sensor {
     }
 
     /// Starts the lighting sequence in `mode` with phases `period_us` long (the trigger
-    /// pulse and LED settle time stay as the device has them).
+    /// pulse and LED settle time stay as the device has them), after refreshing the
+    /// clock sync if it is due.
     pub fn start_sequence(&mut self, mode: Mode, period_us: u32) -> Result<(), SensorError> {
+        // A sensor left unpolled since it connected (a model calibrated, cameras opened)
+        // has a clock fit from one burst of pings, whose drift is loose: the first phases
+        // would be mapped far from where they happened. A second burst pins it down.
+        if self.client.now_us() >= self.next_sync_us {
+            self.sync_burst()?;
+        }
         let timing = Timing {
             phase_period_us: period_us,
             ..self.config()?.timing

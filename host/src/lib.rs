@@ -21,6 +21,7 @@
 //! * Pipelines: [`tactile`] (photometric stereo: dx/dy images to depth of the imprint),
 //!   [`stereo`] (stereo depth through the skin: calibration, rectification, matching,
 //!   point clouds, evaluation).
+//! * [`live`]: the live pipeline's stages, fed by a capture (`stereotac run`).
 //! * [`sim`]: the simulated sensor, its USB link and its camera, one place: test inputs
 //!   and the demo's data, reached through the same code paths as hardware.
 #![warn(missing_docs)]
@@ -31,6 +32,7 @@ pub mod describe;
 pub mod device;
 pub mod frames;
 pub mod grid;
+pub mod live;
 pub mod matcher;
 pub mod output;
 pub mod rng;

@@ -34,6 +34,16 @@ pub struct FrameStamp {
     pub exposure_us: f64,
 }
 
+impl FrameStamp {
+    /// End of the exposure, host µs, for a source whose stamps mark `stamp_ref`.
+    pub fn exposure_end_us(&self, stamp_ref: StampRef) -> f64 {
+        match stamp_ref {
+            StampRef::ExposureStart => self.timestamp_us + self.exposure_us,
+            StampRef::ExposureEnd => self.timestamp_us,
+        }
+    }
+}
+
 /// What a frame timestamp marks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StampRef {
@@ -303,12 +313,18 @@ impl FrameMatcher {
             // A phase's edge lies between its latch and the next phase's write, so the
             // nearest edge belongs to one of the phases around the latch before it.
             let k = self.phases.partition_point(|p| p.latched_us <= edge_time);
+            // The edge's host time is known to within the clock sync's uncertainty when
+            // it was mapped (large right after connecting), so that widens the match.
             let best = self.phases[k.saturating_sub(2)..(k + 1).min(self.phases.len())]
                 .iter()
-                .filter_map(|p| p.trigger)
-                .min_by(|a, b| (a.1 - edge_time).abs().total_cmp(&(b.1 - edge_time).abs()));
+                .filter_map(|p| p.trigger.map(|t| (t, p.uncertainty_us)))
+                .min_by(|(a, _), (b, _)| {
+                    (a.1 - edge_time).abs().total_cmp(&(b.1 - edge_time).abs())
+                });
             match best {
-                Some((index, edge)) if (edge - edge_time).abs() <= tolerance_us => {
+                Some(((index, edge), uncertainty))
+                    if (edge - edge_time).abs() <= tolerance_us + uncertainty.max(0.0) =>
+                {
                     trigger = Some(index);
                     self.unanswered.retain(|(i, _)| *i != index);
                 }
@@ -405,6 +421,37 @@ mod tests {
             sequence,
             timestamp_us,
             exposure_us: 8000.0,
+        }
+    }
+
+    #[test]
+    fn a_trigger_is_matched_within_the_tolerance_plus_the_sync_uncertainty() {
+        // 700 µs off: beyond the 300 µs tolerance, within it plus an 800 µs uncertainty.
+        for (uncertainty, matched) in [(5.0, false), (800.0, true)] {
+            let mut m = FrameMatcher::new(triggered());
+            let mut out = Vec::new();
+            for k in 0..3u32 {
+                let p = HostPhase {
+                    uncertainty_us: uncertainty,
+                    ..phase(k, Some(k))
+                };
+                m.add_phase(p);
+                out.extend(m.ready());
+                if k == 0 {
+                    m.add_frame(frame(0, p.trigger.unwrap().1 + 40.0 + 700.0));
+                }
+            }
+            out.extend(m.finish());
+            let want = if matched {
+                Label::Phase {
+                    index: 0,
+                    phase: Phase::Dx,
+                    trigger: Some(0),
+                }
+            } else {
+                Label::NoTrigger
+            };
+            assert_eq!(out[0].label, want, "uncertainty {uncertainty} µs");
         }
     }
 

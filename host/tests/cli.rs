@@ -217,3 +217,49 @@ fn sensor_options_belong_to_the_sensor_commands_and_json_is_json() {
         "{names:?}"
     );
 }
+
+#[test]
+fn run_reconstructs_live_pairs_from_the_simulated_sensor_as_json_lines() {
+    let args = [
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--period-ms",
+        "100",
+        "--duration-s",
+        "2",
+        "--jsonl",
+    ];
+    let (ok, out, err) = stereotac(&args);
+    assert!(ok, "{err}");
+    let records: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    // 2 s of 100 ms phases: about ten dx/dy pairs.
+    assert!(records.len() >= 6, "{out}\n{err}");
+    for (k, r) in records.iter().enumerate() {
+        assert_eq!(r["sequence"], k as u64, "{r}");
+        let [dx, dy] = [&r["exposure_end_us"][0], &r["exposure_end_us"][1]]
+            .map(|v| v.as_f64().expect("exposure end"));
+        assert!(dy > dx && (dy - dx - 100_000.0).abs() < 1_000.0, "{r}");
+        let latency = r["latency_ms"].as_f64().unwrap();
+        assert!((0.0..1_000.0).contains(&latency), "{r}");
+        assert!(r["stage_ms"]["total_ms"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["frames_dropped"].is_u64(), "{r}");
+    }
+    // The simulated camera shows the built-in objects in turn, a second each: the first
+    // is a sphere 1 mm deep.
+    let first = &records[0];
+    assert_eq!(first["contact"], true, "{first}");
+    let depth = first["max_depth_mm"].as_f64().unwrap();
+    assert!((0.9..1.1).contains(&depth), "{first}");
+    assert!(first["centroid_mm"].is_array() && first["area_mm2"].as_f64().unwrap() > 1.0);
+    assert!(err.contains("pairs reconstructed"), "{err}");
+
+    let (ok, _, err) = stereotac(&["run", "--camera", "sim"]);
+    assert!(!ok && err.contains("--model"), "{err}");
+    let (ok, _, err) = stereotac(&["--sim", "run", "--mode", "vision"]);
+    assert!(!ok && err.contains("--mode gradient"), "{err}");
+}

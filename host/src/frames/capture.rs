@@ -8,12 +8,12 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use super::{Frame, FrameError, FrameSource};
-use crate::device::{Sensor, SensorError, SensorEvent};
 use stereotac_protocol::Phase;
 
+use super::{Frame, FrameError, FrameSource};
 use crate::clock::HostMicros;
-use crate::matcher::{FrameMatcher, Label, MatchStats, MatchedFrame, MatcherConfig};
+use crate::device::{Sensor, SensorError, SensorEvent};
+use crate::matcher::{FrameMatcher, Label, MatchStats, MatchedFrame, MatcherConfig, StampRef};
 
 /// Why a capture step failed.
 #[derive(Debug, thiserror::Error)]
@@ -51,6 +51,36 @@ pub struct GradientPair {
     pub dx: LabelledFrame,
     /// The frame lit by strips 2 and 4.
     pub dy: LabelledFrame,
+}
+
+/// Pairs labelled frames, in the order the matcher decides them, into dx/dy pairs: a
+/// dx frame followed directly by the dy frame of the next phase. Anything else between
+/// them (a dark or all-lit frame, a frame the matcher could not label, a dy of another
+/// phase after a dropped frame) starts over.
+#[derive(Debug, Default)]
+pub struct GradientPairer {
+    /// The last dx frame and its phase index.
+    dx: Option<(u32, LabelledFrame)>,
+}
+
+impl GradientPairer {
+    /// Takes the next labelled frame; returns a pair when it completes one.
+    pub fn push(&mut self, frame: LabelledFrame) -> Option<GradientPair> {
+        let Label::Phase { phase, index, .. } = frame.label else {
+            self.dx = None;
+            return None;
+        };
+        match (phase, self.dx.take()) {
+            (Phase::Dx, _) => {
+                self.dx = Some((index, frame));
+                None
+            }
+            (Phase::Dy, Some((dx_index, dx))) if dx_index.wrapping_add(1) == index => {
+                Some(GradientPair { dx, dy: frame })
+            }
+            _ => None,
+        }
+    }
 }
 
 /// How often [`Capture::next_gradient_pair`] polls the sensor.
@@ -116,37 +146,30 @@ impl<S: FrameSource> Capture<S> {
 
     /// Capture until the matcher has labelled a dx frame followed directly by a dy
     /// frame, both exposed at or after `since_us` (host clock); `None` when the host
-    /// clock reaches `until_us` first. A dy without its dx, or a frame the matcher could
-    /// not label, starts the search over.
+    /// clock reaches `until_us` first. See [`GradientPairer`] for what pairs.
     pub fn next_gradient_pair(
         &mut self,
         sensor: &mut Sensor,
         since_us: HostMicros,
         until_us: HostMicros,
     ) -> Result<Option<GradientPair>, CaptureError> {
-        let mut dx: Option<LabelledFrame> = None;
+        let mut pairer = GradientPairer::default();
         while sensor.clock().now_us() < until_us {
             for frame in self.step(sensor, PAIR_POLL)?.frames {
                 if frame.frame.stamp.timestamp_us < since_us as f64 {
                     continue; // exposed before the caller's moment
                 }
-                let phase = match frame.label {
-                    Label::Phase { phase, .. } => Some(phase),
-                    _ => None,
-                };
-                match (phase, dx.take()) {
-                    (Some(Phase::Dx), _) => dx = Some(frame),
-                    (Some(Phase::Dy), Some(first)) => {
-                        return Ok(Some(GradientPair {
-                            dx: first,
-                            dy: frame,
-                        }));
-                    }
-                    _ => {}
+                if let Some(pair) = pairer.push(frame) {
+                    return Ok(Some(pair));
                 }
             }
         }
         Ok(None)
+    }
+
+    /// What the source's timestamps mark.
+    pub fn stamp_ref(&self) -> StampRef {
+        self.source.stamp_ref()
     }
 
     /// Label every frame still pending (end of capture).
@@ -168,5 +191,60 @@ impl<S: FrameSource> Capture<S> {
                 })
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::matcher::FrameStamp;
+
+    fn frame(label: Label) -> LabelledFrame {
+        LabelledFrame {
+            frame: Frame {
+                stamp: FrameStamp {
+                    sequence: 0,
+                    timestamp_us: 0.0,
+                    exposure_us: 1.0,
+                },
+                image: image::RgbImage::new(1, 1),
+            },
+            label,
+        }
+    }
+
+    fn lit(phase: Phase, index: u32) -> LabelledFrame {
+        frame(Label::Phase {
+            index,
+            phase,
+            trigger: Some(index),
+        })
+    }
+
+    #[test]
+    fn a_dx_and_the_next_phase_dy_pair_and_anything_between_starts_over() {
+        let mut p = GradientPairer::default();
+        assert!(p.push(lit(Phase::Dy, 0)).is_none(), "a dy without its dx");
+        assert!(p.push(lit(Phase::Dx, 1)).is_none());
+        let pair = p.push(lit(Phase::Dy, 2)).expect("dx 1 then dy 2");
+        assert_eq!(phase_of(&pair.dx), (Phase::Dx, 1));
+        assert_eq!(phase_of(&pair.dy), (Phase::Dy, 2));
+        // Interleaved: dark between pairs; a dropped dy leaves a dx followed by dy 2 later.
+        assert!(p.push(lit(Phase::Dark, 3)).is_none());
+        assert!(p.push(lit(Phase::Dx, 4)).is_none());
+        assert!(p.push(lit(Phase::Dy, 8)).is_none(), "not the next phase");
+        assert!(p.push(lit(Phase::Dx, 10)).is_none());
+        assert!(p.push(frame(Label::Straddles)).is_none());
+        assert!(
+            p.push(lit(Phase::Dy, 11)).is_none(),
+            "an unlabelled frame between"
+        );
+    }
+
+    fn phase_of(f: &LabelledFrame) -> (Phase, u32) {
+        match f.label {
+            Label::Phase { phase, index, .. } => (phase, index),
+            other => panic!("{other:?}"),
+        }
     }
 }

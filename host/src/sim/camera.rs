@@ -110,6 +110,15 @@ pub struct SimulatedCamera {
     /// free-running: frames taken.
     cursor: usize,
     drop_every: Option<u64>,
+    cycle: Option<SceneCycle>,
+}
+
+/// Scenes shown in turn, each for `every_us` of host time from `from_us`.
+#[derive(Debug)]
+struct SceneCycle {
+    scenes: Vec<PhaseImages>,
+    every_us: f64,
+    from_us: f64,
 }
 
 impl SimulatedCamera {
@@ -143,12 +152,39 @@ impl SimulatedCamera {
             sequence: 0,
             cursor,
             drop_every: None,
+            cycle: None,
         }
     }
 
     /// Show another scene from the next frame on (an object pressed into the skin).
     pub fn set_images(&mut self, images: PhaseImages) {
         self.images = images;
+        self.cycle = None;
+    }
+
+    /// Show `scenes` in turn from now on, each for `every_us` (objects pressed and
+    /// lifted one after another); an exposure shows the scene of its start. Nothing
+    /// changes when `scenes` is empty or `every_us` is not positive.
+    pub fn cycle_scenes(&mut self, scenes: Vec<PhaseImages>, every_us: f64) {
+        if scenes.is_empty() || !(every_us.is_finite() && every_us > 0.0) {
+            return;
+        }
+        self.cycle = Some(SceneCycle {
+            scenes,
+            every_us,
+            from_us: self.clock.now_us() as f64,
+        });
+    }
+
+    /// The scene an exposure starting at `start_us` shows.
+    fn images_at(&self, start_us: f64) -> &PhaseImages {
+        match &self.cycle {
+            Some(c) => {
+                let k = ((start_us - c.from_us) / c.every_us).floor().max(0.0) as usize;
+                &c.scenes[k % c.scenes.len()]
+            }
+            None => &self.images,
+        }
     }
 
     /// Drop every `n`th frame (the sequence number still advances, as a camera's does).
@@ -200,7 +236,7 @@ impl SimulatedCamera {
                     timestamp_us: start,
                     exposure_us: self.exposure_us,
                 },
-                image: self.images.blend(&light),
+                image: self.images_at(start).blend(&light),
             });
         }
     }

@@ -3,7 +3,10 @@
 
 use image::RgbImage;
 
-use super::calibrate::CalibrationPair;
+use super::calibrate::{
+    Calibration, CalibrationError, CalibrationPair, CalibrationProgress, CalibrationSettings,
+    calibrate,
+};
 use super::render::{Optics, Scene, Shape, render};
 use crate::rng::Rng;
 
@@ -52,4 +55,24 @@ pub fn reference_frames(optics: &Optics) -> (RgbImage, RgbImage) {
     };
     let pair = render(&quiet, &Scene::default(), 999);
     (pair.dx, pair.dy)
+}
+
+/// Presses in the built-in calibration.
+pub const BUILTIN_PRESSES: usize = 16;
+
+/// The simulated sensor's own calibration: [`BUILTIN_PRESSES`] presses of the
+/// [`CALIBRATION_BALL_MM`] ball rendered with `optics`, with its reference frames. The
+/// demo and `run --sim` use it when no model is given.
+pub fn builtin_calibration(
+    optics: &Optics,
+    progress: impl FnMut(CalibrationProgress),
+) -> Result<Calibration, CalibrationError> {
+    let presses = ball_presses(optics, BUILTIN_PRESSES, CALIBRATION_BALL_MM, 42);
+    let refs = reference_frames(optics);
+    let settings = CalibrationSettings {
+        ball_diameter_mm: CALIBRATION_BALL_MM,
+        px_per_mm: optics.px_per_mm,
+        ..Default::default()
+    };
+    calibrate(&presses, Some((&refs.0, &refs.1)), &settings, progress)
 }

@@ -7,6 +7,7 @@ use anyhow::Result;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod args;
+mod cameras;
 mod cmd;
 mod console;
 mod progress;
@@ -20,8 +21,8 @@ use sensor_args::DeviceArgs;
     version,
     about,
     long_about = None,
-    after_help = "The commands that talk to a sensor (devices, info, selftest, stream, record, set, \
-                  flash) take --sim, --serial and --libusb, after the command or before it."
+    after_help = "The commands that talk to a sensor (devices, info, selftest, stream, run, record, \
+                  set, flash) take --sim, --serial and --libusb, after the command or before it."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -47,6 +48,9 @@ enum Command {
     /// Run the lighting sequence and print phase events with host-clock timestamps,
     /// clock-sync uncertainty and drop counters (Ctrl-C stops).
     Stream(cmd::stream::Args),
+    /// Sensor and camera in, tactile depth out, live: each dx/dy pair reconstructed as it
+    /// is captured (`--jsonl`: one line per pair for a control loop).
+    Run(cmd::run::Args),
     /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
     /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
     Record(cmd::record::Args),
@@ -83,6 +87,7 @@ impl Command {
             Command::Selftest(a) => Some(&mut a.device),
             Command::Stream(a) => Some(&mut a.device),
             Command::Record(a) => Some(&mut a.device),
+            Command::Run(a) => Some(&mut a.device),
             Command::Set(a) => Some(&mut a.device),
             Command::Flash(a) => Some(&mut a.device),
             _ => None,
@@ -103,6 +108,7 @@ fn run(cli: Cli, name: &str) -> Result<()> {
         Command::Selftest(a) => cmd::selftest::run(a),
         Command::Stream(a) => cmd::stream::run(a),
         Command::Record(a) => cmd::record::run(a),
+        Command::Run(a) => cmd::run::run(a),
         Command::Set(a) => cmd::set::run(a),
         Command::Flash(a) => cmd::flash::run(a),
         Command::Calibrate(a) => cmd::calibrate::run(a),

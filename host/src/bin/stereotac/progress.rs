@@ -1,6 +1,11 @@
-//! One progress-bar style for every long-running command of the CLI.
+//! One progress-bar style for every long-running command of the CLI, and the long steps
+//! more than one command shows a bar for.
 
+use anyhow::Result;
 use indicatif::{ProgressBar, ProgressStyle};
+use stereotac::tactile::calibrate::{Calibration, CalibrationProgress, CalibrationSettings};
+use stereotac::tactile::render::Optics;
+use stereotac::tactile::synthetic::{self, BUILTIN_PRESSES};
 
 /// A bar of `len` steps labelled `what`.
 pub fn bar(len: u64, what: &str) -> ProgressBar {
@@ -24,4 +29,22 @@ pub fn spinner(what: &str) -> ProgressBar {
     bar.set_prefix(what.to_string());
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     bar
+}
+
+/// The simulated sensor's built-in calibration (the demo's, and `run --sim`'s model when
+/// none is given), with a progress bar.
+pub fn builtin_calibration(optics: &Optics) -> Result<Calibration> {
+    let epochs = CalibrationSettings::default().mlp.epochs;
+    let progress = bar((BUILTIN_PRESSES + 2 * epochs) as u64, "calibrating");
+    let calibration = synthetic::builtin_calibration(optics, |p| match p {
+        CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
+        CalibrationProgress::Mlp {
+            axis,
+            epoch,
+            epochs,
+            ..
+        } => progress.set_position((BUILTIN_PRESSES + axis * epochs + epoch) as u64),
+    });
+    progress.finish_and_clear();
+    Ok(calibration?)
 }

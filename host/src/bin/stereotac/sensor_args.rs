@@ -55,7 +55,7 @@ impl DeviceArgs {
         if self.is_set() {
             bail!(
                 "`{command}` does not talk to a sensor: --serial, --sim and --libusb apply to \
-                 devices, info, selftest, stream, record, set and flash"
+                 devices, info, selftest, stream, run, record, set and flash"
             );
         }
         Ok(())

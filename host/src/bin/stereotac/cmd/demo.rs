@@ -22,17 +22,16 @@ use stereotac::stereo::output::write_outputs;
 use stereotac::stereo::pipeline::StereoConfig;
 use stereotac::stereo::synthetic::{Membrane, RawRig, TexturedPlane, wide_fisheye_calibration};
 use stereotac::tactile::bench::errors;
-use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, calibrate};
 use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::output;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
 use stereotac::tactile::render::{Optics, Scene, builtin_scenes};
-use stereotac::tactile::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
+use stereotac::tactile::synthetic::{BUILTIN_PRESSES, CALIBRATION_BALL_MM, reference_frames};
 use stereotac_protocol::{Event, Mode, Request, Response, Timing, TriggerOutcome};
 
 use crate::args::ModeArg;
-use crate::progress::bar;
+use crate::progress::{bar, builtin_calibration};
 
 /// `stereotac demo`.
 #[derive(Debug, clap::Args)]
@@ -57,8 +56,6 @@ pub struct Args {
     pub no_stereo: bool,
 }
 
-/// Presses rendered for the demo's calibration.
-const PRESSES: usize = 16;
 /// Simulated camera: exposure starts this long after the trigger edge (µs).
 const CAMERA_LATENCY_US: f64 = 150.0;
 /// Simulated camera exposure (µs).
@@ -78,9 +75,17 @@ pub fn run(a: Args) -> Result<()> {
              gradient or interleaved"
         );
     }
-    timeline(a.mode.into(), a.period_ms, a.phases)?;
+    let mode: Mode = a.mode.into();
+    timeline(mode, a.period_ms, a.phases)?;
     if !a.no_tactile {
-        tactile(&a.out)?;
+        match mode {
+            Mode::Gradient | Mode::Interleaved => tactile(&a.out, mode)?,
+            _ => println!(
+                "\n(tactile part skipped: --mode {} has no dx/dy phases; use gradient or \
+                 interleaved)",
+                stereotac::describe::mode(mode)
+            ),
+        }
     }
     if !a.no_stereo {
         stereo(&a.out)?;
@@ -188,10 +193,11 @@ fn frame_tag(f: &LabelledFrame) -> String {
 }
 
 /// The tactile part: for each object, a dx/dy frame pair from a simulated camera
-/// triggered by the simulated sensor, through the host path a real sensor uses;
+/// triggered by the simulated sensor in `mode` (gradient or interleaved), through the
+/// host path a real sensor uses;
 /// calibration on simulated ball presses; reconstruction from the captured frames with
 /// accuracy, timings and files.
-fn tactile(out: &Path) -> Result<()> {
+fn tactile(out: &Path, mode: Mode) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let optics = Optics::standard();
     let scenes: Vec<(&str, Scene)> = builtin_scenes(&optics);
@@ -207,7 +213,7 @@ fn tactile(out: &Path) -> Result<()> {
         },
     )?;
     let mut sensor = rig.sensor;
-    sensor.request(Request::SetMode(Mode::Gradient))?;
+    sensor.request(Request::SetMode(mode))?;
     sensor.request(Request::Start)?;
     let camera = SimulatedCamera::new(
         rig.timeline,
@@ -260,27 +266,11 @@ fn tactile(out: &Path) -> Result<()> {
         fit.map_or(f64::NAN, |f| f.drift_ppm()),
     );
 
-    let presses = ball_presses(&optics, PRESSES, CALIBRATION_BALL_MM, 42);
+    let calibration = builtin_calibration(&optics)?;
     let refs = reference_frames(&optics);
-    let settings = CalibrationSettings {
-        ball_diameter_mm: CALIBRATION_BALL_MM,
-        px_per_mm: optics.px_per_mm,
-        ..Default::default()
-    };
-    let progress = bar((PRESSES + 2 * settings.mlp.epochs) as u64, "calibrating");
-    let calibration = calibrate(&presses, Some((&refs.0, &refs.1)), &settings, |p| match p {
-        CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
-        CalibrationProgress::Mlp {
-            axis,
-            epoch,
-            epochs,
-            ..
-        } => progress.set_position((PRESSES + axis * epochs + epoch) as u64),
-    })?;
-    progress.finish_and_clear();
     let fit = calibration.model.fit;
     println!(
-        "calibrated on {PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3})",
+        "calibrated on {BUILTIN_PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3})",
         fit.lut_train_rms, fit.lut_validation_rms, fit.mlp_train_rms, fit.mlp_validation_rms
     );
     calibration.model.save(&out.join("model.json"))?;

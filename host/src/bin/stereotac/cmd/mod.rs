@@ -10,6 +10,7 @@ pub mod flash;
 pub mod info;
 pub mod reconstruct;
 pub mod record;
+pub mod run;
 pub mod selftest;
 pub mod set;
 pub mod stereo;

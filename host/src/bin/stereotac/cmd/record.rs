@@ -3,24 +3,22 @@
 //! losing a captured frame.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use stereotac::device::SensorEvent;
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
 use stereotac::frames::replay::Recorder;
-use stereotac::matcher::{CameraSync, MatchedFrame, MatcherConfig, phase_str};
-use stereotac::sim::camera::{PhaseImages, SimClocking, SimulatedCamera};
-use stereotac::tactile::render::{Optics, builtin_scenes};
+use stereotac::matcher::{MatchedFrame, MatcherConfig, phase_str};
 use stereotac_protocol::Request;
 
-use crate::args::{SequenceArgs, parse_size};
+use crate::args::SequenceArgs;
+use crate::cameras::CameraArgs;
 use crate::console::interrupt_flag;
 use crate::progress::spinner;
-use crate::sensor_args::{DeviceArgs, Opened, open};
+use crate::sensor_args::{DeviceArgs, open};
 
 /// `stereotac record`.
 #[derive(Debug, Clone, clap::Args)]
@@ -29,23 +27,8 @@ pub struct Args {
     /// records into DIR/cam0, DIR/cam1, ...
     #[arg(long)]
     pub out: PathBuf,
-    /// Camera: `sim` (the simulated camera; needs --sim) or a V4L2 device such as
-    /// /dev/video0 (needs a build with `--features v4l2`). Repeat for several cameras.
-    #[arg(long = "camera", default_value = "sim")]
-    pub cameras: Vec<String>,
-    /// Exposure time, µs: the simulated camera's, and the one assumed for a V4L2 camera
-    /// that does not report its own.
-    #[arg(long, default_value_t = 8000.0)]
-    pub exposure_us: f64,
-    /// The cameras run on their own clock instead of the sensor's trigger output.
-    #[arg(long)]
-    pub free_running: bool,
-    /// Delay from the trigger edge to the start of the exposure, µs (triggered cameras).
-    #[arg(long, default_value_t = 40.0)]
-    pub trigger_latency_us: f64,
-    /// Frame size to ask V4L2 cameras for, WxH (default: the camera's current size).
-    #[arg(long, value_parser = parse_size)]
-    pub size: Option<(u32, u32)>,
+    #[command(flatten)]
+    pub cameras: CameraArgs,
     /// Sequence settings.
     #[command(flatten)]
     pub sequence: SequenceArgs,
@@ -77,26 +60,13 @@ impl CameraRecording {
 
 pub fn run(a: Args) -> Result<()> {
     let stop = interrupt_flag()?;
-    if !(a.exposure_us.is_finite() && a.exposure_us > 0.0) {
-        bail!("--exposure-us must be positive");
-    }
-    if !(a.trigger_latency_us.is_finite() && a.trigger_latency_us >= 0.0) {
-        bail!("--trigger-latency-us must be zero or positive");
-    }
-    check_cameras(&a.cameras)?;
+    a.cameras.check()?;
     let mut opened = open(&a.device)?;
-    let sync = if a.free_running {
-        CameraSync::FreeRunning
-    } else {
-        CameraSync::Triggered {
-            latency_us: a.trigger_latency_us,
-            tolerance_us: 500.0,
-        }
-    };
+    let sync = a.cameras.sync();
     let mut cameras = Vec::new();
-    for (i, name) in a.cameras.iter().enumerate() {
-        let source = open_camera(name, &a, &opened)?;
-        let dir = if a.cameras.len() == 1 {
+    for (i, name) in a.cameras.cameras.iter().enumerate() {
+        let source = a.cameras.open(name, &opened)?;
+        let dir = if a.cameras.cameras.len() == 1 {
             a.out.clone()
         } else {
             a.out.join(format!("cam{i}"))
@@ -162,67 +132,4 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
-}
-
-/// Open one `--camera`.
-fn open_camera(name: &str, a: &Args, opened: &Opened) -> Result<Box<dyn FrameSource>> {
-    if name == "sim" {
-        let Some(timeline) = opened.timeline.clone() else {
-            bail!("--camera sim renders the simulated sensor's LEDs: add --sim");
-        };
-        let optics = Optics::sized(320, 240);
-        let scene = builtin_scenes(&optics).swap_remove(0).1;
-        let clocking = if a.free_running {
-            SimClocking::FreeRunning {
-                period_us: 33_333.0,
-                first_us: opened.sensor.clock().now_us() as f64,
-            }
-        } else {
-            SimClocking::Triggered {
-                latency_us: a.trigger_latency_us,
-            }
-        };
-        return Ok(Box::new(SimulatedCamera::new(
-            timeline,
-            Arc::clone(opened.sensor.clock()),
-            clocking,
-            a.exposure_us,
-            PhaseImages::render(&optics, &scene),
-        )));
-    }
-    open_v4l2(name, a)
-}
-
-#[cfg(all(feature = "v4l2", target_os = "linux"))]
-fn open_v4l2(name: &str, a: &Args) -> Result<Box<dyn FrameSource>> {
-    use stereotac::frames::v4l2::{V4l2Camera, V4l2Settings};
-    let camera = V4l2Camera::open(
-        std::path::Path::new(name),
-        &V4l2Settings {
-            size: a.size,
-            exposure_us: a.exposure_us,
-            ..V4l2Settings::default()
-        },
-    )?;
-    Ok(Box::new(camera))
-}
-
-#[cfg(not(all(feature = "v4l2", target_os = "linux")))]
-fn open_v4l2(name: &str, _a: &Args) -> Result<Box<dyn FrameSource>> {
-    Err(no_v4l2(name))
-}
-
-/// Refuse V4L2 cameras in a build without V4L2, before anything is connected.
-fn check_cameras(cameras: &[String]) -> Result<()> {
-    match cameras.iter().find(|c| *c != "sim") {
-        Some(name) if !cfg!(all(feature = "v4l2", target_os = "linux")) => Err(no_v4l2(name)),
-        _ => Ok(()),
-    }
-}
-
-fn no_v4l2(name: &str) -> anyhow::Error {
-    anyhow::anyhow!(
-        "camera {name}: this build has no V4L2 capture; rebuild with `--features v4l2` \
-         (Linux; needs libclang-dev), or use --sim --camera sim"
-    )
 }

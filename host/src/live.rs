@@ -1,0 +1,110 @@
+//! The live pipeline's tactile stage: dx/dy pairs as the capture labels them in, depth
+//! and one [`TactileRecord`] per pair out, on the host clock. `stereotac run` drives it
+//! from a sensor and cameras; its `--jsonl` prints the records for a control loop.
+
+use serde::Serialize;
+
+use crate::frames::capture::GradientPair;
+use crate::matcher::{Label, StampRef};
+use crate::tactile::output::Summary;
+use crate::tactile::reconstruct::{ReconstructError, Reconstruction, Reconstructor, StageTimings};
+
+/// One reconstructed dx/dy pair, as `stereotac run --jsonl` prints it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TactileRecord {
+    /// Pairs reconstructed before this one in the run.
+    pub sequence: u64,
+    /// Phase index of the dx frame (the dy frame's is the next).
+    pub phase: u32,
+    /// End of the dx and dy exposures, host µs.
+    pub exposure_end_us: [f64; 2],
+    /// Whether anything touches the skin.
+    pub contact: bool,
+    /// Imprint area, mm².
+    pub area_mm2: f64,
+    /// Depth-weighted centroid, mm from the frame's top-left corner (none without
+    /// contact).
+    pub centroid_mm: Option<[f64; 2]>,
+    /// Deepest point, mm.
+    pub max_depth_mm: f32,
+    /// Displaced volume, mm³.
+    pub volume_mm3: f64,
+    /// Time per stage of the reconstruction, ms.
+    pub stage_ms: StageTimings,
+    /// From the end of the dy exposure to the depth being ready, ms (host clock).
+    pub latency_ms: f64,
+    /// Camera frames lost so far in the run (dropped by the camera or not labelled).
+    pub frames_dropped: u64,
+}
+
+/// The tactile stage (see the module documentation).
+pub struct TactileStage {
+    reconstructor: Reconstructor,
+    px_per_mm: f64,
+    stamp_ref: StampRef,
+    pairs: u64,
+}
+
+impl std::fmt::Debug for TactileStage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TactileStage")
+            .field("px_per_mm", &self.px_per_mm)
+            .field("pairs", &self.pairs)
+            .finish_non_exhaustive()
+    }
+}
+
+impl TactileStage {
+    /// A stage reconstructing with `reconstructor` (its model at `px_per_mm`), for a
+    /// camera whose timestamps mark `stamp_ref`.
+    pub fn new(reconstructor: Reconstructor, px_per_mm: f64, stamp_ref: StampRef) -> Self {
+        Self {
+            reconstructor,
+            px_per_mm,
+            stamp_ref,
+            pairs: 0,
+        }
+    }
+
+    /// Pairs reconstructed so far.
+    pub fn pairs(&self) -> u64 {
+        self.pairs
+    }
+
+    /// Reconstructs `pair`; `now_us` reads the host clock when the depth is ready, and
+    /// `frames_dropped` is the run's count so far.
+    pub fn process(
+        &mut self,
+        pair: &GradientPair,
+        now_us: impl FnOnce() -> f64,
+        frames_dropped: u64,
+    ) -> Result<(Reconstruction, TactileRecord), ReconstructError> {
+        let r = self
+            .reconstructor
+            .reconstruct(&pair.dx.frame.image, &pair.dy.frame.image)?;
+        let ready_us = now_us();
+        let summary = Summary::of(&r, self.px_per_mm);
+        let end = |f: &crate::frames::capture::LabelledFrame| {
+            f.frame.stamp.exposure_end_us(self.stamp_ref)
+        };
+        let (dx_end, dy_end) = (end(&pair.dx), end(&pair.dy));
+        let record = TactileRecord {
+            sequence: self.pairs,
+            phase: match pair.dx.label {
+                Label::Phase { index, .. } => index,
+                _ => 0,
+            },
+            exposure_end_us: [dx_end, dy_end],
+            contact: !summary.no_contact,
+            area_mm2: summary.contact_area_mm2,
+            centroid_mm: summary.centroid_mm,
+            max_depth_mm: summary.max_depth_mm,
+            volume_mm3: summary.volume_mm3,
+            stage_ms: summary.timings,
+            latency_ms: (ready_us - dy_end) / 1000.0,
+            frames_dropped,
+        };
+        self.pairs += 1;
+        Ok((r, record))
+    }
+}
