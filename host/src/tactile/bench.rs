@@ -13,12 +13,11 @@ use realfft::RealFftPlanner;
 use realfft::num_complex::Complex;
 use serde::Serialize;
 
-use super::calibrate::{CalibrationSettings, calibrate};
 use super::model::{ModelKind, TactileModel};
 use super::poisson::{PoissonSolver, SolverKind};
 use super::reconstruct::{Reconstructor, StageTimings};
 use super::render::{Optics, Scene, builtin_scenes, disk, render};
-use super::synthetic::{CALIBRATION_BALL_MM, ball_presses, reference_frames};
+use super::synthetic::builtin_calibration;
 use crate::grid::{Grid, transpose};
 use crate::rng::Rng;
 use crate::timing::{median, median_ms};
@@ -197,15 +196,8 @@ fn calibrated(
     optics: &Optics,
     presses: usize,
 ) -> (TactileModel, (image::RgbImage, image::RgbImage)) {
-    let pairs = ball_presses(optics, presses, CALIBRATION_BALL_MM, 42);
-    let refs = reference_frames(optics);
-    let settings = CalibrationSettings {
-        ball_diameter_mm: CALIBRATION_BALL_MM,
-        px_per_mm: optics.px_per_mm,
-        ..Default::default()
-    };
-    let cal = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings, |_| {})
-        .expect("built-in presses calibrate");
+    let (cal, refs) =
+        builtin_calibration(optics, presses, |_| {}).expect("built-in presses calibrate");
     (cal.model, refs)
 }
 

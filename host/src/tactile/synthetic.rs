@@ -57,22 +57,25 @@ pub fn reference_frames(optics: &Optics) -> (RgbImage, RgbImage) {
     (pair.dx, pair.dy)
 }
 
-/// Presses in the built-in calibration.
+/// Presses in the built-in calibration of the demo and `run --sim`.
 pub const BUILTIN_PRESSES: usize = 16;
 
-/// The simulated sensor's own calibration: [`BUILTIN_PRESSES`] presses of the
-/// [`CALIBRATION_BALL_MM`] ball rendered with `optics`, with its reference frames. The
-/// demo and `run --sim` use it when no model is given.
+/// The simulated sensor's own calibration: `presses` presses of the
+/// [`CALIBRATION_BALL_MM`] ball rendered with `optics`, against its reference frames,
+/// which are returned with it. The demo and `run --sim` (with [`BUILTIN_PRESSES`], when
+/// no model is given) and the benchmark use it.
 pub fn builtin_calibration(
     optics: &Optics,
+    presses: usize,
     progress: impl FnMut(CalibrationProgress),
-) -> Result<Calibration, CalibrationError> {
-    let presses = ball_presses(optics, BUILTIN_PRESSES, CALIBRATION_BALL_MM, 42);
+) -> Result<(Calibration, (RgbImage, RgbImage)), CalibrationError> {
+    let pairs = ball_presses(optics, presses, CALIBRATION_BALL_MM, 42);
     let refs = reference_frames(optics);
     let settings = CalibrationSettings {
         ball_diameter_mm: CALIBRATION_BALL_MM,
         px_per_mm: optics.px_per_mm,
         ..Default::default()
     };
-    calibrate(&presses, Some((&refs.0, &refs.1)), &settings, progress)
+    let calibration = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings, progress)?;
+    Ok((calibration, refs))
 }

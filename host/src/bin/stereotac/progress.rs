@@ -2,6 +2,7 @@
 //! more than one command shows a bar for.
 
 use anyhow::Result;
+use image::RgbImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use stereotac::tactile::calibrate::{Calibration, CalibrationProgress, CalibrationSettings};
 use stereotac::tactile::render::Optics;
@@ -33,10 +34,10 @@ pub fn spinner(what: &str) -> ProgressBar {
 
 /// The simulated sensor's built-in calibration (the demo's, and `run --sim`'s model when
 /// none is given), with a progress bar.
-pub fn builtin_calibration(optics: &Optics) -> Result<Calibration> {
+pub fn builtin_calibration(optics: &Optics) -> Result<(Calibration, (RgbImage, RgbImage))> {
     let epochs = CalibrationSettings::default().mlp.epochs;
     let progress = bar((BUILTIN_PRESSES + 2 * epochs) as u64, "calibrating");
-    let calibration = synthetic::builtin_calibration(optics, |p| match p {
+    let calibration = synthetic::builtin_calibration(optics, BUILTIN_PRESSES, |p| match p {
         CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
         CalibrationProgress::Mlp {
             axis,

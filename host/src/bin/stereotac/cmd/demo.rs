@@ -27,7 +27,7 @@ use stereotac::tactile::output;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
 use stereotac::tactile::render::{Optics, Scene, builtin_scenes};
-use stereotac::tactile::synthetic::{BUILTIN_PRESSES, CALIBRATION_BALL_MM, reference_frames};
+use stereotac::tactile::synthetic::{BUILTIN_PRESSES, CALIBRATION_BALL_MM};
 use stereotac_protocol::{Event, Mode, Request, Response, Timing, TriggerOutcome};
 
 use crate::args::ModeArg;
@@ -266,8 +266,7 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
         fit.map_or(f64::NAN, |f| f.drift_ppm()),
     );
 
-    let calibration = builtin_calibration(&optics)?;
-    let refs = reference_frames(&optics);
+    let (calibration, refs) = builtin_calibration(&optics)?;
     let fit = calibration.model.fit;
     println!(
         "calibrated on {BUILTIN_PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3})",

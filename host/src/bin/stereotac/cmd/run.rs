@@ -14,7 +14,6 @@ use stereotac::matcher::MatcherConfig;
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
-use stereotac::tactile::synthetic::reference_frames;
 use stereotac_protocol::Request;
 
 use crate::args::{ModeArg, SequenceArgs};
@@ -81,9 +80,8 @@ pub fn run(a: Args) -> Result<()> {
     let (model, references) = match &a.model {
         Some(path) => (TactileModel::load(path)?, None),
         None => {
-            let optics = a.cameras.sim_optics();
-            let calibration = builtin_calibration(&optics)?;
-            (calibration.model, Some(reference_frames(&optics)))
+            let (calibration, references) = builtin_calibration(&a.cameras.sim_optics())?;
+            (calibration.model, Some(references))
         }
     };
     if a.cameras.cameras[0] == "sim" {
