@@ -35,6 +35,7 @@ pub mod grid;
 pub mod live;
 pub mod matcher;
 pub mod output;
+pub mod recording;
 pub mod rng;
 pub mod selftest;
 pub mod sim;

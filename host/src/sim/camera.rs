@@ -16,7 +16,10 @@ use stereotac_protocol::Phase;
 use super::link::LedTimeline;
 use crate::clock::HostClock;
 use crate::frames::{Frame, FrameError, FrameSource};
+use crate::grid::Grid;
 use crate::matcher::{FrameStamp, StampRef};
+use crate::stereo::StereoCalibration;
+use crate::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
 use crate::tactile::render::{Optics, Scene, render};
 
 /// How the simulated camera is clocked.
@@ -67,6 +70,13 @@ impl PhaseImages {
         }
     }
 
+    /// The same phases with another LEDs-dark image (a stereo camera's view of the
+    /// world through the skin).
+    pub fn with_dark(mut self, dark: RgbImage) -> Self {
+        self.dark = dark;
+        self
+    }
+
     /// The image of one phase.
     pub fn of(&self, phase: Phase) -> &RgbImage {
         match phase {
@@ -94,6 +104,54 @@ impl PhaseImages {
             }
             image::Rgb(acc.map(|v| v.round().clamp(0.0, 255.0) as u8))
         })
+    }
+}
+
+/// The simulated sensor's stereo pair at any frame size: its two cameras 14 mm apart
+/// (ideal, rectified: [`StereoRig`] scaled from 640×480) and what they see through the
+/// skin with the LEDs dark, a textured board 150 mm away, turned a little.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimStereo {
+    /// The rig.
+    pub rig: StereoRig,
+    /// The board.
+    pub plane: Plane,
+}
+
+impl SimStereo {
+    /// The rig at `width×height`.
+    pub fn new(width: u32, height: u32) -> Self {
+        let sensor = StereoRig::sensor();
+        Self {
+            rig: StereoRig {
+                width: width as usize,
+                height: height as usize,
+                focal_px: sensor.focal_px * f64::from(width) / sensor.width as f64,
+                ..sensor
+            },
+            plane: Plane {
+                z_mm: 150.0,
+                tilt_x: 0.15,
+                tilt_y: -0.1,
+            },
+        }
+    }
+
+    /// Its calibration (what `run --sim` uses when no `--calib` is given).
+    pub fn calibration(&self) -> StereoCalibration {
+        self.rig.calibration()
+    }
+
+    /// The left and right LEDs-dark views.
+    pub fn dark_views(&self) -> (RgbImage, RgbImage) {
+        let (l, r) = render_pair(&self.rig, &self.plane, &Membrane::sensor(), 0);
+        let rgb = |g: &Grid<u8>| {
+            RgbImage::from_fn(g.width() as u32, g.height() as u32, |x, y| {
+                let v = g.get(x as usize, y as usize);
+                image::Rgb([v, v, v])
+            })
+        };
+        (rgb(&l), rgb(&r))
     }
 }
 

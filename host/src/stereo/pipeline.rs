@@ -79,7 +79,7 @@ pub enum StereoError {
 }
 
 /// Milliseconds per stage of one frame.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct StereoTimings {
     /// Rectifying both views.
     pub rectify_ms: f64,

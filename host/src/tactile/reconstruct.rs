@@ -45,7 +45,7 @@ pub enum ReconstructError {
 }
 
 /// Milliseconds spent in each stage.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct StageTimings {
     /// Coarse contact detection over the frame.
     pub detect_ms: f64,
@@ -97,6 +97,22 @@ pub struct Reconstructor {
 }
 
 impl Reconstructor {
+    /// Another reconstructor with the same model, references and settings, and its own
+    /// solver plans and buffers (one per worker thread: results are identical).
+    pub fn fresh(&self) -> Self {
+        Self {
+            model: self.model.clone(),
+            kind: self.kind,
+            solver_kind: self.solver_kind,
+            refs: self.refs.clone(),
+            solver: PoissonSolver::new(),
+            max_slope: self.max_slope,
+            features: Vec::new(),
+            targets: Vec::new(),
+            slopes: Vec::new(),
+        }
+    }
+
     /// A reconstructor for `model` with the chosen gradient model and solver. With
     /// `references` (no-contact dx and dy frames), colours are normalised per pixel by
     /// them; without, by the model's calibrated background.

@@ -103,6 +103,17 @@ pub struct PipelineArgs {
     pub block_size: u32,
 }
 
+impl Default for PipelineArgs {
+    fn default() -> Self {
+        Self {
+            near_mm: 50.0,
+            far_mm: 600.0,
+            scale: 1.0,
+            block_size: 9,
+        }
+    }
+}
+
 impl PipelineArgs {
     /// The pipeline configuration these options describe.
     pub fn config(&self) -> StereoConfig {

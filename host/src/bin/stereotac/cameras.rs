@@ -4,9 +4,10 @@
 use std::sync::Arc;
 
 use anyhow::{Result, bail};
+use image::RgbImage;
 use stereotac::frames::FrameSource;
 use stereotac::matcher::CameraSync;
-use stereotac::sim::camera::{PhaseImages, SimClocking, SimulatedCamera};
+use stereotac::sim::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamera};
 use stereotac::tactile::render::{Optics, builtin_scenes};
 
 use crate::args::parse_size;
@@ -74,23 +75,54 @@ impl CameraArgs {
         Optics::resolution(w as usize, h as usize)
     }
 
-    /// Opens camera `name`.
-    pub fn open(&self, name: &str, opened: &Opened) -> Result<Box<dyn FrameSource>> {
-        if name == "sim" {
-            return Ok(Box::new(self.open_sim(opened)?));
+    /// Whether cameras 0 and 1 are both simulated: they are then the simulated stereo
+    /// pair, showing [`SimStereo`]'s scene in dark phases.
+    pub fn sim_stereo(&self) -> Option<SimStereo> {
+        match self.cameras.as_slice() {
+            [a, b, ..] if a == "sim" && b == "sim" => {
+                let optics = self.sim_optics();
+                Some(SimStereo::new(optics.width as u32, optics.height as u32))
+            }
+            _ => None,
         }
-        self.open_v4l2(name)
     }
 
-    /// The simulated camera: the built-in objects pressed in turn, each for a second.
-    fn open_sim(&self, opened: &Opened) -> Result<SimulatedCamera> {
+    /// Opens every camera, in order.
+    pub fn open_all(&self, opened: &Opened) -> Result<Vec<Box<dyn FrameSource>>> {
+        let views = self.sim_stereo().map(|s| s.dark_views());
+        let mut out = Vec::new();
+        for (i, name) in self.cameras.iter().enumerate() {
+            let source: Box<dyn FrameSource> = if name == "sim" {
+                let dark = match (i, &views) {
+                    (0, Some((left, _))) => Some(left.clone()),
+                    (1, Some((_, right))) => Some(right.clone()),
+                    _ => None,
+                };
+                Box::new(self.open_sim(opened, dark)?)
+            } else {
+                self.open_v4l2(name)?
+            };
+            out.push(source);
+        }
+        Ok(out)
+    }
+
+    /// The simulated camera: the built-in objects pressed in turn, each for a second;
+    /// `dark` is what it sees with the LEDs dark (default: a plain texture).
+    fn open_sim(&self, opened: &Opened, dark: Option<RgbImage>) -> Result<SimulatedCamera> {
         let Some(timeline) = opened.timeline.clone() else {
             bail!("--camera sim renders the simulated sensor's LEDs: add --sim");
         };
         let optics = self.sim_optics();
         let scenes: Vec<PhaseImages> = builtin_scenes(&optics)
             .iter()
-            .map(|(_, scene)| PhaseImages::render(&optics, scene))
+            .map(|(_, scene)| {
+                let images = PhaseImages::render(&optics, scene);
+                match &dark {
+                    Some(d) => images.with_dark(d.clone()),
+                    None => images,
+                }
+            })
             .collect();
         let clocking = if self.free_running {
             SimClocking::FreeRunning {

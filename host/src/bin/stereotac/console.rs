@@ -1,5 +1,5 @@
 //! What several commands do at the terminal: print lines that notice a closed stdout,
-//! stop on Ctrl-C, and write JSON reports.
+//! stop on Ctrl-C (and SIGTERM, SIGHUP), and write JSON reports.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -14,11 +14,12 @@ pub fn emit(line: std::fmt::Arguments<'_>) -> bool {
     writeln!(std::io::stdout().lock(), "{line}").is_ok()
 }
 
-/// Stop on Ctrl-C: the flag turns true.
+/// Stop on Ctrl-C, SIGTERM or SIGHUP: the flag turns true.
 pub fn interrupt_flag() -> Result<Arc<AtomicBool>> {
     let flag = Arc::new(AtomicBool::new(false));
     let f = Arc::clone(&flag);
-    ctrlc::set_handler(move || f.store(true, Ordering::SeqCst)).context("installing Ctrl-C")?;
+    ctrlc::set_handler(move || f.store(true, Ordering::SeqCst))
+        .context("installing the Ctrl-C/SIGTERM/SIGHUP handler")?;
     Ok(flag)
 }
 

@@ -10,8 +10,10 @@ mod args;
 mod cameras;
 mod cmd;
 mod console;
+mod live_report;
 mod progress;
 mod sensor_args;
+mod stages;
 
 use sensor_args::DeviceArgs;
 
@@ -48,9 +50,12 @@ enum Command {
     /// Run the lighting sequence and print phase events with host-clock timestamps,
     /// clock-sync uncertainty and drop counters (Ctrl-C stops).
     Stream(cmd::stream::Args),
-    /// Sensor and camera in, tactile depth out, live: each dx/dy pair reconstructed as it
-    /// is captured (`--jsonl`: one line per pair for a control loop).
+    /// Sensor and cameras in, depth out, live: tactile depth from dx/dy pairs, stereo
+    /// depth from two cameras' dark frames (`--jsonl` for a control loop, `--mcap` to
+    /// record, `--foxglove` for a live view).
     Run(cmd::run::Args),
+    /// The live pipeline offline, on a recording (MCAP): the same depth, bit for bit.
+    Process(cmd::process::Args),
     /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
     /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
     Record(cmd::record::Args),
@@ -109,6 +114,7 @@ fn run(cli: Cli, name: &str) -> Result<()> {
         Command::Stream(a) => cmd::stream::run(a),
         Command::Record(a) => cmd::record::run(a),
         Command::Run(a) => cmd::run::run(a),
+        Command::Process(a) => cmd::process::run(a),
         Command::Set(a) => cmd::set::run(a),
         Command::Flash(a) => cmd::flash::run(a),
         Command::Calibrate(a) => cmd::calibrate::run(a),

@@ -58,10 +58,11 @@ pub struct Sample {
 }
 
 /// Which model turns colour into slope.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ModelKind {
     /// Lookup table (fast).
+    #[default]
     Lut,
     /// Multilayer perceptron (smooth).
     Mlp,
@@ -288,8 +289,12 @@ impl TactileModel {
             path: path.display().to_string(),
             source,
         };
-        let json = serde_json::to_vec(self).map_err(|e| io(std::io::Error::other(e)))?;
-        std::fs::write(path, json).map_err(io)
+        std::fs::write(path, self.to_json()).map_err(io)
+    }
+
+    /// The model as JSON, as [`Self::save`] writes it (and recordings attach it).
+    pub fn to_json(&self) -> Vec<u8> {
+        serde_json::to_vec(self).expect("a model always serialises")
     }
 
     /// Reads and checks a model file.
@@ -299,23 +304,30 @@ impl TactileModel {
             path: name.clone(),
             source,
         })?;
+        Self::from_json(&name, &bytes)
+    }
+
+    /// Reads and checks a model's JSON; `name` says where it came from in errors.
+    pub fn from_json(name: &str, bytes: &[u8]) -> Result<Self, ModelError> {
         #[derive(Deserialize)]
         struct Header {
             format: String,
             version: u32,
         }
-        let header: Header =
-            serde_json::from_slice(&bytes).map_err(|source| ModelError::Parse {
-                path: name.clone(),
-                source,
-            })?;
+        let header: Header = serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
+            path: name.to_string(),
+            source,
+        })?;
         if header.format != MODEL_FORMAT || header.version != MODEL_VERSION {
             return Err(ModelError::Version {
-                path: name,
+                path: name.to_string(),
                 format: header.format,
                 version: header.version,
             });
         }
-        serde_json::from_slice(&bytes).map_err(|source| ModelError::Parse { path: name, source })
+        serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
+            path: name.to_string(),
+            source,
+        })
     }
 }

@@ -8,6 +8,7 @@ pub mod devices;
 pub mod firmware_image;
 pub mod flash;
 pub mod info;
+pub mod process;
 pub mod reconstruct;
 pub mod record;
 pub mod run;

@@ -64,8 +64,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut opened = open(&a.device)?;
     let sync = a.cameras.sync();
     let mut cameras = Vec::new();
-    for (i, name) in a.cameras.cameras.iter().enumerate() {
-        let source = a.cameras.open(name, &opened)?;
+    for (i, source) in a.cameras.open_all(&opened)?.into_iter().enumerate() {
         let dir = if a.cameras.cameras.len() == 1 {
             a.out.clone()
         } else {

@@ -1,202 +1,403 @@
-//! `stereotac run`: the sensor and a camera in, tactile depth out, live: every frame is
-//! labelled with its LED phase, each dx/dy pair is reconstructed as it completes, and
-//! `--jsonl` prints one line per pair for a control loop.
+//! `stereotac run`: the sensor and one or two cameras in, time-aligned depth out, live.
+//! Every frame is labelled with its LED phase; camera 0's dx/dy pairs go to the tactile
+//! stage, dark frames of cameras 0 and 1 to the stereo stage. `--jsonl` prints one line
+//! per tactile pair for a control loop, `--mcap` records everything, `--foxglove` serves
+//! a live view. Ctrl-C, SIGTERM and SIGHUP finish the recording properly.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use stereotac::device::SensorEvent;
-use stereotac::frames::capture::{Capture, GradientPairer, LabelledFrame};
-use stereotac::live::{TactileRecord, TactileStage};
+use stereotac::clock::HostClock;
+use stereotac::device::{SensorEvent, firmware_version, serial_number};
+use stereotac::frames::FrameSource;
+use stereotac::frames::capture::{Capture, LabelledFrame};
+use stereotac::live::Pipeline;
 use stereotac::matcher::MatcherConfig;
-use stereotac::tactile::model::{ModelKind, TactileModel};
-use stereotac::tactile::poisson::SolverKind;
-use stereotac::tactile::reconstruct::Reconstructor;
+use stereotac::recording::messages::{ClockInfo, FrameInfo, PhaseInfo};
+use stereotac::recording::topics;
+use stereotac::recording::writer::{Item, Recorder, RecorderOptions, clock_origin_unix_ns};
 use stereotac_protocol::Request;
 
-use crate::args::{ModeArg, SequenceArgs};
+use crate::args::{ModeArg, PipelineArgs, SequenceArgs};
 use crate::cameras::CameraArgs;
-use crate::console::{emit, interrupt_flag};
+use crate::console::interrupt_flag;
+use crate::live_report::Report;
 use crate::progress::builtin_calibration;
 use crate::sensor_args::{DeviceArgs, open};
+use crate::stages::{StageArgs, StereoSetup, TactileSetup, stamp_ref_name};
 
 /// `stereotac run`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
     #[command(flatten)]
     pub cameras: CameraArgs,
-    /// Sequence settings (gradient or interleaved: the modes with dx/dy phases).
+    /// Sequence settings: gradient (tactile), vision (stereo) or interleaved (both).
     #[command(flatten)]
     pub sequence: SequenceArgs,
-    /// Tactile model from `calibrate`. With --sim and no model, the simulated sensor's
-    /// built-in calibration is used.
-    #[arg(long)]
-    pub model: Option<PathBuf>,
-    /// Gradient model: lut (default) or mlp.
-    #[arg(long = "model-kind", default_value = "lut")]
-    pub model_kind: ModelKind,
-    /// One JSON object per reconstructed pair on stdout: sequence, phase, exposure ends
-    /// (host µs), contact, area mm², centroid mm, max depth mm, volume mm³, time per
-    /// stage ms, latency ms, frames dropped so far.
+    /// Tactile model and stereo calibration. With --sim and simulated cameras, built-in
+    /// ones are used when none is given.
+    #[command(flatten)]
+    pub stages: StageArgs,
+    /// Stereo matching settings.
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+    /// Record everything to this MCAP file (new; opens in Foxglove): raw frames, LED
+    /// phases, clock sync, depth, contact, point clouds, model and calibration.
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
+    /// Serve a live view for Foxglove (open ws://ADDR in Foxglove's "Open connection").
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<String>,
+    /// One JSON object per reconstructed tactile pair on stdout: sequence, phase,
+    /// exposure ends (host µs), contact, area mm², centroid mm, max depth mm, volume mm³,
+    /// time per stage ms, latency ms, frames dropped so far.
     #[arg(long)]
     pub jsonl: bool,
     #[command(flatten)]
     pub device: DeviceArgs,
 }
 
-/// The latency figures printed at the end: (p50, p99), ms.
-fn percentiles(mut v: Vec<f64>) -> Option<(f64, f64)> {
-    if v.is_empty() {
-        return None;
+/// What the mode lights, so which stages can run.
+fn stages_of(mode: ModeArg) -> (bool, bool) {
+    match mode {
+        ModeArg::Gradient => (true, false),
+        ModeArg::Vision => (false, true),
+        ModeArg::Interleaved => (true, true),
+        ModeArg::Off | ModeArg::Contact => (false, false),
     }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    Some((at(0.5), at(0.99)))
+}
+
+/// The stages' setups, loaded before the sensor is touched (a bad file is refused
+/// first, and the clock sync is not left unpolled while a built-in model calibrates).
+fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
+    let (gradients, dark) = stages_of(a.sequence.mode);
+    let all_sim = a.device.sim && a.cameras.cameras.iter().all(|c| c == "sim");
+    let tactile = if gradients {
+        let setup = match &a.stages.model {
+            Some(path) => TactileSetup {
+                model: stereotac::tactile::model::TactileModel::load(path)?,
+                references: None,
+                kind: a.stages.model_kind.unwrap_or_default(),
+            },
+            None if all_sim => {
+                let (calibration, references) = builtin_calibration(&a.cameras.sim_optics())?;
+                TactileSetup {
+                    model: calibration.model,
+                    references: Some(references),
+                    kind: a.stages.model_kind.unwrap_or_default(),
+                }
+            }
+            None => bail!(
+                "--mode {:?} reconstructs tactile depth: give --model FILE (from `stereotac \
+                 calibrate`); only --sim with simulated cameras has a built-in one",
+                a.sequence.mode
+            ),
+        };
+        Some(setup.round_trip()?)
+    } else {
+        if a.stages.model.is_some() {
+            bail!("--model needs dx/dy phases: use --mode gradient or --mode interleaved");
+        }
+        None
+    };
+    let two = a.cameras.cameras.len() >= 2;
+    let stereo = if dark && two {
+        let calib = if !a.stages.calib.is_empty() {
+            stereotac::stereo::StereoCalibration::load(&a.stages.calib)?
+        } else if let (true, Some(sim)) = (a.device.sim, a.cameras.sim_stereo()) {
+            sim.calibration()
+        } else {
+            bail!(
+                "two cameras in --mode {:?} give stereo depth: give --calib stereo.yaml (or \
+                 --calib left.yaml --calib right.yaml); only --sim with simulated cameras has \
+                 a built-in one",
+                a.sequence.mode
+            );
+        };
+        Some(
+            StereoSetup {
+                calib,
+                config: a.pipeline.config(),
+            }
+            .round_trip()?,
+        )
+    } else {
+        if !a.stages.calib.is_empty() {
+            bail!(
+                "--calib needs two cameras and dark phases: give --camera twice and --mode \
+                 vision or --mode interleaved"
+            );
+        }
+        None
+    };
+    if tactile.is_none() && stereo.is_none() && a.mcap.is_none() && a.foxglove.is_none() {
+        bail!(
+            "nothing to do: --mode {:?} with {} camera(s) gives neither tactile nor stereo \
+             depth; use --mode gradient or interleaved (tactile), two cameras with --mode \
+             vision or interleaved (stereo), or record with --mcap",
+            a.sequence.mode,
+            a.cameras.cameras.len()
+        );
+    }
+    Ok((tactile, stereo))
 }
 
 pub fn run(a: Args) -> Result<()> {
     let stop = interrupt_flag()?;
     a.cameras.check()?;
-    if !matches!(a.sequence.mode, ModeArg::Gradient | ModeArg::Interleaved) {
-        bail!(
-            "`run` reconstructs tactile depth from dx/dy phases: use --mode gradient or \
-             --mode interleaved"
+    if a.cameras.cameras.len() > 4 {
+        bail!("at most 4 cameras ({} given)", a.cameras.cameras.len());
+    }
+    let (tactile, stereo) = setups(&a)?;
+    if a.cameras.cameras.iter().all(|c| c == "sim") {
+        let o = a.cameras.sim_optics();
+        let size = (o.width as u32, o.height as u32);
+        if let Some(t) = &tactile {
+            t.check_size("the simulated camera", size)?;
+        }
+        if let Some(s) = &stereo {
+            s.check_size("the simulated cameras", true, size)?;
+            s.check_size("the simulated cameras", false, size)?;
+        }
+    }
+    let mut opened = open(&a.device)?;
+    let clock: Arc<dyn HostClock> = Arc::clone(opened.sensor.clock());
+    let origin_ns = clock_origin_unix_ns(clock.now_us());
+    let recorder = Recorder::start(RecorderOptions {
+        mcap: a.mcap.clone(),
+        live_view: a.foxglove.clone(),
+        queue: 64,
+        clock_origin_unix_ns: origin_ns,
+    })?;
+    if let Some(port) = recorder.live_port() {
+        eprintln!(
+            "live view: open Foxglove, \"Open connection\", ws://{}:{port}",
+            a.foxglove
+                .as_deref()
+                .and_then(|s| s.rsplit_once(':'))
+                .map_or("127.0.0.1", |(h, _)| h)
         );
     }
-    match a.cameras.cameras.as_slice() {
-        [_] => {}
-        many => bail!(
-            "`run` takes one camera for now ({} given); record several with `record`",
-            many.len()
-        ),
+    let sources = a.cameras.open_all(&opened)?;
+    let mut captures: Vec<Capture<Box<dyn FrameSource>>> = Vec::new();
+    for (i, source) in sources.into_iter().enumerate() {
+        eprintln!("camera {i}: {}", source.describe());
+        captures.push(Capture::new(
+            source,
+            MatcherConfig {
+                sync: a.cameras.sync(),
+                ..MatcherConfig::default()
+            },
+        ));
     }
-    if a.model.is_none() && !a.device.sim {
-        bail!("give --model FILE (from `stereotac calibrate`); only --sim has a built-in one");
+    record_header(&a, &opened.sensor, &captures, origin_ns, &recorder)?;
+    if let Some(t) = &tactile {
+        t.record(&recorder)?;
     }
-    // The model first: a bad one is refused before the sensor is touched, and the
-    // sensor's clock sync is not left unpolled while a built-in one is calibrated.
-    let (model, references) = match &a.model {
-        Some(path) => (TactileModel::load(path)?, None),
-        None => {
-            let (calibration, references) = builtin_calibration(&a.cameras.sim_optics())?;
-            (calibration.model, Some(references))
-        }
-    };
-    if a.cameras.cameras[0] == "sim" {
-        let optics = a.cameras.sim_optics();
-        if (model.width, model.height) != (optics.width, optics.height) {
-            bail!(
-                "the model was calibrated at {}×{} but the simulated camera is {}×{}: give \
-                 --size {}x{} or a model of that size",
-                model.width,
-                model.height,
-                optics.width,
-                optics.height,
-                model.width,
-                model.height
-            );
-        }
+    if let Some(s) = &stereo {
+        s.record(&recorder)?;
     }
-    let px_per_mm = model.px_per_mm;
-    let reconstructor = Reconstructor::new(
-        model,
-        a.model_kind,
-        SolverKind::Dct,
-        references.as_ref().map(|(x, y)| (x, y)),
-    )?;
-    let mut opened = open(&a.device)?;
-    let camera = a.cameras.open(&a.cameras.cameras[0], &opened)?;
-    eprintln!("camera 0: {}", camera.describe());
-    let mut capture = Capture::new(
-        camera,
-        MatcherConfig {
-            sync: a.cameras.sync(),
-            ..MatcherConfig::default()
-        },
-    );
-    let mut stage = TactileStage::new(reconstructor, px_per_mm, capture.stamp_ref());
-    let mut pairer = GradientPairer::default();
-    let mut latencies = Vec::new();
-    let mut contacts = 0u64;
+    let tactile_stage = tactile
+        .as_ref()
+        .map(|t| t.stage(captures[0].stamp_ref()))
+        .transpose()?;
+    let stereo_stage = stereo
+        .as_ref()
+        .map(|s| s.stage([captures[0].stamp_ref(), captures[1].stamp_ref()]))
+        .transpose()?;
+    let mut pipeline = Pipeline::new(tactile_stage, stereo_stage);
+    let mut report = Report::new(a.jsonl);
+    let mut sizes_checked = vec![false; captures.len()];
+
     let sensor = &mut opened.sensor;
     a.sequence.start(sensor)?;
     let end = a.sequence.deadline(sensor)?;
-    let clock = std::sync::Arc::clone(sensor.clock());
-    // Reconstruct each pair as it completes; false once stdout is gone.
-    let mut handle = |frames: Vec<LabelledFrame>, dropped: u64| -> Result<bool> {
+    let mut handle = |camera: usize,
+                      frames: Vec<LabelledFrame>,
+                      stamp_ref,
+                      dropped: u64,
+                      report: &mut Report|
+     -> Result<bool> {
         for frame in frames {
-            let Some(pair) = pairer.push(frame) else {
+            if !std::mem::replace(&mut sizes_checked[camera], true) {
+                let size = frame.frame.image.dimensions();
+                let name = format!("camera {camera} ({})", a.cameras.cameras[camera]);
+                if camera == 0
+                    && let Some(t) = &tactile
+                {
+                    t.check_size(&name, size)?;
+                }
+                if camera < 2
+                    && let Some(s) = &stereo
+                {
+                    s.check_size(&name, camera == 0, size)?;
+                }
+            }
+            recorder.send(Item::Frame {
+                camera,
+                info: FrameInfo::new(frame.frame.stamp, stamp_ref, frame.label),
+                image: frame.frame.image.clone(),
+            });
+            let Some(job) = pipeline.route(camera, frame) else {
                 continue;
             };
-            let (_, record) = stage.process(&pair, || clock.now_us() as f64, dropped)?;
-            latencies.push(record.latency_ms);
-            contacts += u64::from(record.contact);
-            if !print(&record, a.jsonl)? {
+            let dropped = dropped + recorder.dropped().frames;
+            let Some(output) = pipeline.run(&job, || Some(clock.now_us() as f64), dropped)? else {
+                continue;
+            };
+            let open = report.print(&output)?;
+            recorder.send(output.into_item());
+            if !open {
                 return Ok(false);
             }
         }
         Ok(true)
     };
+    let mut failure = None;
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        let step = capture
-            .step(sensor, Duration::from_millis(10))
-            .context("capturing")?;
-        for event in &step.events {
+        let events = sensor
+            .poll(Duration::from_millis(10))
+            .context("polling the sensor")?;
+        for event in &events {
             match event {
-                SensorEvent::Fault(f, at) => eprintln!("fault {:?} at host {at:.0} µs", f.kind),
-                SensorEvent::Reconnected { attempts } => {
-                    eprintln!("reconnected after {attempts} attempts")
+                SensorEvent::Phase(p) => {
+                    recorder.send(Item::Phase(PhaseInfo::from(p)));
                 }
-                _ => {}
+                SensorEvent::Heartbeat(_) => {
+                    let now = sensor.clock().now_us() as f64;
+                    recorder.send(Item::Clock(ClockInfo::new(now, sensor.clock_fit())));
+                }
+                SensorEvent::Fault(f, at) => warn(
+                    &recorder,
+                    *at,
+                    format!("sensor fault {:?} at host {at:.0} µs", f.kind),
+                ),
+                SensorEvent::Reconnected { attempts } => warn(
+                    &recorder,
+                    sensor.clock().now_us() as f64,
+                    format!("sensor reconnected after {attempts} attempts"),
+                ),
+                SensorEvent::Probe(_) => {}
             }
         }
-        if !handle(step.frames, capture.stats().dropped_frames)? {
-            stop.store(true, Ordering::SeqCst);
+        let dropped: u64 = captures.iter().map(|c| c.stats().dropped_frames).sum();
+        let mut open = true;
+        for (i, capture) in captures.iter_mut().enumerate() {
+            let frames = capture
+                .absorb(&events)
+                .with_context(|| format!("camera {i}"))?;
+            open &= handle(i, frames, capture.stamp_ref(), dropped, &mut report)?;
+        }
+        if !open {
+            eprintln!("stdout closed: stopping");
+            break;
+        }
+        if let Some(e) = recorder.failure() {
+            failure = Some(e);
+            break;
         }
     }
+    // The end, Ctrl-C or a signal: stop the LEDs, label and process every captured frame.
     let stopped = sensor.request(Request::Stop);
-    let rest = capture.finish();
-    let open_stdout = handle(rest, capture.stats().dropped_frames)?;
-    stopped?;
-    let s = capture.stats();
-    let pairs = stage.pairs();
-    let latency = percentiles(latencies).map_or("-".into(), |(p50, p99)| {
-        format!("p50 {p50:.2} ms, p99 {p99:.2} ms")
-    });
-    eprintln!(
-        "run: {pairs} dx/dy pairs reconstructed, {contacts} with contact; latency {latency}; \
-         frames: {} labelled, {} dropped, {} straddling, {} with a lost event{}",
-        s.labelled,
-        s.dropped_frames,
-        s.straddling,
-        s.event_missing,
-        if open_stdout { "" } else { "; stdout closed" }
-    );
+    let dropped: u64 = captures.iter().map(|c| c.stats().dropped_frames).sum();
+    for (i, capture) in captures.iter_mut().enumerate() {
+        let rest = capture.finish();
+        if report.stdout_open() {
+            handle(i, rest, capture.stamp_ref(), dropped, &mut report)?;
+        }
+    }
+    let summary = recorder.finish();
+    stopped.context("stopping the sequence")?;
+    report.finish(&pipeline);
+    for (i, c) in captures.iter().enumerate() {
+        let s = c.stats();
+        eprintln!(
+            "camera {i}: {} frames labelled, {} dropped, {} straddling, {} with a lost event",
+            s.labelled, s.dropped_frames, s.straddling, s.event_missing
+        );
+    }
+    let summary = summary?;
+    if let Some(path) = &summary.path {
+        let frames: u64 = summary
+            .messages
+            .iter()
+            .filter(|(t, _)| t.ends_with("/image") && t.contains("/cam"))
+            .map(|(_, n)| n)
+            .sum();
+        eprintln!(
+            "recorded {} ({:.1} MiB): {frames} frames, {} messages in all; {} dropped at the \
+             queue (frames {}, results {}, events {})",
+            path.display(),
+            summary.bytes as f64 / (1 << 20) as f64,
+            summary.messages.values().sum::<u64>(),
+            summary.dropped.total(),
+            summary.dropped.frames,
+            summary.dropped.results,
+            summary.dropped.events
+        );
+    }
+    if let Some(e) = failure {
+        bail!("recording failed: {e}");
+    }
     Ok(())
 }
 
-/// Prints one record; `false` once stdout is gone.
-fn print(r: &TactileRecord, jsonl: bool) -> Result<bool> {
-    if jsonl {
-        return Ok(emit(format_args!("{}", serde_json::to_string(r)?)));
+/// Prints a warning and records it.
+fn warn(recorder: &Recorder, at_us: f64, message: String) {
+    eprintln!("warning: {message}");
+    recorder.send(Item::Warning { at_us, message });
+}
+
+/// The recording's metadata: what ran, on which sensor, with which cameras.
+fn record_header(
+    a: &Args,
+    sensor: &stereotac::device::Sensor,
+    captures: &[Capture<Box<dyn FrameSource>>],
+    origin_ns: u64,
+    recorder: &Recorder,
+) -> Result<()> {
+    let info = sensor.info();
+    let mut run = BTreeMap::from([
+        ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ("command".to_string(), "run".to_string()),
+        (
+            "mode".to_string(),
+            format!("{:?}", a.sequence.mode).to_lowercase(),
+        ),
+        ("period_ms".to_string(), a.sequence.period_ms.to_string()),
+        ("cameras".to_string(), captures.len().to_string()),
+        ("clock_origin_unix_ns".to_string(), origin_ns.to_string()),
+    ]);
+    for (i, c) in captures.iter().enumerate() {
+        run.insert(format!("camera{i}"), c.source().describe());
+        run.insert(
+            format!("camera{i}_stamp"),
+            stamp_ref_name(c.stamp_ref()).to_string(),
+        );
     }
-    Ok(if r.contact {
-        emit(format_args!(
-            "pair {:>4} (phase {:>5}): contact {:7.2} mm², max depth {:.3} mm, volume {:.2} mm³; {:.2} ms, latency {:.1} ms",
-            r.sequence,
-            r.phase,
-            r.area_mm2,
-            r.max_depth_mm,
-            r.volume_mm3,
-            r.stage_ms.total_ms,
-            r.latency_ms
-        ))
-    } else {
-        emit(format_args!(
-            "pair {:>4} (phase {:>5}): no contact; {:.2} ms, latency {:.1} ms",
-            r.sequence, r.phase, r.stage_ms.total_ms, r.latency_ms
-        ))
-    })
+    let sensor_meta = BTreeMap::from([
+        ("serial".to_string(), serial_number(&info.board_id)),
+        ("firmware".to_string(), firmware_version(info)),
+        (
+            "protocol_version".to_string(),
+            info.protocol_version.to_string(),
+        ),
+        ("simulated".to_string(), a.device.sim.to_string()),
+    ]);
+    for (name, entries) in [
+        (topics::META_RECORDING, run),
+        (topics::META_SENSOR, sensor_meta),
+    ] {
+        if !recorder.send(Item::Metadata {
+            name: name.into(),
+            entries,
+        }) {
+            bail!("the recording's writer stopped");
+        }
+    }
+    Ok(())
 }

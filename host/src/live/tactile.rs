@@ -1,8 +1,8 @@
-//! The live pipeline's tactile stage: dx/dy pairs as the capture labels them in, depth
-//! and one [`TactileRecord`] per pair out, on the host clock. `stereotac run` drives it
-//! from a sensor and cameras; its `--jsonl` prints the records for a control loop.
+//! The tactile stage: dx/dy pairs as the capture labels them in, depth and one
+//! [`TactileRecord`] per pair out, on the host clock. `stereotac run --jsonl` prints
+//! the records for a control loop.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::frames::capture::GradientPair;
 use crate::matcher::{Label, StampRef};
@@ -10,7 +10,7 @@ use crate::tactile::output::Summary;
 use crate::tactile::reconstruct::{ReconstructError, Reconstruction, Reconstructor, StageTimings};
 
 /// One reconstructed dx/dy pair, as `stereotac run --jsonl` prints it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TactileRecord {
     /// Pairs reconstructed before this one in the run.
     pub sequence: u64,
@@ -31,15 +31,21 @@ pub struct TactileRecord {
     pub volume_mm3: f64,
     /// Time per stage of the reconstruction, ms.
     pub stage_ms: StageTimings,
-    /// From the end of the dy exposure to the depth being ready, ms (host clock).
-    pub latency_ms: f64,
+    /// From the end of the dy exposure to the depth being ready, ms (host clock); none
+    /// when processed offline (`stereotac process`).
+    pub latency_ms: Option<f64>,
     /// Camera frames lost so far in the run (dropped by the camera or not labelled).
     pub frames_dropped: u64,
 }
 
+/// A reconstruction and when it was ready (none offline).
+type Timed = Result<(Reconstruction, Option<f64>), ReconstructError>;
+
 /// The tactile stage (see the module documentation).
 pub struct TactileStage {
     reconstructor: Reconstructor,
+    /// More reconstructors for [`Self::process_batch`], made as needed.
+    workers: Vec<Reconstructor>,
     px_per_mm: f64,
     stamp_ref: StampRef,
     pairs: u64,
@@ -60,6 +66,7 @@ impl TactileStage {
     pub fn new(reconstructor: Reconstructor, px_per_mm: f64, stamp_ref: StampRef) -> Self {
         Self {
             reconstructor,
+            workers: Vec::new(),
             px_per_mm,
             stamp_ref,
             pairs: 0,
@@ -71,19 +78,69 @@ impl TactileStage {
         self.pairs
     }
 
-    /// Reconstructs `pair`; `now_us` reads the host clock when the depth is ready, and
-    /// `frames_dropped` is the run's count so far.
+    /// Reconstructs `pair`; `now_us` reads the host clock when the depth is ready (none
+    /// offline), and `frames_dropped` is the run's count so far.
     pub fn process(
         &mut self,
         pair: &GradientPair,
-        now_us: impl FnOnce() -> f64,
+        now_us: impl FnOnce() -> Option<f64>,
         frames_dropped: u64,
     ) -> Result<(Reconstruction, TactileRecord), ReconstructError> {
         let r = self
             .reconstructor
             .reconstruct(&pair.dx.frame.image, &pair.dy.frame.image)?;
-        let ready_us = now_us();
-        let summary = Summary::of(&r, self.px_per_mm);
+        let record = self.record(pair, &r, now_us(), frames_dropped);
+        Ok((r, record))
+    }
+
+    /// Reconstructs `pairs` in parallel (one reconstructor per rayon thread), with the
+    /// results and records [`Self::process`] would give one by one, in order.
+    pub fn process_batch(
+        &mut self,
+        pairs: &[&GradientPair],
+        now_us: impl Fn() -> Option<f64> + Sync,
+        frames_dropped: u64,
+    ) -> Vec<Result<(Reconstruction, TactileRecord), ReconstructError>> {
+        use rayon::prelude::*;
+        let threads = rayon::current_num_threads().clamp(1, pairs.len().max(1));
+        while self.workers.len() < threads {
+            self.workers.push(self.reconstructor.fresh());
+        }
+        let chunk = pairs.len().div_ceil(threads).max(1);
+        let done: Vec<Vec<Timed>> = self.workers[..threads]
+            .par_iter_mut()
+            .zip(pairs.par_chunks(chunk))
+            .map(|(rec, chunk)| {
+                chunk
+                    .iter()
+                    .map(|p| {
+                        let r = rec.reconstruct(&p.dx.frame.image, &p.dy.frame.image)?;
+                        Ok((r, now_us()))
+                    })
+                    .collect()
+            })
+            .collect();
+        done.into_iter()
+            .flatten()
+            .zip(pairs)
+            .map(|(r, pair)| {
+                r.map(|(r, ready_us)| {
+                    let record = self.record(pair, &r, ready_us, frames_dropped);
+                    (r, record)
+                })
+            })
+            .collect()
+    }
+
+    /// The record of `pair` reconstructed as `r`, ready at `ready_us`.
+    fn record(
+        &mut self,
+        pair: &GradientPair,
+        r: &Reconstruction,
+        ready_us: Option<f64>,
+        frames_dropped: u64,
+    ) -> TactileRecord {
+        let summary = Summary::of(r, self.px_per_mm);
         let end = |f: &crate::frames::capture::LabelledFrame| {
             f.frame.stamp.exposure_end_us(self.stamp_ref)
         };
@@ -101,10 +158,10 @@ impl TactileStage {
             max_depth_mm: summary.max_depth_mm,
             volume_mm3: summary.volume_mm3,
             stage_ms: summary.timings,
-            latency_ms: (ready_us - dy_end) / 1000.0,
+            latency_ms: ready_us.map(|t| (t - dy_end) / 1000.0),
             frames_dropped,
         };
         self.pairs += 1;
-        Ok((r, record))
+        record
     }
 }

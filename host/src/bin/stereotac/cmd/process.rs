@@ -1,0 +1,275 @@
+//! `stereotac process`: the live pipeline, offline, on a recording. The frames are read
+//! in file order and routed exactly as `run` routed them, so the depth maps are the same
+//! bit for bit; tactile pairs are reconstructed in parallel (rayon), stereo frames in
+//! order (the temporal filter has state). The model and calibration stored in the
+//! recording are used unless others are given.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use stereotac::frames::Frame;
+use stereotac::frames::capture::LabelledFrame;
+use stereotac::live::{Job, Pipeline};
+use stereotac::recording::messages::{ClockInfo, PhaseInfo};
+use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
+use stereotac::recording::topics;
+use stereotac::recording::writer::{Item, Recorder, RecorderOptions};
+use stereotac::stereo::StereoCalibration;
+use stereotac::tactile::model::TactileModel;
+
+use crate::live_report::Report;
+use crate::progress::bar;
+use crate::stages::{
+    META_STEREO, REFERENCE_DX, REFERENCE_DY, StageArgs, StereoSetup, TactileSetup, from_png,
+    stamp_ref_of, stereo_settings,
+};
+
+/// `stereotac process`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The recording (MCAP, from `run` or `record`).
+    pub recording: PathBuf,
+    /// Tactile model and stereo calibration (default: the ones the recording holds).
+    #[command(flatten)]
+    pub stages: StageArgs,
+    /// Write the frames, depth maps, contact summaries and point clouds to this new
+    /// MCAP file.
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
+    /// One JSON object per tactile pair on stdout (as `run --jsonl`; latency is null
+    /// offline).
+    #[arg(long)]
+    pub jsonl: bool,
+}
+
+/// Jobs gathered before a parallel batch runs.
+const BATCH: usize = 16;
+
+pub fn run(a: Args) -> Result<()> {
+    let header = reader::header(&a.recording)
+        .with_context(|| format!("reading {}", a.recording.display()))?;
+    let (tactile, stereo) = setups(&a, &header)?;
+    if tactile.is_none() && stereo.is_none() {
+        bail!(
+            "{}: nothing to process: it holds no tactile model and no stereo calibration; \
+             give --model FILE (dx/dy pairs → tactile depth) or --calib FILE (two cameras' \
+             dark frames → stereo depth)",
+            a.recording.display()
+        );
+    }
+    let run_meta = header.metadata.get(topics::META_RECORDING);
+    let stamp = |camera| stamp_ref_of(run_meta, camera);
+    let origin_ns = run_meta
+        .and_then(|m| m.get("clock_origin_unix_ns"))
+        .map(|v| {
+            v.parse::<u64>().with_context(|| {
+                format!("metadata `stereotac` entry `clock_origin_unix_ns`: {v:?} is not a number")
+            })
+        })
+        .transpose()?
+        .unwrap_or(0);
+    let recorder = Recorder::start(RecorderOptions {
+        mcap: a.mcap.clone(),
+        live_view: None,
+        queue: 2 * BATCH,
+        clock_origin_unix_ns: origin_ns,
+    })?;
+    for (name, entries) in &header.metadata {
+        if name != "drops" && name != META_STEREO && name != "tactile_settings" {
+            let mut entries = entries.clone();
+            if name == topics::META_RECORDING {
+                entries.insert("command".into(), "process".into());
+                entries.insert("source".into(), a.recording.display().to_string());
+            }
+            recorder.send_wait(Item::Metadata {
+                name: name.clone(),
+                entries,
+            });
+        }
+    }
+    if let Some(t) = &tactile {
+        t.record(&recorder)?;
+    }
+    if let Some(s) = &stereo {
+        s.record(&recorder)?;
+    }
+    let tactile_stage = tactile.as_ref().map(|t| t.stage(stamp(0)?)).transpose()?;
+    let stereo_stage = stereo
+        .as_ref()
+        .map(|s| s.stage([stamp(0)?, stamp(1)?]))
+        .transpose()?;
+    let mut pipeline = Pipeline::new(tactile_stage, stereo_stage);
+    let mut report = Report::new(a.jsonl);
+    let mut jobs = Vec::new();
+    let mut last_sequence: BTreeMap<usize, u64> = BTreeMap::new();
+    let mut dropped = 0u64;
+    let mut sizes_checked = [false; 2];
+    let progress = bar(1, "processing");
+    let mut flush = |jobs: &mut Vec<Job>, pipeline: &mut Pipeline, dropped| -> Result<()> {
+        for output in pipeline.run_batch(jobs, || None, dropped) {
+            let Some(output) = output? else { continue };
+            report.print(&output)?;
+            recorder.send_wait(output.into_item());
+        }
+        jobs.clear();
+        Ok(())
+    };
+    let (_, truncated) = reader::frames(&a.recording, |content, (done, len)| -> Result<()> {
+        progress.set_length(len.max(1));
+        progress.set_position(done);
+        let frame = match content {
+            Content::Frame(f) => f,
+            Content::Other(Record::Message {
+                topic,
+                data,
+                log_time_ns,
+                ..
+            }) => {
+                pass_through(&recorder, &topic, &data, log_time_ns);
+                return Ok(());
+            }
+            Content::Other(_) => return Ok(()),
+        };
+        let camera = frame.camera;
+        if let Some(prev) = last_sequence.insert(camera, frame.info.sequence) {
+            dropped += frame.info.sequence.saturating_sub(prev + 1);
+        }
+        if camera < 2 && !std::mem::replace(&mut sizes_checked[camera], true) {
+            let size = frame.image.dimensions();
+            let name = format!("camera {camera} of the recording");
+            let checks = (|| -> Result<()> {
+                if let (0, Some(t)) = (camera, &tactile) {
+                    t.check_size(&name, size)?;
+                }
+                if let Some(s) = &stereo {
+                    s.check_size(&name, camera == 0, size)?;
+                }
+                Ok(())
+            })();
+            checks?;
+        }
+        let label = frame.info.label().map_err(anyhow::Error::msg)?;
+        recorder.send_wait(Item::Frame {
+            camera,
+            info: frame.info.clone(),
+            image: frame.image.clone(),
+        });
+        let labelled = LabelledFrame {
+            frame: Frame {
+                stamp: frame.info.stamp(),
+                image: frame.image,
+            },
+            label,
+        };
+        if let Some(job) = pipeline.route(camera, labelled) {
+            jobs.push(job);
+            if jobs.len() >= BATCH {
+                flush(&mut jobs, &mut pipeline, dropped)?;
+            }
+        }
+        Ok(())
+    })
+    .with_context(|| format!("processing {}", a.recording.display()))?;
+    flush(&mut jobs, &mut pipeline, dropped)?;
+    progress.finish_and_clear();
+    if let Some(why) = truncated {
+        eprintln!("warning: {}: {why}", a.recording.display());
+    }
+    let summary = recorder.finish()?;
+    report.finish(&pipeline);
+    eprintln!("frames: {dropped} missing from the recording (camera sequence gaps)");
+    if let Some(path) = &summary.path {
+        eprintln!(
+            "wrote {} ({:.1} MiB, {} messages)",
+            path.display(),
+            summary.bytes as f64 / (1 << 20) as f64,
+            summary.messages.values().sum::<u64>()
+        );
+    }
+    Ok(())
+}
+
+/// LED phases and clock states go to the output as they were.
+fn pass_through(recorder: &Recorder, topic: &str, data: &[u8], _log_time_ns: u64) {
+    let item = match topic {
+        topics::LED_PHASE => serde_json::from_slice::<PhaseInfo>(data)
+            .ok()
+            .map(Item::Phase),
+        topics::CLOCK => serde_json::from_slice::<ClockInfo>(data)
+            .ok()
+            .map(Item::Clock),
+        _ => None,
+    };
+    if let Some(item) = item {
+        recorder.send_wait(item);
+    }
+}
+
+/// The stages' setups: the options first, then what the recording holds.
+fn setups(
+    a: &Args,
+    header: &RecordingHeader,
+) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
+    let file = a.recording.display();
+    let recorded_kind = header
+        .metadata
+        .get("tactile_settings")
+        .and_then(|m| m.get("model_kind"))
+        .map(|k| {
+            k.parse()
+                .map_err(|e| anyhow::anyhow!("{file}: metadata `tactile_settings`: {e}"))
+        })
+        .transpose()?;
+    let kind = a.stages.model_kind.or(recorded_kind).unwrap_or_default();
+    let tactile = match (
+        &a.stages.model,
+        header.attachments.get(topics::MODEL_ATTACHMENT),
+    ) {
+        (Some(path), _) => Some(TactileSetup {
+            model: TactileModel::load(path)?,
+            references: None,
+            kind,
+        }),
+        (None, Some(json)) => {
+            let name = format!("{file} attachment {}", topics::MODEL_ATTACHMENT);
+            let references = match (
+                header.attachments.get(REFERENCE_DX),
+                header.attachments.get(REFERENCE_DY),
+            ) {
+                (Some(dx), Some(dy)) => Some((
+                    from_png(&format!("{file} attachment {REFERENCE_DX}"), dx)?,
+                    from_png(&format!("{file} attachment {REFERENCE_DY}"), dy)?,
+                )),
+                _ => None,
+            };
+            Some(TactileSetup {
+                model: TactileModel::from_json(&name, json)?,
+                references,
+                kind,
+            })
+        }
+        (None, None) => None,
+    };
+    let settings =
+        stereo_settings(header.metadata.get(META_STEREO)).with_context(|| format!("{file}"))?;
+    let calib = if !a.stages.calib.is_empty() {
+        Some(StereoCalibration::load(&a.stages.calib)?)
+    } else {
+        header
+            .attachments
+            .get(topics::CALIBRATION_ATTACHMENT)
+            .map(|yaml| {
+                StereoCalibration::from_opencv_yaml(
+                    &format!("{file} attachment {}", topics::CALIBRATION_ATTACHMENT),
+                    &String::from_utf8_lossy(yaml),
+                )
+            })
+            .transpose()?
+    };
+    let stereo = calib.map(|calib| StereoSetup {
+        calib,
+        config: settings.config(),
+    });
+    Ok((tactile, stereo))
+}

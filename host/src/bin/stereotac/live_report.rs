@@ -1,0 +1,129 @@
+//! What `run` and `process` print as depth comes out, and their closing figures.
+
+use anyhow::Result;
+use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
+
+use crate::console::emit;
+
+/// The printed report (see the module documentation).
+#[derive(Debug)]
+pub struct Report {
+    jsonl: bool,
+    tactile_latency: Vec<f64>,
+    stereo_latency: Vec<f64>,
+    contacts: u64,
+    stdout_open: bool,
+}
+
+impl Report {
+    /// `jsonl`: one JSON line per tactile pair (nothing else on stdout).
+    pub fn new(jsonl: bool) -> Self {
+        Self {
+            jsonl,
+            tactile_latency: Vec::new(),
+            stereo_latency: Vec::new(),
+            contacts: 0,
+            stdout_open: true,
+        }
+    }
+
+    /// Whether stdout still takes lines.
+    pub fn stdout_open(&self) -> bool {
+        self.stdout_open
+    }
+
+    /// Prints one output; `false` once stdout is gone.
+    pub fn print(&mut self, output: &Output) -> Result<bool> {
+        let open = match output {
+            Output::Tactile { record, .. } => {
+                self.tactile_latency.extend(record.latency_ms);
+                self.contacts += u64::from(record.contact);
+                if self.jsonl {
+                    emit(format_args!("{}", serde_json::to_string(record)?))
+                } else {
+                    emit(format_args!("{}", tactile_line(record)))
+                }
+            }
+            Output::Stereo { record, .. } => {
+                self.stereo_latency.extend(record.latency_ms);
+                self.jsonl || emit(format_args!("{}", stereo_line(record)))
+            }
+        };
+        self.stdout_open &= open;
+        Ok(open)
+    }
+
+    /// The closing figures, on stderr.
+    pub fn finish(self, pipeline: &Pipeline) {
+        let fmt = |v: Vec<f64>| {
+            percentiles(v).map_or(String::new(), |(p50, p99)| {
+                format!("; latency p50 {p50:.2} ms, p99 {p99:.2} ms")
+            })
+        };
+        if let Some(t) = &pipeline.tactile {
+            eprintln!(
+                "tactile: {} dx/dy pairs reconstructed, {} with contact{}",
+                t.pairs(),
+                self.contacts,
+                fmt(self.tactile_latency)
+            );
+        }
+        if let Some(s) = &pipeline.stereo {
+            eprintln!(
+                "stereo: {} frame pairs{}",
+                s.frames(),
+                fmt(self.stereo_latency)
+            );
+        }
+    }
+}
+
+/// (p50, p99) of `v`.
+fn percentiles(mut v: Vec<f64>) -> Option<(f64, f64)> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    Some((at(0.5), at(0.99)))
+}
+
+fn latency(ms: Option<f64>) -> String {
+    ms.map_or(String::new(), |l| format!(", latency {l:.1} ms"))
+}
+
+fn tactile_line(r: &TactileRecord) -> String {
+    if r.contact {
+        format!(
+            "pair {:>4} (phase {:>5}): contact {:7.2} mm², max depth {:.3} mm, volume {:.2} mm³; {:.2} ms{}",
+            r.sequence,
+            r.phase,
+            r.area_mm2,
+            r.max_depth_mm,
+            r.volume_mm3,
+            r.stage_ms.total_ms,
+            latency(r.latency_ms)
+        )
+    } else {
+        format!(
+            "pair {:>4} (phase {:>5}): no contact; {:.2} ms{}",
+            r.sequence,
+            r.phase,
+            r.stage_ms.total_ms,
+            latency(r.latency_ms)
+        )
+    }
+}
+
+fn stereo_line(r: &StereoRecord) -> String {
+    format!(
+        "stereo {:>4} (phase {:>5}): {:.0}% filled, median depth {}; {:.2} ms{}",
+        r.sequence,
+        r.phase,
+        r.fill * 100.0,
+        r.median_depth_mm
+            .map_or("-".into(), |d| format!("{d:.1} mm")),
+        r.stage_ms.total_ms,
+        latency(r.latency_ms)
+    )
+}

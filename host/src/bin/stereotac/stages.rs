@@ -1,0 +1,269 @@
+//! The pipeline options of `run` and `process` (tactile model, stereo calibration and
+//! settings), the stages they build, and what a recording keeps of them so `process`
+//! can build the same stages again.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use image::RgbImage;
+use stereotac::live::{StereoStage, TactileStage};
+use stereotac::matcher::StampRef;
+use stereotac::recording::topics;
+use stereotac::recording::writer::{Item, Recorder};
+use stereotac::stereo::{StereoCalibration, StereoConfig, StereoPipeline};
+use stereotac::tactile::model::{ModelKind, TactileModel};
+use stereotac::tactile::poisson::SolverKind;
+use stereotac::tactile::reconstruct::Reconstructor;
+
+use crate::args::PipelineArgs;
+
+/// Attachment names of the no-contact reference frames.
+pub const REFERENCE_DX: &str = "reference_dx.png";
+/// See [`REFERENCE_DX`].
+pub const REFERENCE_DY: &str = "reference_dy.png";
+/// Metadata record of the stereo settings.
+pub const META_STEREO: &str = "stereo_settings";
+
+/// Model and calibration options.
+#[derive(Debug, Clone, clap::Args)]
+pub struct StageArgs {
+    /// Tactile model from `calibrate` (dx/dy pairs of camera 0 → depth).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Gradient model: lut or mlp (default: lut; `process`: the recording's).
+    #[arg(long = "model-kind")]
+    pub model_kind: Option<ModelKind>,
+    /// Stereo calibration (dark frames of cameras 0 and 1 → depth): one OpenCV stereo
+    /// YAML, or two ROS camera_info YAMLs (left, then right).
+    #[arg(long = "calib")]
+    pub calib: Vec<PathBuf>,
+}
+
+/// A tactile model with the no-contact frames it normalises by, if any.
+#[derive(Debug, Clone)]
+pub struct TactileSetup {
+    /// The model.
+    pub model: TactileModel,
+    /// No-contact dx and dy frames.
+    pub references: Option<(RgbImage, RgbImage)>,
+    /// Gradient model.
+    pub kind: ModelKind,
+}
+
+impl TactileSetup {
+    /// The setup as a recording keeps it (the model's JSON, the references as PNG),
+    /// read back: what runs live is exactly what `process` will load.
+    pub fn round_trip(self) -> Result<Self> {
+        let model = TactileModel::from_json("the model", &self.model.to_json())?;
+        Ok(Self { model, ..self })
+    }
+
+    /// The stage for a camera stamping `stamp_ref`.
+    pub fn stage(&self, stamp_ref: StampRef) -> Result<TactileStage> {
+        let reconstructor = Reconstructor::new(
+            self.model.clone(),
+            self.kind,
+            SolverKind::Dct,
+            self.references.as_ref().map(|(x, y)| (x, y)),
+        )?;
+        Ok(TactileStage::new(
+            reconstructor,
+            self.model.px_per_mm,
+            stamp_ref,
+        ))
+    }
+
+    /// Refuses a model of another frame size than the camera's.
+    pub fn check_size(&self, camera: &str, size: (u32, u32)) -> Result<()> {
+        let m = (self.model.width as u32, self.model.height as u32);
+        if m != size {
+            bail!(
+                "the tactile model was calibrated at {}×{} but {camera} gives {}×{} frames: \
+                 calibrate at this size, or set the camera to {}×{} (--size)",
+                m.0,
+                m.1,
+                size.0,
+                size.1,
+                m.0,
+                m.1
+            );
+        }
+        Ok(())
+    }
+
+    /// Puts the model and references into the recording.
+    pub fn record(&self, recorder: &Recorder) -> Result<()> {
+        let mut items = vec![Item::Attachment {
+            name: topics::MODEL_ATTACHMENT.into(),
+            media_type: "application/json".into(),
+            data: self.model.to_json(),
+        }];
+        if let Some((dx, dy)) = &self.references {
+            for (name, img) in [(REFERENCE_DX, dx), (REFERENCE_DY, dy)] {
+                items.push(Item::Attachment {
+                    name: name.into(),
+                    media_type: "image/png".into(),
+                    data: png(img)?,
+                });
+            }
+        }
+        items.push(Item::Metadata {
+            name: "tactile_settings".into(),
+            entries: BTreeMap::from([("model_kind".into(), self.kind.to_string())]),
+        });
+        for item in items {
+            if !recorder.send(item) {
+                bail!("the recording's writer stopped");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A stereo calibration with the pipeline settings.
+#[derive(Debug, Clone)]
+pub struct StereoSetup {
+    /// The calibration.
+    pub calib: StereoCalibration,
+    /// The settings.
+    pub config: StereoConfig,
+}
+
+impl StereoSetup {
+    /// The setup as a recording keeps it (OpenCV YAML), read back.
+    pub fn round_trip(self) -> Result<Self> {
+        let calib =
+            StereoCalibration::from_opencv_yaml("the calibration", &self.calib.to_opencv_yaml())?;
+        Ok(Self { calib, ..self })
+    }
+
+    /// The stage for cameras stamping `stamp_refs`.
+    pub fn stage(&self, stamp_refs: [StampRef; 2]) -> Result<StereoStage> {
+        let pipeline = StereoPipeline::new(&self.calib, self.config)
+            .context("setting up the stereo pipeline")?;
+        Ok(StereoStage::new(pipeline, stamp_refs))
+    }
+
+    /// Refuses a calibration of another frame size than the cameras'.
+    pub fn check_size(&self, camera: &str, left: bool, size: (u32, u32)) -> Result<()> {
+        let c = if left {
+            &self.calib.left
+        } else {
+            &self.calib.right
+        };
+        if (c.width, c.height) != size {
+            bail!(
+                "the stereo calibration's {} camera is {}×{} but {camera} gives {}×{} frames: \
+                 calibrate at this size, or set the camera to {}×{} (--size)",
+                if left { "left" } else { "right" },
+                c.width,
+                c.height,
+                size.0,
+                size.1,
+                c.width,
+                c.height
+            );
+        }
+        Ok(())
+    }
+
+    /// Puts the calibration and settings into the recording.
+    pub fn record(&self, recorder: &Recorder) -> Result<()> {
+        let c = &self.config;
+        let items = [
+            Item::Attachment {
+                name: topics::CALIBRATION_ATTACHMENT.into(),
+                media_type: "application/yaml".into(),
+                data: self.calib.to_opencv_yaml().into_bytes(),
+            },
+            Item::Metadata {
+                name: META_STEREO.into(),
+                entries: BTreeMap::from([
+                    ("near_mm".into(), c.near_mm.to_string()),
+                    ("far_mm".into(), c.far_mm.to_string()),
+                    ("scale".into(), c.rectify_scale.to_string()),
+                    ("block_size".into(), c.block_size.to_string()),
+                ]),
+            },
+        ];
+        for item in items {
+            if !recorder.send(item) {
+                bail!("the recording's writer stopped");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The stereo settings a recording's metadata names (defaults for what it does not).
+pub fn stereo_settings(entries: Option<&BTreeMap<String, String>>) -> Result<PipelineArgs> {
+    let mut a = PipelineArgs::default();
+    let Some(entries) = entries else {
+        return Ok(a);
+    };
+    let get = |key: &str| -> Result<Option<f64>> {
+        entries
+            .get(key)
+            .map(|v| {
+                v.parse::<f64>().with_context(|| {
+                    format!("metadata `{META_STEREO}` entry `{key}`: {v:?} is not a number")
+                })
+            })
+            .transpose()
+    };
+    if let Some(v) = get("near_mm")? {
+        a.near_mm = v;
+    }
+    if let Some(v) = get("far_mm")? {
+        a.far_mm = v;
+    }
+    if let Some(v) = get("scale")? {
+        a.scale = v;
+    }
+    if let Some(v) = get("block_size")? {
+        a.block_size = v as u32;
+    }
+    Ok(a)
+}
+
+/// `img` as PNG bytes.
+pub fn png(img: &RgbImage) -> Result<Vec<u8>> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .context("encoding a PNG")?;
+    Ok(out.into_inner())
+}
+
+/// An RGB image from PNG bytes; `name` says which in errors.
+pub fn from_png(name: &str, bytes: &[u8]) -> Result<RgbImage> {
+    Ok(
+        image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+            .with_context(|| format!("decoding {name}"))?
+            .to_rgb8(),
+    )
+}
+
+/// How the `stereotac` metadata names what camera timestamps mark.
+pub fn stamp_ref_name(s: StampRef) -> &'static str {
+    match s {
+        StampRef::ExposureStart => "exposure_start",
+        StampRef::ExposureEnd => "exposure_end",
+    }
+}
+
+/// What camera `camera`'s timestamps mark, from the `stereotac` metadata record
+/// (exposure start when it does not say).
+pub fn stamp_ref_of(entries: Option<&BTreeMap<String, String>>, camera: usize) -> Result<StampRef> {
+    match entries
+        .and_then(|e| e.get(&format!("camera{camera}_stamp")))
+        .map(String::as_str)
+    {
+        None | Some("exposure_start") => Ok(StampRef::ExposureStart),
+        Some("exposure_end") => Ok(StampRef::ExposureEnd),
+        Some(other) => bail!(
+            "metadata `stereotac` entry `camera{camera}_stamp`: {other:?} (exposure_start or \
+             exposure_end)"
+        ),
+    }
+}

@@ -1,0 +1,285 @@
+//! The live pipeline, shared by `stereotac run` (frames as they are captured) and
+//! `stereotac process` (frames from a recording): labelled frames in, routed by
+//! [`Router`] to the stages, depth and records out.
+//!
+//! - camera 0's dx/dy pairs → [`tactile::TactileStage`] (photometric stereo);
+//! - dark frames of the same phase from cameras 0 (left) and 1 (right) →
+//!   [`stereo::StereoStage`] (stereo depth and point cloud).
+//!
+//! Routing depends only on the labelled frames and their order, so a recording fed in
+//! file order gives `process` exactly the pairs `run` reconstructed.
+
+pub mod stereo;
+pub mod tactile;
+
+pub use stereo::{DarkPair, StereoRecord, StereoStage};
+pub use tactile::{TactileRecord, TactileStage};
+
+use stereotac_protocol::Phase;
+
+use crate::frames::capture::{GradientPair, GradientPairer, LabelledFrame};
+use crate::matcher::Label;
+use crate::recording::writer::Item;
+use crate::stereo::{StereoError, StereoFrame};
+use crate::tactile::reconstruct::{ReconstructError, Reconstruction};
+
+/// What a stage produced.
+#[derive(Debug)]
+pub enum Output {
+    /// A tactile depth map and its record.
+    Tactile {
+        /// The reconstruction.
+        reconstruction: Reconstruction,
+        /// Its record.
+        record: TactileRecord,
+    },
+    /// A stereo frame and its record.
+    Stereo {
+        /// The frame.
+        frame: StereoFrame,
+        /// Its record.
+        record: StereoRecord,
+    },
+}
+
+impl Output {
+    /// What the recorder writes of it.
+    pub fn into_item(self) -> Item {
+        match self {
+            Output::Tactile {
+                reconstruction,
+                record,
+            } => Item::Tactile {
+                depth_mm: reconstruction.depth_mm,
+                record,
+            },
+            Output::Stereo { frame, record } => Item::Stereo {
+                depth_mm: frame.depth_mm,
+                cloud: frame.cloud,
+                record,
+            },
+        }
+    }
+}
+
+/// A stage failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The tactile stage.
+    #[error("tactile: {0}")]
+    Tactile(#[from] ReconstructError),
+    /// The stereo stage.
+    #[error("stereo: {0}")]
+    Stereo(#[from] StereoError),
+}
+
+/// The router and whichever stages are on.
+#[derive(Debug, Default)]
+pub struct Pipeline {
+    router: Router,
+    /// The tactile stage, if a model was given.
+    pub tactile: Option<TactileStage>,
+    /// The stereo stage, if a calibration was given.
+    pub stereo: Option<StereoStage>,
+}
+
+impl Pipeline {
+    /// A pipeline with these stages.
+    pub fn new(tactile: Option<TactileStage>, stereo: Option<StereoStage>) -> Self {
+        Self {
+            router: Router::default(),
+            tactile,
+            stereo,
+        }
+    }
+
+    /// Routes camera `camera`'s next frame; returns the job it completes for a stage
+    /// that is on.
+    pub fn route(&mut self, camera: usize, frame: LabelledFrame) -> Option<Job> {
+        match self.router.push(camera, frame)? {
+            Job::Tactile(p) if self.tactile.is_some() => Some(Job::Tactile(p)),
+            Job::Stereo(p) if self.stereo.is_some() => Some(Job::Stereo(p)),
+            _ => None,
+        }
+    }
+
+    /// Runs one job now; `now_us` reads the host clock.
+    pub fn run(
+        &mut self,
+        job: &Job,
+        now_us: impl Fn() -> Option<f64>,
+        frames_dropped: u64,
+    ) -> Result<Option<Output>, PipelineError> {
+        Ok(match (job, &mut self.tactile, &mut self.stereo) {
+            (Job::Tactile(p), Some(t), _) => {
+                let (reconstruction, record) = t.process(p, now_us, frames_dropped)?;
+                Some(Output::Tactile {
+                    reconstruction,
+                    record,
+                })
+            }
+            (Job::Stereo(p), _, Some(s)) => {
+                let (frame, record) = s.process(p, now_us, frames_dropped)?;
+                Some(Output::Stereo { frame, record })
+            }
+            _ => None,
+        })
+    }
+
+    /// Runs `jobs` for batch work: the tactile pairs in parallel, the stereo frames in
+    /// order (the temporal filter has state); outputs in the order of `jobs`, exactly
+    /// what [`Self::run`] gives one by one.
+    pub fn run_batch(
+        &mut self,
+        jobs: &[Job],
+        now_us: impl Fn() -> Option<f64> + Sync,
+        frames_dropped: u64,
+    ) -> Vec<Result<Option<Output>, PipelineError>> {
+        let pairs: Vec<&GradientPair> = jobs
+            .iter()
+            .filter_map(|j| match j {
+                Job::Tactile(p) => Some(p),
+                Job::Stereo(_) => None,
+            })
+            .collect();
+        let mut tactile = match &mut self.tactile {
+            Some(t) => t.process_batch(&pairs, &now_us, frames_dropped),
+            None => Vec::new(),
+        }
+        .into_iter();
+        let mut out = Vec::with_capacity(jobs.len());
+        for job in jobs {
+            out.push(match job {
+                Job::Tactile(_) => match tactile.next() {
+                    Some(Ok((reconstruction, record))) => Ok(Some(Output::Tactile {
+                        reconstruction,
+                        record,
+                    })),
+                    Some(Err(e)) => Err(e.into()),
+                    None => Ok(None),
+                },
+                Job::Stereo(_) => self.run(job, &now_us, frames_dropped),
+            });
+        }
+        out
+    }
+}
+
+/// Work for a stage.
+#[derive(Debug, Clone)]
+pub enum Job {
+    /// A dx/dy pair from camera 0.
+    Tactile(GradientPair),
+    /// Dark frames of one phase from cameras 0 and 1.
+    Stereo(DarkPair),
+}
+
+/// Routes labelled frames to the stages (see the module documentation).
+#[derive(Debug, Default)]
+pub struct Router {
+    gradients: GradientPairer,
+    /// The latest dark frame of each stereo camera, by phase index.
+    dark: [Option<LabelledFrame>; 2],
+}
+
+impl Router {
+    /// Takes camera `camera`'s next labelled frame; returns a job when it completes one.
+    /// Cameras beyond 1 are recorded but not processed.
+    pub fn push(&mut self, camera: usize, frame: LabelledFrame) -> Option<Job> {
+        let dark_index = match frame.label {
+            Label::Phase {
+                phase: Phase::Dark,
+                index,
+                ..
+            } => Some(index),
+            _ => None,
+        };
+        match (camera, dark_index) {
+            (0, None) => self.gradients.push(frame).map(Job::Tactile),
+            (0 | 1, Some(index)) => {
+                if camera == 0 {
+                    // A dark frame between dx and dy would break a pair: tell the pairer.
+                    let _ = self.gradients.push(frame.clone());
+                }
+                let other = 1 - camera;
+                let matches = |f: &Option<LabelledFrame>| matches!(f, Some(LabelledFrame { label: Label::Phase { index: i, .. }, .. }) if *i == index);
+                if matches(&self.dark[other]) {
+                    let partner = self.dark[other].take().expect("matched");
+                    let (left, right) = if camera == 0 {
+                        (frame, partner)
+                    } else {
+                        (partner, frame)
+                    };
+                    return Some(Job::Stereo(DarkPair { left, right }));
+                }
+                self.dark[camera] = Some(frame);
+                None
+            }
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frames::Frame;
+    use crate::matcher::FrameStamp;
+
+    fn lit(phase: Phase, index: u32) -> LabelledFrame {
+        LabelledFrame {
+            frame: Frame {
+                stamp: FrameStamp {
+                    sequence: u64::from(index),
+                    timestamp_us: f64::from(index),
+                    exposure_us: 1.0,
+                },
+                image: image::RgbImage::new(1, 1),
+            },
+            label: Label::Phase {
+                index,
+                phase,
+                trigger: Some(index),
+            },
+        }
+    }
+
+    #[test]
+    fn interleaved_frames_make_tactile_pairs_on_camera_0_and_stereo_pairs_of_one_phase() {
+        let mut r = Router::default();
+        // Interleaved: dark 0, dx 1, dy 2, dark 3 ... from both cameras.
+        assert!(r.push(0, lit(Phase::Dark, 0)).is_none());
+        let Some(Job::Stereo(p)) = r.push(1, lit(Phase::Dark, 0)) else {
+            panic!("dark 0 from both cameras pair")
+        };
+        assert_eq!(p.left.frame.stamp.sequence, 0);
+        assert!(r.push(0, lit(Phase::Dx, 1)).is_none());
+        assert!(
+            r.push(1, lit(Phase::Dx, 1)).is_none(),
+            "camera 1's gradients are only recorded"
+        );
+        assert!(matches!(
+            r.push(0, lit(Phase::Dy, 2)),
+            Some(Job::Tactile(_))
+        ));
+        // Camera 1 lost dark 3: camera 0's dark 3 waits, then camera 1's dark 6 does
+        // not pair with it; camera 0's dark 6 pairs (camera 1 first this time).
+        assert!(r.push(0, lit(Phase::Dark, 3)).is_none());
+        assert!(r.push(1, lit(Phase::Dark, 6)).is_none());
+        let Some(Job::Stereo(p)) = r.push(0, lit(Phase::Dark, 6)) else {
+            panic!("dark 6 pairs")
+        };
+        assert_eq!(
+            (p.left.frame.stamp.sequence, p.right.frame.stamp.sequence),
+            (6, 6)
+        );
+        // A dark frame between dx and dy breaks the tactile pair.
+        assert!(r.push(0, lit(Phase::Dx, 10)).is_none());
+        assert!(r.push(0, lit(Phase::Dark, 11)).is_none());
+        assert!(r.push(0, lit(Phase::Dy, 11)).is_none());
+        assert!(
+            r.push(2, lit(Phase::Dark, 11)).is_none(),
+            "a third camera is not routed"
+        );
+    }
+}

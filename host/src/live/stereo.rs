@@ -1,0 +1,137 @@
+//! The stereo stage: dark frames of one phase from the left and right cameras in, depth,
+//! a point cloud and one [`StereoRecord`] per pair out, on the host clock.
+
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+
+use crate::frames::capture::LabelledFrame;
+use crate::grid::Grid;
+use crate::matcher::{Label, StampRef};
+use crate::stereo::StereoError;
+use crate::stereo::pipeline::{StereoFrame, StereoPipeline, StereoTimings};
+
+/// Dark frames of one phase from camera 0 (left) and camera 1 (right).
+#[derive(Debug, Clone)]
+pub struct DarkPair {
+    /// Camera 0's frame.
+    pub left: LabelledFrame,
+    /// Camera 1's frame.
+    pub right: LabelledFrame,
+}
+
+/// One stereo frame's summary (`/stereotac/stereo/summary`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StereoRecord {
+    /// Stereo frames before this one in the run.
+    pub sequence: u64,
+    /// Phase index of the dark frames.
+    pub phase: u32,
+    /// End of the left exposure, host µs.
+    pub exposure_end_us: f64,
+    /// Share of pixels with a depth, 0..1.
+    pub fill: f64,
+    /// Points in the cloud.
+    pub points: usize,
+    /// Median depth of the valid pixels, mm (none without any).
+    pub median_depth_mm: Option<f32>,
+    /// Time per stage, ms.
+    pub stage_ms: StereoTimings,
+    /// From the end of the later exposure to the depth being ready, ms; none when
+    /// processed offline.
+    pub latency_ms: Option<f64>,
+    /// Camera frames lost so far in the run.
+    pub frames_dropped: u64,
+}
+
+/// The stereo stage (see the module documentation).
+#[derive(Debug)]
+pub struct StereoStage {
+    pipeline: StereoPipeline,
+    stamp_refs: [StampRef; 2],
+    frames: u64,
+}
+
+/// An RGB frame as 8-bit grey (ITU-R BT.601 luma, as OpenCV's `cvtColor`).
+pub fn grey(image: &RgbImage) -> Grid<u8> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let data = image
+        .pixels()
+        .map(|p| {
+            let [r, g, b] = p.0.map(u32::from);
+            ((299 * r + 587 * g + 114 * b + 500) / 1000) as u8
+        })
+        .collect();
+    Grid::from_vec(w, h, data).expect("one value per pixel")
+}
+
+impl StereoStage {
+    /// A stage running `pipeline` on cameras whose timestamps mark `stamp_refs`.
+    pub fn new(pipeline: StereoPipeline, stamp_refs: [StampRef; 2]) -> Self {
+        Self {
+            pipeline,
+            stamp_refs,
+            frames: 0,
+        }
+    }
+
+    /// Stereo frames processed so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// Processes `pair`; `now_us` reads the host clock when the depth is ready (none
+    /// offline).
+    pub fn process(
+        &mut self,
+        pair: &DarkPair,
+        now_us: impl FnOnce() -> Option<f64>,
+        frames_dropped: u64,
+    ) -> Result<(StereoFrame, StereoRecord), StereoError> {
+        let frame = self.pipeline.process(
+            &grey(&pair.left.frame.image),
+            &grey(&pair.right.frame.image),
+        )?;
+        let ready_us = now_us();
+        let left_end = pair.left.frame.stamp.exposure_end_us(self.stamp_refs[0]);
+        let right_end = pair.right.frame.stamp.exposure_end_us(self.stamp_refs[1]);
+        let mut valid: Vec<f32> = frame
+            .depth_mm
+            .as_slice()
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
+        valid.sort_by(f32::total_cmp);
+        let record = StereoRecord {
+            sequence: self.frames,
+            phase: match pair.left.label {
+                Label::Phase { index, .. } => index,
+                _ => 0,
+            },
+            exposure_end_us: left_end,
+            fill: valid.len() as f64 / frame.depth_mm.as_slice().len().max(1) as f64,
+            points: frame.cloud.len(),
+            median_depth_mm: valid.get(valid.len() / 2).copied(),
+            stage_ms: frame.timings,
+            latency_ms: ready_us.map(|t| (t - left_end.max(right_end)) / 1000.0),
+            frames_dropped,
+        };
+        self.frames += 1;
+        Ok((frame, record))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grey_is_bt601_luma() {
+        let img = RgbImage::from_fn(3, 1, |x, _| match x {
+            0 => image::Rgb([255, 0, 0]),
+            1 => image::Rgb([0, 255, 0]),
+            _ => image::Rgb([255, 255, 255]),
+        });
+        assert_eq!(grey(&img).as_slice(), &[76, 150, 255]);
+    }
+}

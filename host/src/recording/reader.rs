@@ -1,0 +1,351 @@
+//! Reads a recording back, streaming (constant memory however long the file): the
+//! `mcap` crate's sans-io linear reader, fed from the file in pieces.
+//!
+//! [`RecordingReader`] yields every message, metadata record and attachment in file
+//! order. A file that ends early (the writer was killed, the machine lost power) is
+//! read up to where it stops, usually the last complete chunk: the reader then reports
+//! [`RecordingReader::truncated`] instead of failing, so `process` works on what there
+//! is and says so. Damage anywhere else is an error naming the file.
+//!
+//! [`frames`] joins each camera's images with their labels, for `process`, `export` and
+//! `calibrate`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use foxglove::Decode;
+use foxglove::messages::RawImage;
+use image::RgbImage;
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+
+use super::messages::{FrameInfo, rgb_from_raw};
+use super::{RecordingError, topics};
+
+/// One record of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Record {
+    /// A message.
+    Message {
+        /// Its channel's topic.
+        topic: String,
+        /// Its channel's message encoding (`json`, `protobuf`, ...).
+        encoding: String,
+        /// Log time, ns since the Unix epoch.
+        log_time_ns: u64,
+        /// The encoded message.
+        data: Vec<u8>,
+    },
+    /// A metadata record.
+    Metadata {
+        /// Its name.
+        name: String,
+        /// Its entries.
+        entries: BTreeMap<String, String>,
+    },
+    /// An attachment.
+    Attachment {
+        /// File name.
+        name: String,
+        /// Media type.
+        media_type: String,
+        /// Contents.
+        data: Vec<u8>,
+    },
+}
+
+/// A streaming reader (see the module documentation).
+pub struct RecordingReader {
+    path: PathBuf,
+    file: File,
+    reader: LinearReader,
+    channels: HashMap<u16, (String, String)>,
+    truncated: Option<String>,
+    done: bool,
+    /// Bytes read so far (for progress).
+    read_bytes: u64,
+    len: u64,
+}
+
+impl std::fmt::Debug for RecordingReader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RecordingReader")
+            .field("path", &self.path)
+            .field("read_bytes", &self.read_bytes)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Largest record the reader accepts (a hostile length field cannot make it allocate
+/// more): 256 MiB, far above a 4K RGB frame.
+const RECORD_LIMIT: usize = 256 << 20;
+
+impl RecordingReader {
+    /// Opens `path`.
+    pub fn open(path: &Path) -> Result<Self, RecordingError> {
+        let io = |error| RecordingError::Io {
+            path: path.to_path_buf(),
+            error,
+        };
+        let file = File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+            reader: LinearReader::new_with_options(
+                LinearReaderOptions::default()
+                    .with_validate_chunk_crcs(true)
+                    .with_record_length_limit(RECORD_LIMIT),
+            ),
+            channels: HashMap::new(),
+            truncated: None,
+            done: false,
+            read_bytes: 0,
+            len,
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Bytes read so far, and the file's length.
+    pub fn progress(&self) -> (u64, u64) {
+        (self.read_bytes, self.len)
+    }
+
+    /// Why the file ended early, if it did (after the last record was read).
+    pub fn truncated(&self) -> Option<&str> {
+        self.truncated.as_deref()
+    }
+
+    fn format(&self, message: impl Into<String>) -> RecordingError {
+        RecordingError::Format {
+            path: self.path.clone(),
+            message: message.into(),
+        }
+    }
+
+    /// The next record; `None` at the end (or where a truncated file stops).
+    pub fn next_record(&mut self) -> Option<Result<Record, RecordingError>> {
+        if self.done {
+            return None;
+        }
+        let r = self.advance();
+        if !matches!(r, Some(Ok(_))) {
+            self.done = true;
+        }
+        r
+    }
+
+    fn advance(&mut self) -> Option<Result<Record, RecordingError>> {
+        loop {
+            let event = match self.reader.next_event()? {
+                Ok(e) => e,
+                Err(mcap::McapError::UnexpectedEof) => {
+                    self.truncated = Some(format!(
+                        "the file ends inside a record after {} bytes (the writer was \
+                         stopped before finishing it); everything before was read",
+                        self.read_bytes
+                    ));
+                    return None;
+                }
+                Err(e) => return Some(Err(self.format(e.to_string()))),
+            };
+            let (opcode, data) = match event {
+                LinearReadEvent::ReadRequest(n) => {
+                    let buf = self.reader.insert(n);
+                    match self.file.read(buf) {
+                        Ok(got) => {
+                            self.reader.notify_read(got);
+                            self.read_bytes += got as u64;
+                        }
+                        Err(error) => {
+                            return Some(Err(RecordingError::Io {
+                                path: self.path.clone(),
+                                error,
+                            }));
+                        }
+                    }
+                    continue;
+                }
+                LinearReadEvent::Record { opcode, data } => (opcode, data),
+            };
+            let record = match mcap::parse_record(opcode, data) {
+                Ok(r) => r,
+                Err(e) => return Some(Err(self.format(e.to_string()))),
+            };
+            use mcap::records::Record as R;
+            match record {
+                R::Channel(c) => {
+                    self.channels
+                        .insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
+                }
+                R::Message { header, data } => {
+                    let Some((topic, encoding)) = self.channels.get(&header.channel_id) else {
+                        return Some(Err(self.format(format!(
+                            "message on channel {} before that channel was declared",
+                            header.channel_id
+                        ))));
+                    };
+                    return Some(Ok(Record::Message {
+                        topic: topic.clone(),
+                        encoding: encoding.clone(),
+                        log_time_ns: header.log_time,
+                        data: data.into_owned(),
+                    }));
+                }
+                R::Metadata(m) => {
+                    return Some(Ok(Record::Metadata {
+                        name: m.name,
+                        entries: m.metadata,
+                    }));
+                }
+                R::Attachment { header, data, .. } => {
+                    return Some(Ok(Record::Attachment {
+                        name: header.name,
+                        media_type: header.media_type,
+                        data: data.into_owned(),
+                    }));
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+impl Iterator for RecordingReader {
+    type Item = Result<Record, RecordingError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_record()
+    }
+}
+
+/// A recorded camera frame with its label.
+#[derive(Debug, Clone)]
+pub struct RecordedFrame {
+    /// Camera number.
+    pub camera: usize,
+    /// Timing and label.
+    pub info: FrameInfo,
+    /// Pixels.
+    pub image: RgbImage,
+}
+
+/// What a recording says about itself: metadata records and attachments, by name.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RecordingHeader {
+    /// Metadata records.
+    pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// Attachments.
+    pub attachments: BTreeMap<String, Vec<u8>>,
+}
+
+/// Everything in a recording by kind, in order: frames (image joined with its label),
+/// other messages, and the header (metadata, attachments) as it is met.
+#[derive(Debug, Clone)]
+pub enum Content {
+    /// A labelled frame.
+    Frame(RecordedFrame),
+    /// Any other message.
+    Other(Record),
+}
+
+/// Reads `path` through, joining frames: `each` gets every labelled frame and every
+/// other message in file order; the header is returned with how the file ended.
+/// A frame's image and label are joined by camera and timestamp (the label comes
+/// first); an image whose label never came is reported, not guessed.
+pub fn frames<E: From<RecordingError>>(
+    path: &Path,
+    mut each: impl FnMut(Content, (u64, u64)) -> Result<(), E>,
+) -> Result<(RecordingHeader, Option<String>), E> {
+    let mut reader = RecordingReader::open(path)?;
+    let mut header = RecordingHeader::default();
+    let mut labels: HashMap<(usize, u64), FrameInfo> = HashMap::new();
+    let bad = |topic: &str, log_time_ns, message: String| RecordingError::Message {
+        path: path.to_path_buf(),
+        topic: topic.to_string(),
+        log_time_ns,
+        message,
+    };
+    while let Some(record) = reader.next_record() {
+        let record = record?;
+        let progress = reader.progress();
+        match &record {
+            Record::Message {
+                topic,
+                log_time_ns,
+                data,
+                ..
+            } => match topics::camera_of(topic) {
+                Some(camera) if *topic == topics::camera_frame(camera) => {
+                    let info: FrameInfo = serde_json::from_slice(data)
+                        .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
+                    if let Err(e) = info.label() {
+                        return Err(bad(topic, *log_time_ns, e).into());
+                    }
+                    labels.insert((camera, *log_time_ns), info);
+                }
+                Some(camera) if *topic == topics::camera_image(camera) => {
+                    let raw = RawImage::decode(data.as_slice())
+                        .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
+                    let image = rgb_from_raw(&raw).map_err(|e| bad(topic, *log_time_ns, e))?;
+                    let info = labels.remove(&(camera, *log_time_ns)).ok_or_else(|| {
+                        bad(
+                            topic,
+                            *log_time_ns,
+                            format!(
+                                "no label on {} for this image (same log time)",
+                                topics::camera_frame(camera)
+                            ),
+                        )
+                    })?;
+                    each(
+                        Content::Frame(RecordedFrame {
+                            camera,
+                            info,
+                            image,
+                        }),
+                        progress,
+                    )?;
+                }
+                _ => each(Content::Other(record), progress)?,
+            },
+            Record::Metadata { name, entries } => {
+                header.metadata.insert(name.clone(), entries.clone());
+                each(Content::Other(record), progress)?;
+            }
+            Record::Attachment { name, data, .. } => {
+                header.attachments.insert(name.clone(), data.clone());
+                each(Content::Other(record), progress)?;
+            }
+        }
+    }
+    Ok((header, reader.truncated().map(str::to_string)))
+}
+
+/// The header alone: a pass over the file that skips the chunks undecompressed.
+pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
+    let mut reader = RecordingReader::open(path)?;
+    reader.reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_emit_chunks(true)
+            .with_record_length_limit(RECORD_LIMIT),
+    );
+    let mut header = RecordingHeader::default();
+    while let Some(record) = reader.next_record() {
+        match record? {
+            Record::Metadata { name, entries } => {
+                header.metadata.insert(name, entries);
+            }
+            Record::Attachment { name, data, .. } => {
+                header.attachments.insert(name, data);
+            }
+            Record::Message { .. } => {}
+        }
+    }
+    Ok(header)
+}

@@ -1,0 +1,186 @@
+//! The live path end to end: `run` with two simulated cameras records an MCAP file that
+//! the `mcap` crate reads back, and `process` reproduces its depth maps bit for bit,
+//! also from a file cut short as a killed writer leaves it.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use common::{stereotac, temp_dir};
+use foxglove::Decode;
+
+/// Every message of `path` by topic: (log time, bytes), with the channel's schema name.
+type Messages = BTreeMap<String, (String, Vec<(u64, Vec<u8>)>)>;
+
+fn read_messages(path: &Path) -> Messages {
+    let bytes = std::fs::read(path).unwrap();
+    let mut out = Messages::new();
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a readable message");
+        let schema = m
+            .channel
+            .schema
+            .as_ref()
+            .map_or("", |s| &s.name)
+            .to_string();
+        out.entry(m.channel.topic.clone())
+            .or_insert((schema, Vec::new()))
+            .1
+            .push((m.log_time, m.data.into_owned()));
+    }
+    out
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+#[test]
+fn run_records_two_cameras_and_process_reproduces_every_depth_map_bit_for_bit() {
+    let dir = temp_dir("live-run");
+    let rec = dir.join("out.mcap");
+    let (ok, out, err) = stereotac(&[
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--camera",
+        "sim",
+        "--size",
+        "320x240",
+        "--mode",
+        "interleaved",
+        "--period-ms",
+        "100",
+        "--duration-s",
+        "2",
+        "--mcap",
+        path(&rec),
+        "--jsonl",
+    ]);
+    assert!(ok, "{err}");
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(lines.len() >= 4, "{out}\n{err}");
+    assert!(lines.iter().all(|l| l["latency_ms"].is_f64()), "{out}");
+
+    // What the reference reader finds: every documented topic, Foxglove's schemas.
+    let live = read_messages(&rec);
+    for (topic, schema) in [
+        ("/stereotac/cam0/image", "foxglove.RawImage"),
+        ("/stereotac/cam1/image", "foxglove.RawImage"),
+        ("/stereotac/cam0/frame", "stereotac.FrameInfo"),
+        ("/stereotac/leds/phase", "stereotac.PhaseInfo"),
+        ("/stereotac/tactile/depth", "foxglove.RawImage"),
+        ("/stereotac/tactile/contact", "stereotac.TactileRecord"),
+        ("/stereotac/stereo/depth", "foxglove.RawImage"),
+        ("/stereotac/stereo/points", "foxglove.PointCloud"),
+    ] {
+        let (s, msgs) = live
+            .get(topic)
+            .unwrap_or_else(|| panic!("{topic} missing: {:?}", live.keys()));
+        assert_eq!(s, schema, "{topic}");
+        assert!(!msgs.is_empty(), "{topic}");
+    }
+    assert_eq!(live["/stereotac/tactile/contact"].1.len(), lines.len());
+    let depth =
+        foxglove::messages::RawImage::decode(&live["/stereotac/stereo/depth"].1[0].1[..]).unwrap();
+    assert_eq!(
+        (depth.width, depth.height, depth.encoding.as_str()),
+        (320, 240, "32FC1")
+    );
+    // The simulated board is 150 mm away at the centre (metres in the file).
+    let centre = 4 * (120 * 320 + 160);
+    let z = f32::from_le_bytes(depth.data[centre..centre + 4].try_into().unwrap());
+    assert!(
+        (0.14..0.16).contains(&z),
+        "stereo depth at the centre {z} m"
+    );
+    let bytes = std::fs::read(&rec).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let mut names: Vec<String> = summary
+        .metadata_indexes
+        .iter()
+        .map(|m| m.name.clone())
+        .collect();
+    names.sort();
+    assert!(names.contains(&"sensor".to_string()), "{names:?}");
+    for index in &summary.metadata_indexes {
+        if index.name == "sensor" {
+            let m = mcap::read::metadata(&bytes, index).unwrap();
+            assert_eq!(m.metadata["serial"].len(), 16, "{:?}", m.metadata);
+        }
+    }
+    let attachments: Vec<&str> = summary
+        .attachment_indexes
+        .iter()
+        .map(|a| a.name.as_str())
+        .collect();
+    assert!(
+        attachments.contains(&"tactile_model.json"),
+        "{attachments:?}"
+    );
+    assert!(
+        attachments.contains(&"stereo_calibration.yaml"),
+        "{attachments:?}"
+    );
+
+    // Offline: the same depth, bit for bit, from the model and calibration inside.
+    let processed = dir.join("processed.mcap");
+    let (ok, out2, err) =
+        stereotac(&["process", path(&rec), "--mcap", path(&processed), "--jsonl"]);
+    assert!(ok, "{err}");
+    assert_eq!(out2.lines().count(), lines.len(), "{out2}");
+    let offline = read_messages(&processed);
+    for topic in [
+        "/stereotac/tactile/depth",
+        "/stereotac/stereo/depth",
+        "/stereotac/stereo/points",
+        "/stereotac/cam0/image",
+    ] {
+        assert!(
+            live[topic].1 == offline[topic].1,
+            "{topic}: processed differs from live"
+        );
+    }
+    // A recording is never overwritten.
+    let (ok, _, err) = stereotac(&["process", path(&rec), "--mcap", path(&processed)]);
+    assert!(!ok && err.contains("exists already"), "{err}");
+
+    // Cut as a killed writer leaves it: what is complete is processed, with a warning.
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let (ok, out3, err) = stereotac(&["process", path(&cut), "--jsonl"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("ends inside a record"), "{err}");
+    let n = out3.lines().count();
+    assert!(
+        n >= 1 && n < lines.len(),
+        "{n} of {} pairs from 2/3 of the file",
+        lines.len()
+    );
+    for (a, b) in out3.lines().zip(&lines) {
+        let a: serde_json::Value = serde_json::from_str(a).unwrap();
+        assert_eq!(a["max_depth_mm"], b["max_depth_mm"]);
+        assert!(a["latency_ms"].is_null(), "offline: no latency");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn process_refuses_what_is_not_a_recording_naming_the_file() {
+    let dir = temp_dir("live-bad");
+    let not_mcap = dir.join("frames.mcap");
+    std::fs::write(&not_mcap, b"this is not an MCAP file at all").unwrap();
+    let (ok, _, err) = stereotac(&["process", path(&not_mcap)]);
+    assert!(
+        !ok && err.contains("frames.mcap") && err.contains("MCAP"),
+        "{err}"
+    );
+    let (ok, _, err) = stereotac(&["process", path(&dir.join("missing.mcap"))]);
+    assert!(!ok && err.contains("missing.mcap"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
