@@ -16,6 +16,16 @@
 //! [`Label::NoTrigger`]. Dropped frames show as gaps in the camera's sequence numbers and,
 //! for triggered cameras, as triggers no frame answered; dropped events as gaps in the
 //! phase index. Every interval is widened by a guard for the clock-sync uncertainty.
+//!
+//! **When a frame is decided.** A frame's light is known once its exposure is known to
+//! end before the next LED change. The next phase event proves that, but it comes a
+//! whole phase later (250 ms at 4 Hz). The firmware never starts an LED write before its
+//! schedule `t0 + k·T` (it may start late, never early), so once two phases of the
+//! running sequence give the period, the next write cannot start before the latest
+//! phase's schedule plus one period: an exposure that ends a guard before that
+//! (mapped to the host clock with 200 ppm of drift allowed and the sync's uncertainty
+//! subtracted) is decided as soon as the frame arrives. The host's own Stop comes after
+//! every frame it has already received, so stopping cannot change a decided frame.
 
 use std::collections::VecDeque;
 
@@ -178,6 +188,8 @@ pub struct FrameMatcher {
     last_sequence: Option<u64>,
     /// Triggered phases not yet answered by a frame: (trigger index, edge).
     unanswered: VecDeque<(u32, f64)>,
+    /// The earliest host time the next LED write can start, when the period is known.
+    next_write_floor: Option<f64>,
     stats: MatchStats,
 }
 
@@ -191,6 +203,7 @@ impl FrameMatcher {
             pending: VecDeque::new(),
             last_sequence: None,
             unanswered: VecDeque::new(),
+            next_write_floor: None,
             stats: MatchStats::default(),
         }
     }
@@ -214,6 +227,10 @@ impl FrameMatcher {
         if let Some(t) = phase.trigger {
             self.unanswered.push_back(t);
         }
+        self.next_write_floor = self
+            .phases
+            .last()
+            .and_then(|prev| next_write_floor(prev, &phase));
         self.phases.push(phase);
         self.gap_before.push(gap);
     }
@@ -232,12 +249,14 @@ impl FrameMatcher {
         self.pending.push_back(frame);
     }
 
-    /// Frames whose light is now known: a phase after their exposure has been reported.
+    /// Frames whose light is now known: their exposure ends before a reported LED
+    /// change, or before the earliest the next one can come (module documentation).
     pub fn ready(&mut self) -> Vec<MatchedFrame> {
-        let horizon = self
+        let reported = self
             .phases
             .last()
             .map_or(f64::NEG_INFINITY, |p| p.write_start_us);
+        let horizon = self.next_write_floor.map_or(reported, |f| f.max(reported));
         let mut out = Vec::new();
         while let Some(frame) = self.pending.front().copied() {
             let (_, end) = self.exposure(&frame);
@@ -370,6 +389,34 @@ impl FrameMatcher {
         let k = self.phases.partition_point(|p| p.latched_us <= t);
         k < self.phases.len() && self.gap_before[k]
     }
+}
+
+/// Largest device clock drift the early decision allows for, ppm (crystals are within
+/// ±50; the fit's own figure is not trusted for this).
+const DRIFT_BOUND_PPM: f64 = 200.0;
+
+/// The earliest host time the LED write after `latest` can start, given the phase
+/// before it in the same running sequence; `None` when the two do not give a period (a
+/// restart, a repeated index, schedules out of order).
+fn next_write_floor(prev: &HostPhase, latest: &HostPhase) -> Option<f64> {
+    let steps = latest.event.index.checked_sub(prev.event.index)?;
+    let span = latest
+        .event
+        .scheduled_us
+        .checked_sub(prev.event.scheduled_us)?;
+    if steps == 0 || span == 0 {
+        return None;
+    }
+    let period_dev = span as f64 / f64::from(steps);
+    // Device µs from the latest write's start to the next schedule (the write may have
+    // started late; the next schedule does not move).
+    let next_dev = latest.event.scheduled_us as f64 + period_dev;
+    let ahead_dev = next_dev - latest.event.write_start_us as f64;
+    if !(ahead_dev.is_finite() && ahead_dev > 0.0) {
+        return None;
+    }
+    let slope_min = 1.0 - DRIFT_BOUND_PPM * 1e-6;
+    Some(latest.write_start_us + ahead_dev * slope_min - 2.0 * latest.uncertainty_us.max(0.0))
 }
 
 #[cfg(test)]
@@ -597,5 +644,67 @@ mod tests {
         m.add_phase(phase(2, Some(2)));
         let out = m.ready();
         assert_eq!(out[0].label, Label::NoTrigger);
+    }
+
+    /// Phase k with its device schedule (`t0 + k·T`, write 103 µs late), the device
+    /// clock equal to the host's.
+    fn scheduled(k: u32) -> HostPhase {
+        let p = phase(k, Some(k));
+        let scheduled = 1_000_000 + u64::from(k) * T as u64;
+        HostPhase {
+            event: PhaseEvent {
+                scheduled_us: scheduled,
+                write_start_us: scheduled + 103,
+                ..p.event
+            },
+            ..p
+        }
+    }
+
+    #[test]
+    fn a_frame_is_decided_when_it_arrives_once_the_schedule_bounds_the_next_change() {
+        let mut m = FrameMatcher::new(triggered());
+        let edge = |p: &HostPhase| p.trigger.unwrap().1;
+        // One phase: the period is unknown, so its frame waits for the next event.
+        let p0 = scheduled(0);
+        m.add_phase(p0);
+        m.add_frame(frame(0, edge(&p0) + 40.0));
+        assert!(m.ready().is_empty(), "no period yet");
+        let p1 = scheduled(1);
+        m.add_phase(p1);
+        assert_eq!(m.ready().len(), 1, "phase 1's event decides frame 0");
+        // From now on a frame is decided as soon as it arrives, with no event after it.
+        m.add_frame(frame(1, edge(&p1) + 40.0));
+        let out = m.ready();
+        assert_eq!(
+            out.first().map(|f| f.label),
+            Some(Label::Phase {
+                index: 1,
+                phase: Phase::Dy,
+                trigger: Some(1)
+            })
+        );
+        // An exposure running up to the next schedule is not: it might straddle.
+        let late = HostPhase { ..scheduled(2) };
+        m.add_phase(late);
+        m.add_frame(FrameStamp {
+            sequence: 2,
+            timestamp_us: edge(&late) + 40.0,
+            exposure_us: T - 1500.0,
+        });
+        assert!(
+            m.ready().is_empty(),
+            "ends within the guard of the next write"
+        );
+        m.add_phase(scheduled(3));
+        assert_eq!(
+            m.ready().first().map(|f| f.label),
+            Some(Label::Straddles),
+            "and the next event shows it does"
+        );
+        // A restarted sequence (index back to 0) forgets the period.
+        m.add_phase(scheduled(0));
+        m.add_frame(frame(3, edge(&scheduled(0)) + 40.0));
+        assert!(m.ready().is_empty(), "restart: no period");
     }
 }

@@ -61,6 +61,9 @@ pub struct Args {
     pub device: DeviceArgs,
 }
 
+/// How long one poll of the sensor waits for events.
+const POLL: Duration = Duration::from_millis(2);
+
 /// What the mode lights, so which stages can run.
 fn stages_of(mode: ModeArg) -> (bool, bool) {
     match mode {
@@ -259,9 +262,9 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut failure = None;
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        let events = sensor
-            .poll(Duration::from_millis(10))
-            .context("polling the sensor")?;
+        // A short wait: frames are taken from the cameras between polls, so this bounds
+        // how long a finished exposure can sit before it is labelled.
+        let events = sensor.poll(POLL).context("polling the sensor")?;
         for event in &events {
             match event {
                 SensorEvent::Phase(p) => {
