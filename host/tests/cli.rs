@@ -21,6 +21,9 @@ fn help_documents_every_subcommand() {
         "stereo-eval",
         "bench",
         "firmware-image",
+        "run",
+        "process",
+        "export",
     ] {
         assert!(
             help.contains(&format!("  {sub} ")),
@@ -72,19 +75,51 @@ fn info_stream_set_and_record_against_the_simulated_sensor() {
 
     let dir = std::env::temp_dir().join(format!("stereotac-cli-rec-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let d = dir.to_str().unwrap();
-    let (ok, out, err) = stereotac(&["--sim", "record", "--out", d, "--duration-s", "1.6"]);
+    std::fs::create_dir_all(&dir).unwrap();
+    let rec = dir.join("rec.mcap");
+    let r = rec.to_str().unwrap();
+    let (ok, _, err) = stereotac(&["--sim", "record", "--out", r, "--duration-s", "1.6"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("0 dropped, 0 straddling"), "{err}");
+    let bytes = std::fs::read(&rec).unwrap();
+    let images = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| m.unwrap())
+        .filter(|m| m.channel.topic == "/stereotac/cam0/image")
+        .count();
+    assert!(images >= 5, "{images} frames in 1.6 s at 4 Hz\n{err}");
+    assert!(
+        err.contains(&format!("{images} frames")),
+        "the summary counts what the file holds: {err}"
+    );
+    let (ok, _, err) = stereotac(&["--sim", "record", "--out", r, "--duration-s", "1"]);
+    assert!(
+        !ok && err.contains("exists already"),
+        "never overwrites: {err}"
+    );
+    // --png: the PNG-and-index directory.
+    let png = dir.join("png");
+    let d = png.to_str().unwrap();
+    let (ok, out, err) = stereotac(&[
+        "--sim",
+        "record",
+        "--png",
+        "--out",
+        d,
+        "--duration-s",
+        "1.6",
+    ]);
     assert!(ok, "{err}");
     assert!(out.contains("0 frames dropped"), "{out}");
-    let index = std::fs::read_to_string(dir.join("index.jsonl")).unwrap();
+    let index = std::fs::read_to_string(png.join("index.jsonl")).unwrap();
     let n = index.lines().count();
     assert!(n >= 5, "{index}");
     assert_eq!(
-        std::fs::read_dir(&dir).unwrap().count(),
+        std::fs::read_dir(&png).unwrap().count(),
         n + 1,
         "one PNG per index line"
     );
-    let (ok, _, err) = stereotac(&["--sim", "record", "--out", d, "--duration-s", "1"]);
+    let (ok, _, err) = stereotac(&["--sim", "record", "--png", "--out", d, "--duration-s", "1"]);
     assert!(
         !ok && err.contains("File exists"),
         "never overwrites: {err}"
@@ -109,6 +144,7 @@ fn record_takes_several_cameras_into_one_directory_each() {
     let args = [
         "--sim",
         "record",
+        "--png",
         "--out",
         d,
         "--camera",

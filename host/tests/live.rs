@@ -184,3 +184,63 @@ fn process_refuses_what_is_not_a_recording_naming_the_file() {
     assert!(!ok && err.contains("missing.mcap"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
+    let dir = temp_dir("live-export");
+    let rec = dir.join("rec.mcap");
+    let (ok, _, err) = stereotac(&[
+        "--sim",
+        "record",
+        "--camera",
+        "sim",
+        "--camera",
+        "sim",
+        "--size",
+        "320x240",
+        "--mode",
+        "interleaved",
+        "--period-ms",
+        "100",
+        "--duration-s",
+        "1.5",
+        "--out",
+        path(&rec),
+    ]);
+    assert!(ok, "{err}");
+    let pairs = dir.join("pairs");
+    let (ok, out, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs)]);
+    assert!(ok, "{err}");
+    let names: Vec<String> = std::fs::read_dir(&pairs)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    let count = |suffix: &str| names.iter().filter(|n| n.ends_with(suffix)).count();
+    assert!(count("_dx.png") >= 2, "{names:?}");
+    assert_eq!(count("_dx.png"), count("_dy.png"));
+    assert!(count("_left.png") >= 2 && count("_left.png") == count("_right.png"));
+    assert!(
+        out.contains(&format!("wrote {} dx/dy pairs", count("_dx.png"))),
+        "{out}"
+    );
+    // The exported pair is the recorded frame, pixel for pixel.
+    let dx = image::open(pairs.join(names.iter().find(|n| n.ends_with("_dx.png")).unwrap()))
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(dx.dimensions(), (320, 240));
+    let (ok, _, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs)]);
+    assert!(!ok && err.contains("never overwritten"), "{err}");
+
+    // calibrate takes the recording itself (its objects are not ball presses: the
+    // error names the pair, by phase).
+    let (ok, _, err) = stereotac(&[
+        "calibrate",
+        path(&rec),
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        path(&dir.join("model.json")),
+    ]);
+    assert!(!ok && err.contains("phase0"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -7,8 +7,11 @@
 //!   [`stereo::StereoStage`] (stereo depth and point cloud).
 //!
 //! Routing depends only on the labelled frames and their order, so a recording fed in
-//! file order gives `process` exactly the pairs `run` reconstructed.
+//! file order gives `process` exactly the pairs `run` reconstructed. [`session`] is the
+//! live source: a sensor, its cameras and the recorder.
 
+pub mod replay;
+pub mod session;
 pub mod stereo;
 pub mod tactile;
 

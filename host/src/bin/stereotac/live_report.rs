@@ -12,7 +12,6 @@ pub struct Report {
     tactile_latency: Vec<f64>,
     stereo_latency: Vec<f64>,
     contacts: u64,
-    stdout_open: bool,
 }
 
 impl Report {
@@ -23,13 +22,7 @@ impl Report {
             tactile_latency: Vec::new(),
             stereo_latency: Vec::new(),
             contacts: 0,
-            stdout_open: true,
         }
-    }
-
-    /// Whether stdout still takes lines.
-    pub fn stdout_open(&self) -> bool {
-        self.stdout_open
     }
 
     /// Prints one output; `false` once stdout is gone.
@@ -49,7 +42,6 @@ impl Report {
                 self.jsonl || emit(format_args!("{}", stereo_line(record)))
             }
         };
-        self.stdout_open &= open;
         Ok(open)
     }
 

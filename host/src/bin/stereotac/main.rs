@@ -11,6 +11,7 @@ mod cameras;
 mod cmd;
 mod console;
 mod live_report;
+mod live_session;
 mod progress;
 mod sensor_args;
 mod stages;
@@ -56,6 +57,8 @@ enum Command {
     Run(cmd::run::Args),
     /// The live pipeline offline, on a recording (MCAP): the same depth, bit for bit.
     Process(cmd::process::Args),
+    /// A recording's dx/dy and stereo pairs as PNG files (`--pairs DIR`).
+    Export(cmd::export::Args),
     /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
     /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
     Record(cmd::record::Args),
@@ -115,6 +118,7 @@ fn run(cli: Cli, name: &str) -> Result<()> {
         Command::Record(a) => cmd::record::run(a),
         Command::Run(a) => cmd::run::run(a),
         Command::Process(a) => cmd::process::run(a),
+        Command::Export(a) => cmd::export::run(a),
         Command::Set(a) => cmd::set::run(a),
         Command::Flash(a) => cmd::flash::run(a),
         Command::Calibrate(a) => cmd::calibrate::run(a),

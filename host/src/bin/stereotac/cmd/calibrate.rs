@@ -1,11 +1,15 @@
 //! `stereotac calibrate`: the tactile model from ball presses (a directory of
-//! `NAME_dx.png` / `NAME_dy.png` pairs), with the fitted circle of each press.
+//! `NAME_dx.png` / `NAME_dy.png` pairs, or a recording's dx/dy pairs), with the fitted
+//! circle of each press.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use stereotac::tactile::calibrate::{CalibrationProgress, CalibrationSettings, Circle, calibrate};
+use stereotac::live::replay;
+use stereotac::tactile::calibrate::{
+    CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
+};
 use stereotac::tactile::images::{load_pairs, load_references};
 
 use crate::progress::bar;
@@ -13,7 +17,8 @@ use crate::progress::bar;
 /// `stereotac calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Directory of pairs.
+    /// Directory of NAME_dx.png / NAME_dy.png pairs, or a recording (MCAP file from
+    /// `record` or `run`): camera 0's dx/dy pairs.
     pub dir: PathBuf,
     /// Diameter of the calibration ball.
     #[arg(long)]
@@ -37,7 +42,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let pairs = load_pairs(&a.dir)?;
+    let pairs = if a.dir.is_file() {
+        recorded_pairs(&a.dir)?
+    } else {
+        load_pairs(&a.dir)?
+    };
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let overrides: HashMap<String, Circle> = match &a.overrides {
         Some(path) => serde_json::from_slice(
@@ -108,4 +117,26 @@ pub fn run(a: Args) -> Result<()> {
     cal.model.save(&a.out)?;
     println!("wrote {}", a.out.display());
     Ok(())
+}
+
+/// Camera 0's dx/dy pairs of a recording.
+fn recorded_pairs(path: &std::path::Path) -> Result<Vec<CalibrationPair>> {
+    let mut pairs = Vec::new();
+    let truncated = replay::pairs(path, |pair| -> Result<()> {
+        if let replay::RecordedPair::Gradient { name, dx, dy } = pair {
+            pairs.push(CalibrationPair { name, dx, dy });
+        }
+        Ok(())
+    })
+    .with_context(|| format!("reading {}", path.display()))?;
+    if let Some(why) = truncated {
+        eprintln!("warning: {}: {why}", path.display());
+    }
+    if pairs.is_empty() {
+        anyhow::bail!(
+            "{}: no dx/dy pairs from camera 0 (record with --mode gradient or interleaved)",
+            path.display()
+        );
+    }
+    Ok(pairs)
 }

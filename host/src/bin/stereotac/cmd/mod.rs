@@ -5,6 +5,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod demo;
 pub mod devices;
+pub mod export;
 pub mod firmware_image;
 pub mod flash;
 pub mod info;

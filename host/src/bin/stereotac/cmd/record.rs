@@ -1,12 +1,14 @@
-//! `stereotac record`: camera frames as PNG plus an index (`index.jsonl`) of phase,
-//! trigger and timestamps, from one or several cameras; Ctrl-C finishes cleanly without
-//! losing a captured frame.
+//! `stereotac record`: camera frames with their LED phases, from one or several
+//! cameras. By default one MCAP file (raw frames, labels, LED phases, clock sync, sensor
+//! identity) that `process`, `export` and `calibrate` read and Foxglove opens; with
+//! `--png`, PNG frames plus an index (`index.jsonl`) per camera. Ctrl-C, SIGTERM and
+//! SIGHUP finish cleanly without losing a captured frame.
 
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use stereotac::device::SensorEvent;
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
@@ -17,16 +19,24 @@ use stereotac_protocol::Request;
 use crate::args::SequenceArgs;
 use crate::cameras::CameraArgs;
 use crate::console::interrupt_flag;
+use crate::live_session::{self, Outputs, print_recorded};
 use crate::progress::spinner;
 use crate::sensor_args::{DeviceArgs, open};
 
 /// `stereotac record`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Args {
-    /// Output directory (must not hold a recording already). With several cameras each
-    /// records into DIR/cam0, DIR/cam1, ...
+    /// Output: a new MCAP file; with --png a directory (must not hold a recording
+    /// already; with several cameras each records into DIR/cam0, DIR/cam1, ...).
     #[arg(long)]
     pub out: PathBuf,
+    /// PNG frames plus index.jsonl per camera instead of one MCAP file.
+    #[arg(long)]
+    pub png: bool,
+    /// Serve a live view for Foxglove while recording (MCAP only; default address
+    /// 127.0.0.1:8765).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<String>,
     #[command(flatten)]
     pub cameras: CameraArgs,
     /// Sequence settings.
@@ -61,6 +71,12 @@ impl CameraRecording {
 pub fn run(a: Args) -> Result<()> {
     let stop = interrupt_flag()?;
     a.cameras.check()?;
+    if !a.png {
+        return record_mcap(a, &stop);
+    }
+    if a.foxglove.is_some() {
+        bail!("--foxglove shows an MCAP recording as it is made: drop --png");
+    }
     let mut opened = open(&a.device)?;
     let sync = a.cameras.sync();
     let mut cameras = Vec::new();
@@ -129,6 +145,59 @@ pub fn run(a: Args) -> Result<()> {
             s.dropped_frames,
             s.dropped_events
         );
+    }
+    Ok(())
+}
+
+/// The default: one MCAP file.
+fn record_mcap(a: Args, stop: &AtomicBool) -> Result<()> {
+    let mut live = live_session::start(
+        "record",
+        &a.device,
+        &a.cameras,
+        &a.sequence,
+        Outputs {
+            mcap: Some(a.out.clone()),
+            foxglove: a.foxglove.as_deref(),
+        },
+    )?;
+    let sensor = &mut live.opened.sensor;
+    a.sequence.start(sensor)?;
+    let end = a.sequence.deadline(sensor)?;
+    let progress = spinner("recording");
+    let frames = std::cell::Cell::new(0u64);
+    let mut count = |_: usize, _: LabelledFrame, _: u64| -> Result<bool> {
+        frames.set(frames.get() + 1);
+        Ok(true)
+    };
+    let mut failure = None;
+    while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
+        live.session
+            .step(
+                sensor,
+                &live.recorder,
+                Duration::from_millis(20),
+                &mut count,
+            )
+            .context("capturing")?;
+        for w in live.session.take_warnings() {
+            progress.suspend(|| eprintln!("warning: {w}"));
+        }
+        if let Some(e) = live.recorder.failure() {
+            failure = Some(e);
+            break;
+        }
+        progress.set_message(format!("{} frames", frames.get()));
+    }
+    let stopped = sensor.request(Request::Stop);
+    live.session.finish(&live.recorder, &mut count)?;
+    progress.finish_and_clear();
+    live.print_cameras();
+    let summary = live.recorder.finish();
+    stopped.context("stopping the sequence")?;
+    print_recorded(&summary?);
+    if let Some(e) = failure {
+        bail!("recording failed: {e}");
     }
     Ok(())
 }
