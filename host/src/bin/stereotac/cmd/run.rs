@@ -244,7 +244,6 @@ pub fn run(a: Args) -> Result<()> {
     if stdout_open {
         live.session.finish(recorder, &mut each)?;
     }
-    drop(each);
     report.finish(&pipeline);
     live.print_cameras();
     let summary = live.recorder.finish();
