@@ -244,3 +244,58 @@ fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
     assert!(!ok && err.contains("phase0"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_demo_recordings_calibrate_and_process_end_to_end() {
+    let dir = temp_dir("live-demo");
+    let out = dir.join("demo-out");
+    let (ok, text, err) = stereotac(&["demo", "--no-tactile", "--no-stereo", "--out", path(&out)]);
+    assert!(ok, "{err}");
+    assert!(
+        text.contains("presses.mcap") && text.contains("demo.mcap"),
+        "{text}"
+    );
+    let model = dir.join("model.json");
+    let (ok, text, err) = stereotac(&[
+        "calibrate",
+        path(&out.join("presses.mcap")),
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        path(&model),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        text.contains("16 presses") || text.matches("phase0").count() == 16,
+        "{text}"
+    );
+    let (ok, text, err) = stereotac(&[
+        "process",
+        path(&out.join("demo.mcap")),
+        "--model",
+        path(&model),
+        "--jsonl",
+    ]);
+    assert!(ok, "{err}");
+    let records: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    // The skin at rest first, then the six objects, each pressed about 1 mm in.
+    assert_eq!(records[0]["contact"], false, "{text}");
+    let pressed: Vec<f64> = records[1..7]
+        .iter()
+        .map(|r| r["max_depth_mm"].as_f64().unwrap())
+        .collect();
+    assert!(
+        pressed.iter().all(|d| (0.6..1.4).contains(d)),
+        "max depths {pressed:?}"
+    );
+    // The dark frames of both cameras gave stereo depth of the board (the calibration
+    // is in the recording).
+    assert!(
+        err.contains("stereo: 8 frame pairs") || err.contains("stereo: 7 frame pairs"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -7,6 +7,7 @@
 //!   well-known schemas (`foxglove.RawImage`, `foxglove.PointCloud`, `foxglove.Log`).
 //! - [`writer`]: the [`Recorder`](writer::Recorder): a bounded queue and a writer
 //!   thread, so a slow disk or viewer never blocks capture (what it drops is counted).
+//! - [`metadata`]: the header records (what ran, which sensor).
 //! - [`reader`]: reads a recording back, streaming, and recovers what a killed writer
 //!   left (everything up to the last complete chunk).
 //!
@@ -16,6 +17,7 @@
 //! messages carry the host µs themselves, so nothing is lost to the conversion.
 
 pub mod messages;
+pub mod metadata;
 pub mod reader;
 pub mod topics;
 pub mod writer;

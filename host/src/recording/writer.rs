@@ -45,6 +45,9 @@ pub struct RecorderOptions {
     pub live_view: Option<String>,
     /// Messages the queue holds before it drops (at least 1).
     pub queue: usize,
+    /// Wait for room instead of dropping (batch work and simulations, where nothing
+    /// should be lost and nothing live can be blocked).
+    pub wait_when_full: bool,
     /// Unix time of the host clock's zero, ns (see [`clock_origin_unix_ns`]).
     pub clock_origin_unix_ns: u64,
 }
@@ -161,6 +164,7 @@ pub struct Recorder {
     drops: Arc<DropCounters>,
     failed: Arc<Mutex<Option<String>>>,
     live_port: Option<u16>,
+    wait_when_full: bool,
 }
 
 impl Recorder {
@@ -207,6 +211,7 @@ impl Recorder {
             drops,
             failed,
             live_port,
+            wait_when_full: options.wait_when_full,
         })
     }
 
@@ -216,10 +221,11 @@ impl Recorder {
     }
 
     /// Queues `item`; `false` if it was dropped (queue full) or the writer is gone.
-    /// Metadata and attachments wait for room instead.
+    /// Metadata and attachments wait for room instead, as everything does with
+    /// [`RecorderOptions::wait_when_full`].
     pub fn send(&self, item: Item) -> bool {
         let Some(tx) = &self.tx else { return false };
-        if matches!(item, Item::Metadata { .. } | Item::Attachment { .. }) {
+        if self.wait_when_full || matches!(item, Item::Metadata { .. } | Item::Attachment { .. }) {
             return tx.send(item).is_ok();
         }
         let counter = match &item {
@@ -234,12 +240,6 @@ impl Recorder {
                 false
             }
         }
-    }
-
-    /// Queues `item`, waiting for room (batch work, where nothing may be dropped);
-    /// `false` if the writer is gone.
-    pub fn send_wait(&self, item: Item) -> bool {
-        self.tx.as_ref().is_some_and(|tx| tx.send(item).is_ok())
     }
 
     /// Drops so far.

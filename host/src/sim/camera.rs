@@ -53,21 +53,21 @@ impl PhaseImages {
     /// the skin (a dim texture); All is both gradient pairs' light together.
     pub fn render(optics: &Optics, scene: &Scene) -> Self {
         let pair = render(optics, scene, 0);
-        let (w, h) = (optics.width as u32, optics.height as u32);
+        Self::from_gradients(pair.dx, pair.dy)
+    }
+
+    /// The phases of a rendered dx/dy pair: Dark a dim texture, All both together.
+    pub fn from_gradients(dx: RgbImage, dy: RgbImage) -> Self {
+        let (w, h) = dx.dimensions();
         let dark = RgbImage::from_fn(w, h, |x, y| {
             let v = (((x / 16 + y / 16) % 2) * 40 + 20 + (x * 7 + y * 13) % 17) as u8;
             image::Rgb([v, v, v])
         });
         let all = RgbImage::from_fn(w, h, |x, y| {
-            let (a, b) = (pair.dx.get_pixel(x, y).0, pair.dy.get_pixel(x, y).0);
+            let (a, b) = (dx.get_pixel(x, y).0, dy.get_pixel(x, y).0);
             image::Rgb(std::array::from_fn(|c| a[c].saturating_add(b[c] / 2)))
         });
-        Self {
-            dark,
-            all,
-            dx: pair.dx,
-            dy: pair.dy,
-        }
+        Self { dark, all, dx, dy }
     }
 
     /// The same phases with another LEDs-dark image (a stereo camera's view of the
@@ -171,12 +171,21 @@ pub struct SimulatedCamera {
     cycle: Option<SceneCycle>,
 }
 
-/// Scenes shown in turn, each for `every_us` of host time from `from_us`.
+/// Scenes shown in turn.
 #[derive(Debug)]
 struct SceneCycle {
     scenes: Vec<PhaseImages>,
-    every_us: f64,
-    from_us: f64,
+    step: SceneStep,
+}
+
+/// When the next scene of a cycle comes.
+#[derive(Debug, Clone, Copy)]
+enum SceneStep {
+    /// Every `every_us` of host time from `from_us`.
+    Time { every_us: f64, from_us: f64 },
+    /// Every `phases` LED phases (by phase index): a scene never changes inside a
+    /// phase group, so a dx/dy pair never shows two scenes.
+    Phases(u32),
 }
 
 impl SimulatedCamera {
@@ -229,20 +238,39 @@ impl SimulatedCamera {
         }
         self.cycle = Some(SceneCycle {
             scenes,
-            every_us,
-            from_us: self.clock.now_us() as f64,
+            step: SceneStep::Time {
+                every_us,
+                from_us: self.clock.now_us() as f64,
+            },
         });
     }
 
-    /// The scene an exposure starting at `start_us` shows.
-    fn images_at(&self, start_us: f64) -> &PhaseImages {
-        match &self.cycle {
-            Some(c) => {
-                let k = ((start_us - c.from_us) / c.every_us).floor().max(0.0) as usize;
-                &c.scenes[k % c.scenes.len()]
-            }
-            None => &self.images,
+    /// Show `scenes` in turn by the sequence's phase index: scene `k` lights phases
+    /// `k·phases .. (k+1)·phases` (then again from the first). With `phases` the length
+    /// of the mode's cycle (2 gradient, 3 interleaved) each dx/dy pair shows one scene.
+    /// Nothing changes when `scenes` is empty or `phases` is 0.
+    pub fn cycle_scenes_by_phase(&mut self, scenes: Vec<PhaseImages>, phases: u32) {
+        if scenes.is_empty() || phases == 0 {
+            return;
         }
+        self.cycle = Some(SceneCycle {
+            scenes,
+            step: SceneStep::Phases(phases),
+        });
+    }
+
+    /// The scene an exposure starting at `start_us`, in phase `phase_index`, shows.
+    fn images_at(&self, start_us: f64, phase_index: Option<u32>) -> &PhaseImages {
+        let Some(c) = &self.cycle else {
+            return &self.images;
+        };
+        let k = match c.step {
+            SceneStep::Time { every_us, from_us } => {
+                ((start_us - from_us) / every_us).floor().max(0.0) as usize
+            }
+            SceneStep::Phases(n) => (phase_index.unwrap_or(0) / n) as usize,
+        };
+        &c.scenes[k % c.scenes.len()]
     }
 
     /// Drop every `n`th frame (the sequence number still advances, as a camera's does).
@@ -278,6 +306,11 @@ impl SimulatedCamera {
                 return None;
             }
             let light = timeline.exposure(start, end);
+            let spans = timeline.spans();
+            let phase_index = spans
+                .partition_point(|s| s.from_us <= start)
+                .checked_sub(1)
+                .and_then(|i| spans[i].phase_index);
             drop(timeline);
             self.cursor = cursor;
             let sequence = self.sequence;
@@ -294,7 +327,7 @@ impl SimulatedCamera {
                     timestamp_us: start,
                     exposure_us: self.exposure_us,
                 },
-                image: self.images_at(start).blend(&light),
+                image: self.images_at(start, phase_index).blend(&light),
             });
         }
     }

@@ -9,6 +9,7 @@
 
 pub mod camera;
 pub mod link;
+pub mod scripted;
 pub mod sensor;
 
 use std::sync::{Arc, Mutex};

@@ -1,22 +1,20 @@
 //! What `run` and `record` share: connect the sensor, start the recorder (MCAP file,
 //! live view), open the cameras, write the recording's header, and the closing lines.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
-use stereotac::device::{firmware_version, serial_number};
 use stereotac::live::session::Session;
 use stereotac::matcher::MatcherConfig;
+use stereotac::recording::metadata::{self, RunInfo};
 use stereotac::recording::topics;
 use stereotac::recording::writer::{
-    Item, Recorder, RecorderOptions, RecordingSummary, clock_origin_unix_ns,
+    Recorder, RecorderOptions, RecordingSummary, clock_origin_unix_ns,
 };
 
 use crate::args::SequenceArgs;
 use crate::cameras::CameraArgs;
 use crate::sensor_args::{DeviceArgs, Opened, open};
-use crate::stages::stamp_ref_name;
 
 /// A connected sensor, its cameras and the recorder.
 pub struct Live {
@@ -51,6 +49,7 @@ pub fn start(
         mcap: outputs.mcap,
         live_view: outputs.foxglove.map(str::to_string),
         queue: 64,
+        wait_when_full: false,
         clock_origin_unix_ns: origin_ns,
     })?;
     if let Some(port) = recorder.live_port() {
@@ -89,40 +88,20 @@ impl Live {
         sequence: &SequenceArgs,
         origin_ns: u64,
     ) -> Result<()> {
-        let info = self.opened.sensor.info();
-        let captures = self.session.captures();
-        let mut run = BTreeMap::from([
-            ("version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-            ("command".to_string(), command.to_string()),
-            (
-                "mode".to_string(),
-                format!("{:?}", sequence.mode).to_lowercase(),
-            ),
-            ("period_ms".to_string(), sequence.period_ms.to_string()),
-            ("cameras".to_string(), captures.len().to_string()),
-            ("clock_origin_unix_ns".to_string(), origin_ns.to_string()),
-        ]);
-        for (i, c) in captures.iter().enumerate() {
-            run.insert(format!("camera{i}"), c.source().describe());
-            run.insert(
-                format!("camera{i}_stamp"),
-                stamp_ref_name(c.stamp_ref()).to_string(),
-            );
-        }
-        let sensor = BTreeMap::from([
-            ("serial".to_string(), serial_number(&info.board_id)),
-            ("firmware".to_string(), firmware_version(info)),
-            (
-                "protocol_version".to_string(),
-                info.protocol_version.to_string(),
-            ),
-            ("simulated".to_string(), device.sim.to_string()),
-        ]);
-        for (name, entries) in [(topics::META_RECORDING, run), (topics::META_SENSOR, sensor)] {
-            if !self.recorder.send(Item::Metadata {
-                name: name.into(),
-                entries,
-            }) {
+        let run = RunInfo {
+            command: command.into(),
+            mode: sequence.mode.into(),
+            period_ms: sequence.period_ms,
+            clock_origin_unix_ns: origin_ns,
+            cameras: self
+                .session
+                .captures()
+                .iter()
+                .map(|c| (c.source().describe(), c.stamp_ref()))
+                .collect(),
+        };
+        for item in metadata::header(&run, self.opened.sensor.info(), device.sim) {
+            if !self.recorder.send(item) {
                 bail!("the recording's writer stopped");
             }
         }

@@ -243,27 +243,3 @@ pub fn from_png(name: &str, bytes: &[u8]) -> Result<RgbImage> {
             .to_rgb8(),
     )
 }
-
-/// How the `stereotac` metadata names what camera timestamps mark.
-pub fn stamp_ref_name(s: StampRef) -> &'static str {
-    match s {
-        StampRef::ExposureStart => "exposure_start",
-        StampRef::ExposureEnd => "exposure_end",
-    }
-}
-
-/// What camera `camera`'s timestamps mark, from the `stereotac` metadata record
-/// (exposure start when it does not say).
-pub fn stamp_ref_of(entries: Option<&BTreeMap<String, String>>, camera: usize) -> Result<StampRef> {
-    match entries
-        .and_then(|e| e.get(&format!("camera{camera}_stamp")))
-        .map(String::as_str)
-    {
-        None | Some("exposure_start") => Ok(StampRef::ExposureStart),
-        Some("exposure_end") => Ok(StampRef::ExposureEnd),
-        Some(other) => bail!(
-            "metadata `stereotac` entry `camera{camera}_stamp`: {other:?} (exposure_start or \
-             exposure_end)"
-        ),
-    }
-}

@@ -3,7 +3,8 @@
 //! its handshake, phase timeline and counters; then the tactile part captures a dx/dy
 //! pair per object from a simulated camera triggered by that sensor (loopback USB,
 //! clock sync, matcher), calibrates on simulated ball presses and reconstructs each
-//! object; last, one vision frame goes through the stereo pipeline.
+//! object; then one vision frame goes through the stereo pipeline; last, two small
+//! recordings (`presses.mcap`, `demo.mcap`) for `calibrate` and `process`.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -14,8 +15,10 @@ use stereotac::clock::{HostClock, VirtualClock};
 use stereotac::device::{hex, status_line};
 use stereotac::frames::capture::{Capture, GradientPair, LabelledFrame};
 use stereotac::matcher::{CameraSync, Label, MatcherConfig};
-use stereotac::sim::camera::{PhaseImages, SimClocking, SimulatedCamera};
+use stereotac::recording::writer::{Recorder, RecorderOptions};
+use stereotac::sim::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamera};
 use stereotac::sim::link::LoopbackConfig;
+use stereotac::sim::scripted::{self, Script};
 use stereotac::sim::sensor::SimulatedSensor;
 use stereotac::stereo::StereoPipeline;
 use stereotac::stereo::output::write_outputs;
@@ -27,11 +30,12 @@ use stereotac::tactile::output;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
 use stereotac::tactile::render::{Optics, Scene, builtin_scenes};
-use stereotac::tactile::synthetic::{BUILTIN_PRESSES, CALIBRATION_BALL_MM};
+use stereotac::tactile::synthetic::{BUILTIN_PRESSES, CALIBRATION_BALL_MM, ball_presses};
 use stereotac_protocol::{Event, Mode, Request, Response, Timing, TriggerOutcome};
 
 use crate::args::ModeArg;
 use crate::progress::{bar, builtin_calibration};
+use crate::stages::StereoSetup;
 
 /// `stereotac demo`.
 #[derive(Debug, clap::Args)]
@@ -54,6 +58,9 @@ pub struct Args {
     /// Skip the stereo part (one vision frame through the wide lenses).
     #[arg(long)]
     pub no_stereo: bool,
+    /// Skip the recordings (presses.mcap, demo.mcap) for `calibrate` and `process`.
+    #[arg(long)]
+    pub no_recordings: bool,
 }
 
 /// Simulated camera: exposure starts this long after the trigger edge (µs).
@@ -89,6 +96,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     if !a.no_stereo {
         stereo(&a.out)?;
+    }
+    if !a.no_recordings {
+        recordings(&a.out, a.period_ms)?;
     }
     Ok(())
 }
@@ -348,6 +358,96 @@ fn stereo(out: &Path) -> Result<()> {
     println!(
         "wrote {} (depth .npy and PNGs, cloud.ply, summary.json)",
         dir.display()
+    );
+    Ok(())
+}
+
+/// The recordings a newcomer feeds to `calibrate` and `process`: `presses.mcap` (ball
+/// presses, gradient mode, one camera) and `demo.mcap` (the skin at rest, then each
+/// object; interleaved mode, two cameras 14 mm apart whose dark frames see a textured
+/// board; the stereo calibration attached).
+fn recordings(out: &Path, period_ms: u32) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let optics = Optics::standard();
+    println!(
+        "
+--- recordings: the live path's files, for calibrate and process ---"
+    );
+    let presses: Vec<PhaseImages> = ball_presses(&optics, BUILTIN_PRESSES, CALIBRATION_BALL_MM, 7)
+        .into_iter()
+        .map(|p| PhaseImages::from_gradients(p.dx, p.dy))
+        .collect();
+    let mut objects = vec![PhaseImages::render(&optics, &Scene::default())];
+    objects.extend(
+        builtin_scenes(&optics)
+            .iter()
+            .map(|(_, scene)| PhaseImages::render(&optics, scene)),
+    );
+    let stereo_rig = SimStereo::new(optics.width as u32, optics.height as u32);
+    let period_us = period_ms.saturating_mul(1000);
+    for (file, script, what) in [
+        (
+            "presses.mcap",
+            Script {
+                mode: Mode::Gradient,
+                period_us,
+                exposure_us: EXPOSURE_US,
+                scenes: presses,
+                stereo: None,
+                command: "demo".into(),
+            },
+            format!(
+                "{BUILTIN_PRESSES} presses of a {CALIBRATION_BALL_MM} mm ball, one camera, gradient mode"
+            ),
+        ),
+        (
+            "demo.mcap",
+            Script {
+                mode: Mode::Interleaved,
+                period_us,
+                exposure_us: EXPOSURE_US,
+                scenes: objects,
+                stereo: Some(stereo_rig),
+                command: "demo".into(),
+            },
+            "the skin at rest, then each object; two cameras, interleaved mode".to_string(),
+        ),
+    ] {
+        let path = out.join(file);
+        if path.exists() {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("replacing the demo's own {}", path.display()))?;
+        }
+        let recorder = Recorder::start(RecorderOptions {
+            mcap: Some(path.clone()),
+            live_view: None,
+            queue: 16,
+            wait_when_full: true,
+            clock_origin_unix_ns: 0,
+        })?;
+        if let Some(rig) = script.stereo {
+            StereoSetup {
+                calib: rig.calibration(),
+                config: StereoConfig::default(),
+            }
+            .record(&recorder)?;
+        }
+        let progress = bar(script.scenes.len() as u64, file);
+        let stats = scripted::record(&script, &recorder, |done, _| {
+            progress.set_position(done as u64)
+        })?;
+        progress.finish_and_clear();
+        let summary = recorder.finish()?;
+        let labelled: u64 = stats.iter().map(|s| s.labelled).sum();
+        println!(
+            "{}: {what}: {labelled} frames labelled, {:.1} MiB",
+            path.display(),
+            summary.bytes as f64 / (1 << 20) as f64
+        );
+    }
+    println!(
+        "next: stereotac calibrate {0}/presses.mcap --ball-diameter-mm {CALIBRATION_BALL_MM} --out model.json\n      stereotac process {0}/demo.mcap --model model.json --mcap processed.mcap",
+        out.display()
     );
     Ok(())
 }

@@ -22,8 +22,9 @@ use crate::live_report::Report;
 use crate::progress::bar;
 use crate::stages::{
     META_STEREO, REFERENCE_DX, REFERENCE_DY, StageArgs, StereoSetup, TactileSetup, from_png,
-    stamp_ref_of, stereo_settings,
+    stereo_settings,
 };
+use stereotac::recording::metadata::stamp_ref_of;
 
 /// `stereotac process`.
 #[derive(Debug, clap::Args)]
@@ -59,7 +60,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let run_meta = header.metadata.get(topics::META_RECORDING);
-    let stamp = |camera| stamp_ref_of(run_meta, camera);
+    let stamp = |camera| stamp_ref_of(run_meta, camera).map_err(anyhow::Error::msg);
     let origin_ns = run_meta
         .and_then(|m| m.get("clock_origin_unix_ns"))
         .map(|v| {
@@ -73,6 +74,7 @@ pub fn run(a: Args) -> Result<()> {
         mcap: a.mcap.clone(),
         live_view: None,
         queue: 2 * BATCH,
+        wait_when_full: true,
         clock_origin_unix_ns: origin_ns,
     })?;
     for (name, entries) in &header.metadata {
@@ -82,7 +84,7 @@ pub fn run(a: Args) -> Result<()> {
                 entries.insert("command".into(), "process".into());
                 entries.insert("source".into(), a.recording.display().to_string());
             }
-            recorder.send_wait(Item::Metadata {
+            recorder.send(Item::Metadata {
                 name: name.clone(),
                 entries,
             });
@@ -110,7 +112,7 @@ pub fn run(a: Args) -> Result<()> {
         for output in pipeline.run_batch(jobs, || None, dropped) {
             let Some(output) = output? else { continue };
             report.print(&output)?;
-            recorder.send_wait(output.into_item());
+            recorder.send(output.into_item());
         }
         jobs.clear();
         Ok(())
@@ -150,7 +152,7 @@ pub fn run(a: Args) -> Result<()> {
             checks?;
         }
         let label = frame.info.label().map_err(anyhow::Error::msg)?;
-        recorder.send_wait(Item::Frame {
+        recorder.send(Item::Frame {
             camera,
             info: frame.info.clone(),
             image: frame.image.clone(),
@@ -202,7 +204,7 @@ fn pass_through(recorder: &Recorder, topic: &str, data: &[u8], _log_time_ns: u64
         _ => None,
     };
     if let Some(item) = item {
-        recorder.send_wait(item);
+        recorder.send(item);
     }
 }
 
