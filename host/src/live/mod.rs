@@ -11,6 +11,7 @@
 //! live source: a sensor, its cameras and the recorder.
 
 pub mod replay;
+pub mod runner;
 pub mod session;
 pub mod stereo;
 pub mod tactile;

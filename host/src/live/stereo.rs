@@ -2,13 +2,13 @@
 //! a point cloud and one [`StereoRecord`] per pair out, on the host clock.
 
 use image::RgbImage;
-use serde::{Deserialize, Serialize};
 
 use crate::frames::capture::LabelledFrame;
 use crate::grid::Grid;
 use crate::matcher::{Label, StampRef};
+pub use crate::recording::messages::StereoRecord;
 use crate::stereo::StereoError;
-use crate::stereo::pipeline::{StereoFrame, StereoPipeline, StereoTimings};
+use crate::stereo::pipeline::{StereoFrame, StereoPipeline};
 
 /// Dark frames of one phase from camera 0 (left) and camera 1 (right).
 #[derive(Debug, Clone)]
@@ -17,30 +17,6 @@ pub struct DarkPair {
     pub left: LabelledFrame,
     /// Camera 1's frame.
     pub right: LabelledFrame,
-}
-
-/// One stereo frame's summary (`/stereotac/stereo/summary`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StereoRecord {
-    /// Stereo frames before this one in the run.
-    pub sequence: u64,
-    /// Phase index of the dark frames.
-    pub phase: u32,
-    /// End of the left exposure, host µs.
-    pub exposure_end_us: f64,
-    /// Share of pixels with a depth, 0..1.
-    pub fill: f64,
-    /// Points in the cloud.
-    pub points: usize,
-    /// Median depth of the valid pixels, mm (none without any).
-    pub median_depth_mm: Option<f32>,
-    /// Time per stage, ms.
-    pub stage_ms: StereoTimings,
-    /// From the end of the later exposure to the depth being ready, ms; none when
-    /// processed offline.
-    pub latency_ms: Option<f64>,
-    /// Camera frames lost so far in the run.
-    pub frames_dropped: u64,
 }
 
 /// The stereo stage (see the module documentation).

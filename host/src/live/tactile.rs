@@ -2,41 +2,11 @@
 //! [`TactileRecord`] per pair out, on the host clock. `stereotac run --jsonl` prints
 //! the records for a control loop.
 
-use serde::{Deserialize, Serialize};
-
 use crate::frames::capture::GradientPair;
 use crate::matcher::{Label, StampRef};
+pub use crate::recording::messages::TactileRecord;
 use crate::tactile::output::Summary;
-use crate::tactile::reconstruct::{ReconstructError, Reconstruction, Reconstructor, StageTimings};
-
-/// One reconstructed dx/dy pair, as `stereotac run --jsonl` prints it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TactileRecord {
-    /// Pairs reconstructed before this one in the run.
-    pub sequence: u64,
-    /// Phase index of the dx frame (the dy frame's is the next).
-    pub phase: u32,
-    /// End of the dx and dy exposures, host µs.
-    pub exposure_end_us: [f64; 2],
-    /// Whether anything touches the skin.
-    pub contact: bool,
-    /// Imprint area, mm².
-    pub area_mm2: f64,
-    /// Depth-weighted centroid, mm from the frame's top-left corner (none without
-    /// contact).
-    pub centroid_mm: Option<[f64; 2]>,
-    /// Deepest point, mm.
-    pub max_depth_mm: f32,
-    /// Displaced volume, mm³.
-    pub volume_mm3: f64,
-    /// Time per stage of the reconstruction, ms.
-    pub stage_ms: StageTimings,
-    /// From the end of the dy exposure to the depth being ready, ms (host clock); none
-    /// when processed offline (`stereotac process`).
-    pub latency_ms: Option<f64>,
-    /// Camera frames lost so far in the run (dropped by the camera or not labelled).
-    pub frames_dropped: u64,
-}
+use crate::tactile::reconstruct::{ReconstructError, Reconstruction, Reconstructor};
 
 /// A reconstruction and when it was ready (none offline).
 type Timed = Result<(Reconstruction, Option<f64>), ReconstructError>;

@@ -13,7 +13,9 @@ use crate::clock::ClockFit;
 use crate::device::HostPhase;
 use crate::grid::Grid;
 use crate::matcher::{FrameStamp, Label, phase_str};
+use crate::stereo::pipeline::StereoTimings;
 use crate::stereo::reproject::PointCloud;
+use crate::tactile::reconstruct::StageTimings;
 
 /// One camera frame's timing and label (`/stereotac/camN/frame`). The image with the
 /// same camera and `timestamp_us` is on `/stereotac/camN/image`.
@@ -210,6 +212,59 @@ impl ClockInfo {
             samples: fit.map_or(0, |f| f.samples),
         }
     }
+}
+
+/// One reconstructed dx/dy pair, as `stereotac run --jsonl` prints it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TactileRecord {
+    /// Pairs reconstructed before this one in the run.
+    pub sequence: u64,
+    /// Phase index of the dx frame (the dy frame's is the next).
+    pub phase: u32,
+    /// End of the dx and dy exposures, host µs.
+    pub exposure_end_us: [f64; 2],
+    /// Whether anything touches the skin.
+    pub contact: bool,
+    /// Imprint area, mm².
+    pub area_mm2: f64,
+    /// Depth-weighted centroid, mm from the frame's top-left corner (none without
+    /// contact).
+    pub centroid_mm: Option<[f64; 2]>,
+    /// Deepest point, mm.
+    pub max_depth_mm: f32,
+    /// Displaced volume, mm³.
+    pub volume_mm3: f64,
+    /// Time per stage of the reconstruction, ms.
+    pub stage_ms: StageTimings,
+    /// From the end of the dy exposure to the depth being ready, ms (host clock); none
+    /// when processed offline (`stereotac process`).
+    pub latency_ms: Option<f64>,
+    /// Camera frames lost so far in the run (dropped by the camera or not labelled).
+    pub frames_dropped: u64,
+}
+
+/// One stereo frame's summary (`/stereotac/stereo/summary`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StereoRecord {
+    /// Stereo frames before this one in the run.
+    pub sequence: u64,
+    /// Phase index of the dark frames.
+    pub phase: u32,
+    /// End of the left exposure, host µs.
+    pub exposure_end_us: f64,
+    /// Share of pixels with a depth, 0..1.
+    pub fill: f64,
+    /// Points in the cloud.
+    pub points: usize,
+    /// Median depth of the valid pixels, mm (none without any).
+    pub median_depth_mm: Option<f32>,
+    /// Time per stage, ms.
+    pub stage_ms: StereoTimings,
+    /// From the end of the later exposure to the depth being ready, ms; none when
+    /// processed offline.
+    pub latency_ms: Option<f64>,
+    /// Camera frames lost so far in the run.
+    pub frames_dropped: u64,
 }
 
 /// Foxglove's timestamp of `unix_ns`.

@@ -8,10 +8,10 @@
 //! | `/stereotac/leds/phase` | JSON [`PhaseInfo`](super::messages::PhaseInfo) | every LED phase: schedule, write, latch, trigger (host µs) |
 //! | `/stereotac/clock` | JSON [`ClockInfo`](super::messages::ClockInfo) | clock-sync state at each sensor heartbeat |
 //! | `/stereotac/tactile/depth` | `foxglove.RawImage` (`32FC1`, metres) | tactile depth of each dx/dy pair (positive = pressed in) |
-//! | `/stereotac/tactile/contact` | JSON [`TactileRecord`](crate::live::TactileRecord) | contact summary of each pair (the `--jsonl` line) |
+//! | `/stereotac/tactile/contact` | JSON [`TactileRecord`](super::messages::TactileRecord) | contact summary of each pair (the `--jsonl` line) |
 //! | `/stereotac/stereo/depth` | `foxglove.RawImage` (`32FC1`, metres) | stereo depth of each dark frame pair (NaN = no match) |
 //! | `/stereotac/stereo/points` | `foxglove.PointCloud` (x, y, z float32, metres) | its point cloud, rectified left camera frame |
-//! | `/stereotac/stereo/summary` | JSON [`StereoRecord`](crate::live::StereoRecord) | fill, counts and timings of each stereo frame |
+//! | `/stereotac/stereo/summary` | JSON [`StereoRecord`](super::messages::StereoRecord) | fill, counts and timings of each stereo frame |
 //! | `/stereotac/log` | `foxglove.Log` | warnings and drops, as the CLI prints them |
 //!
 //! Attachments: `tactile_model.json` (the model `calibrate` wrote) and

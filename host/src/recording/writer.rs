@@ -29,11 +29,11 @@ use image::RgbImage;
 use serde::Serialize;
 
 use super::messages::{
-    ClockInfo, FrameInfo, PhaseInfo, depth_image, point_cloud, rgb_image, timestamp,
+    ClockInfo, FrameInfo, PhaseInfo, StereoRecord, TactileRecord, depth_image, point_cloud,
+    rgb_image, timestamp,
 };
 use super::{RecordingError, topics};
 use crate::grid::Grid;
-use crate::live::{StereoRecord, TactileRecord};
 use crate::stereo::reproject::PointCloud;
 
 /// Where the recorder sends, and how much it buffers.

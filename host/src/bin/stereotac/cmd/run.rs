@@ -5,15 +5,11 @@
 //! a live view. Ctrl-C, SIGTERM and SIGHUP finish the recording properly.
 
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::Ordering;
-use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
-use stereotac::clock::HostClock;
+use anyhow::{Result, bail};
 use stereotac::frames::capture::LabelledFrame;
-use stereotac::live::Pipeline;
-use stereotac_protocol::Request;
+use stereotac::live::runner::{self, Hooks, Stopped, Until};
+use stereotac::live::{Output, Pipeline};
 
 use crate::args::{ModeArg, PipelineArgs, SequenceArgs};
 use crate::cameras::CameraArgs;
@@ -54,9 +50,6 @@ pub struct Args {
     #[command(flatten)]
     pub device: DeviceArgs,
 }
-
-/// How long one poll of the sensor waits for events.
-const POLL: Duration = Duration::from_millis(2);
 
 /// What the mode lights, so which stages can run.
 fn stages_of(mode: ModeArg) -> (bool, bool) {
@@ -184,73 +177,72 @@ pub fn run(a: Args) -> Result<()> {
         .map(|s| s.stage([stamp(0), stamp(1)]))
         .transpose()?;
     let mut pipeline = Pipeline::new(tactile_stage, stereo_stage);
-    let mut report = Report::new(a.jsonl);
-    let mut sizes_checked = vec![false; a.cameras.cameras.len()];
-    let clock: Arc<dyn HostClock> = Arc::clone(live.opened.sensor.clock());
-    let recorder = &live.recorder;
-    let mut each = |camera: usize, frame: LabelledFrame, dropped: u64| -> Result<bool> {
-        if !std::mem::replace(&mut sizes_checked[camera], true) {
-            let size = frame.frame.image.dimensions();
-            let name = format!("camera {camera} ({})", a.cameras.cameras[camera]);
-            if camera == 0
-                && let Some(t) = &tactile
-            {
-                t.check_size(&name, size)?;
-            }
-            if camera < 2
-                && let Some(s) = &stereo
-            {
-                s.check_size(&name, camera == 0, size)?;
-            }
-        }
-        let Some(job) = pipeline.route(camera, frame) else {
-            return Ok(true);
-        };
-        let Some(output) = pipeline.run(&job, || Some(clock.now_us() as f64), dropped)? else {
-            return Ok(true);
-        };
-        let open = report.print(&output)?;
-        recorder.send(output.into_item());
-        Ok(open)
+    let mut hooks = RunHooks {
+        report: Report::new(a.jsonl),
+        sizes_checked: vec![false; a.cameras.cameras.len()],
+        cameras: &a.cameras.cameras,
+        tactile: tactile.as_ref(),
+        stereo: stereo.as_ref(),
     };
-
     let sensor = &mut live.opened.sensor;
     a.sequence.start(sensor)?;
-    let end = a.sequence.deadline(sensor)?;
-    let mut failure = None;
-    let mut stdout_open = true;
-    while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        // A short wait: frames are taken from the cameras between polls, so this bounds
-        // how long a finished exposure can sit before it is labelled.
-        let open = live
-            .session
-            .step(sensor, recorder, POLL, &mut each)
-            .context("capturing")?;
-        for w in live.session.take_warnings() {
-            eprintln!("warning: {w}");
-        }
-        if !open {
-            eprintln!("stdout closed: stopping");
-            stdout_open = false;
-            break;
-        }
-        if let Some(e) = recorder.failure() {
-            failure = Some(e);
-            break;
-        }
+    let until = Until {
+        flag: &stop,
+        end_us: a.sequence.deadline(sensor)?,
+    };
+    let stopped = runner::run(
+        &mut live.session,
+        sensor,
+        &live.recorder,
+        &mut pipeline,
+        until,
+        &mut hooks,
+    )?;
+    if stopped == Stopped::Caller {
+        eprintln!("stdout closed: stopped");
     }
-    // The end, Ctrl-C or a signal: stop the LEDs, label and process every captured frame.
-    let stopped = sensor.request(Request::Stop);
-    if stdout_open {
-        live.session.finish(recorder, &mut each)?;
-    }
-    report.finish(&pipeline);
+    hooks.report.finish(&pipeline);
     live.print_cameras();
-    let summary = live.recorder.finish();
-    stopped.context("stopping the sequence")?;
-    print_recorded(&summary?);
-    if let Some(e) = failure {
+    print_recorded(&live.recorder.finish()?);
+    if let Stopped::Recorder(e) = stopped {
         bail!("recording failed: {e}");
     }
     Ok(())
+}
+
+/// What `run` does with each frame and output.
+struct RunHooks<'a> {
+    report: Report,
+    sizes_checked: Vec<bool>,
+    cameras: &'a [String],
+    tactile: Option<&'a TactileSetup>,
+    stereo: Option<&'a StereoSetup>,
+}
+
+impl Hooks for RunHooks<'_> {
+    type Error = anyhow::Error;
+
+    /// The first frame of each camera: refuse a model or calibration of another size.
+    fn frame(&mut self, camera: usize, frame: &LabelledFrame) -> Result<()> {
+        if std::mem::replace(&mut self.sizes_checked[camera], true) {
+            return Ok(());
+        }
+        let size = frame.frame.image.dimensions();
+        let name = format!("camera {camera} ({})", self.cameras[camera]);
+        if let (0, Some(t)) = (camera, self.tactile) {
+            t.check_size(&name, size)?;
+        }
+        if let (0 | 1, Some(s)) = (camera, self.stereo) {
+            s.check_size(&name, camera == 0, size)?;
+        }
+        Ok(())
+    }
+
+    fn output(&mut self, output: &Output) -> Result<bool> {
+        self.report.print(output)
+    }
+
+    fn warning(&mut self, message: String) {
+        eprintln!("warning: {message}");
+    }
 }
