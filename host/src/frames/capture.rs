@@ -53,10 +53,11 @@ pub struct GradientPair {
     pub dy: LabelledFrame,
 }
 
-/// Pairs labelled frames, in the order the matcher decides them, into dx/dy pairs: a
-/// dx frame followed directly by the dy frame of the next phase. Anything else between
-/// them (a dark or all-lit frame, a frame the matcher could not label, a dy of another
-/// phase after a dropped frame) starts over.
+/// Pairs labelled frames, in the order the matcher decides them, into dx/dy pairs: the
+/// last dx frame of a phase and the first dy frame of the next phase. Frames exposed
+/// across the LED change between them (free-running cameras take some) are passed
+/// over; anything else between them (a dark or all-lit frame, a frame whose light is
+/// unknown, a dy of another phase after a dropped frame) starts over.
 #[derive(Debug, Default)]
 pub struct GradientPairer {
     /// The last dx frame and its phase index.
@@ -66,9 +67,15 @@ pub struct GradientPairer {
 impl GradientPairer {
     /// Takes the next labelled frame; returns a pair when it completes one.
     pub fn push(&mut self, frame: LabelledFrame) -> Option<GradientPair> {
-        let Label::Phase { phase, index, .. } = frame.label else {
-            self.dx = None;
-            return None;
+        let (phase, index) = match frame.label {
+            Label::Phase { phase, index, .. } => (phase, index),
+            // The light changed during the exposure: the frame says nothing, and what
+            // came before and comes after is still known.
+            Label::Straddles => return None,
+            Label::EventMissing | Label::NoTrigger | Label::Unresolved => {
+                self.dx = None;
+                return None;
+            }
         };
         match (phase, self.dx.take()) {
             (Phase::Dx, _) => {
@@ -222,7 +229,7 @@ mod tests {
     }
 
     #[test]
-    fn a_dx_and_the_next_phase_dy_pair_and_anything_between_starts_over() {
+    fn the_last_dx_and_the_next_phases_first_dy_pair_and_unknown_light_between_starts_over() {
         let mut p = GradientPairer::default();
         assert!(p.push(lit(Phase::Dy, 0)).is_none(), "a dy without its dx");
         assert!(p.push(lit(Phase::Dx, 1)).is_none());
@@ -233,12 +240,24 @@ mod tests {
         assert!(p.push(lit(Phase::Dark, 3)).is_none());
         assert!(p.push(lit(Phase::Dx, 4)).is_none());
         assert!(p.push(lit(Phase::Dy, 8)).is_none(), "not the next phase");
-        assert!(p.push(lit(Phase::Dx, 10)).is_none());
+        // Free-running: several dx frames, one across the change, then dy frames: the
+        // last dx and the first dy pair.
+        for _ in 0..3 {
+            assert!(p.push(lit(Phase::Dx, 10)).is_none());
+        }
         assert!(p.push(frame(Label::Straddles)).is_none());
+        let pair = p
+            .push(lit(Phase::Dy, 11))
+            .expect("a straddling frame is passed over");
+        assert_eq!(phase_of(&pair.dy), (Phase::Dy, 11));
         assert!(
             p.push(lit(Phase::Dy, 11)).is_none(),
-            "an unlabelled frame between"
+            "the second dy of the phase"
         );
+        // Unknown light between them starts over.
+        assert!(p.push(lit(Phase::Dx, 12)).is_none());
+        assert!(p.push(frame(Label::EventMissing)).is_none());
+        assert!(p.push(lit(Phase::Dy, 13)).is_none(), "lost event between");
     }
 
     fn phase_of(f: &LabelledFrame) -> (Phase, u32) {

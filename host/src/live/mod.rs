@@ -10,11 +10,13 @@
 //! file order gives `process` exactly the pairs `run` reconstructed. [`session`] is the
 //! live source: a sensor, its cameras and the recorder.
 
+pub mod bench;
 pub mod replay;
 pub mod runner;
 pub mod session;
 pub mod stereo;
 pub mod tactile;
+pub mod workers;
 
 pub use stereo::{DarkPair, StereoRecord, StereoStage};
 pub use tactile::{TactileRecord, TactileStage};
@@ -92,6 +94,24 @@ impl Pipeline {
     pub fn new(tactile: Option<TactileStage>, stereo: Option<StereoStage>) -> Self {
         Self {
             router: Router::default(),
+            tactile,
+            stereo,
+        }
+    }
+
+    /// The router and the stages, apart (the live loop runs the stages on threads).
+    pub fn into_parts(self) -> (Router, Option<TactileStage>, Option<StereoStage>) {
+        (self.router, self.tactile, self.stereo)
+    }
+
+    /// Put back together.
+    pub fn from_parts(
+        router: Router,
+        tactile: Option<TactileStage>,
+        stereo: Option<StereoStage>,
+    ) -> Self {
+        Self {
+            router,
             tactile,
             stereo,
         }

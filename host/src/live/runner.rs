@@ -1,8 +1,9 @@
 //! The live loop of `run` and `bench live`: the session polls the sensor and cameras,
-//! each labelled frame is routed, the stage it completes runs at once, its output is
-//! recorded and handed to the caller; until the deadline, the stop flag (Ctrl-C and
-//! signals), the caller, or a failed recorder says stop. Then the LEDs are stopped and
-//! every frame still pending is labelled and processed, so stopping loses nothing.
+//! each labelled frame is routed, the job it completes goes to its stage's thread, and
+//! outputs are recorded and handed to the caller as they come; until the deadline, the
+//! stop flag (Ctrl-C and signals), the caller, or a failed recorder says stop. Then the
+//! LEDs are stopped, every frame still pending is labelled and routed, and the stages
+//! finish the jobs they hold, so stopping loses nothing.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -10,7 +11,8 @@ use std::time::Duration;
 use stereotac_protocol::Request;
 
 use super::session::Session;
-use super::{Output, Pipeline, PipelineError};
+use super::workers::{Produced, Workers};
+use super::{Output, Pipeline, PipelineError, Router};
 use crate::device::{Sensor, SensorError};
 use crate::frames::capture::{CaptureError, LabelledFrame};
 use crate::recording::writer::Recorder;
@@ -54,7 +56,8 @@ pub trait Hooks {
     fn warning(&mut self, message: String);
 }
 
-/// Runs the loop (see the module documentation); the sequence must be running.
+/// Runs the loop (see the module documentation); the sequence must be running. The
+/// stages run on their own threads ([`Workers`]): a busy stage skips to the newest job.
 pub fn run<H: Hooks>(
     session: &mut Session,
     sensor: &mut Sensor,
@@ -63,8 +66,35 @@ pub fn run<H: Hooks>(
     until: Until<'_>,
     hooks: &mut H,
 ) -> Result<Stopped, H::Error> {
-    let clock = std::sync::Arc::clone(sensor.clock());
-    let now = || Some(clock.now_us() as f64);
+    let (mut router, tactile, stereo) = std::mem::take(pipeline).into_parts();
+    let workers = Workers::start(tactile, stereo, std::sync::Arc::clone(sensor.clock()));
+    let result = drive(
+        session,
+        sensor,
+        recorder,
+        &mut router,
+        &workers,
+        until,
+        hooks,
+    );
+    let (rest, tactile, stereo) = workers.finish();
+    *pipeline = Pipeline::from_parts(router, tactile, stereo);
+    let stopped = result?;
+    if stopped != Stopped::Caller {
+        hand_on(rest, recorder, hooks)?;
+    }
+    Ok(stopped)
+}
+
+fn drive<H: Hooks>(
+    session: &mut Session,
+    sensor: &mut Sensor,
+    recorder: &Recorder,
+    router: &mut Router,
+    workers: &Workers,
+    until: Until<'_>,
+    hooks: &mut H,
+) -> Result<Stopped, H::Error> {
     let stopped = loop {
         if until.flag.load(Ordering::SeqCst) {
             break Stopped::Flag;
@@ -72,13 +102,13 @@ pub fn run<H: Hooks>(
         if until.end_us.is_some_and(|e| sensor.clock().now_us() >= e) {
             break Stopped::Deadline;
         }
-        let keep = session.step(sensor, recorder, POLL, |camera, frame, dropped| {
-            handle(hooks, pipeline, recorder, &now, camera, frame, dropped)
+        session.step(sensor, recorder, POLL, |camera, frame, dropped| {
+            route(hooks, router, workers, camera, frame, dropped)
         })?;
         for w in session.take_warnings() {
             hooks.warning(w);
         }
-        if !keep {
+        if !hand_on(workers.ready(), recorder, hooks)? {
             break Stopped::Caller;
         }
         if let Some(e) = recorder.failure() {
@@ -88,31 +118,44 @@ pub fn run<H: Hooks>(
     let stop = sensor.request(Request::Stop);
     if stopped != Stopped::Caller {
         session.finish(recorder, |camera, frame, dropped| {
-            handle(hooks, pipeline, recorder, &now, camera, frame, dropped)
+            route(hooks, router, workers, camera, frame, dropped)
         })?;
     }
     stop?;
     Ok(stopped)
 }
 
-/// One frame: check, route, run, record, hand on.
-fn handle<H: Hooks>(
+/// One frame: check, route, hand the job it completes to its stage.
+fn route<H: Hooks>(
     hooks: &mut H,
-    pipeline: &mut Pipeline,
-    recorder: &Recorder,
-    now: &impl Fn() -> Option<f64>,
+    router: &mut Router,
+    workers: &Workers,
     camera: usize,
     frame: LabelledFrame,
     dropped: u64,
 ) -> Result<bool, H::Error> {
     hooks.frame(camera, &frame)?;
-    let Some(job) = pipeline.route(camera, frame) else {
-        return Ok(true);
-    };
-    let Some(output) = pipeline.run(&job, now, dropped)? else {
-        return Ok(true);
-    };
-    let keep = hooks.output(&output)?;
-    recorder.send(output.into_item());
-    Ok(keep)
+    if let Some(job) = router.push(camera, frame) {
+        workers.submit(job, dropped);
+    }
+    Ok(true)
+}
+
+/// Outputs to the caller and the recorder; `false` once the caller says stop.
+fn hand_on<H: Hooks>(
+    produced: Vec<Produced>,
+    recorder: &Recorder,
+    hooks: &mut H,
+) -> Result<bool, H::Error> {
+    for p in produced {
+        let output = p?;
+        let keep = hooks.output(&output)?;
+        if recorder.is_active() {
+            recorder.send(output.into_item());
+        }
+        if !keep {
+            return Ok(false);
+        }
+    }
+    Ok(true)
 }

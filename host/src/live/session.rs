@@ -133,11 +133,13 @@ impl Session {
         for (camera, frames) in labelled.into_iter().enumerate() {
             let stamp_ref = self.captures[camera].stamp_ref();
             for frame in frames {
-                recorder.send(Item::Frame {
-                    camera,
-                    info: FrameInfo::new(frame.frame.stamp, stamp_ref, frame.label),
-                    image: frame.frame.image.clone(),
-                });
+                if recorder.is_active() {
+                    recorder.send(Item::Frame {
+                        camera,
+                        info: FrameInfo::new(frame.frame.stamp, stamp_ref, frame.label),
+                        image: frame.frame.image.clone(),
+                    });
+                }
                 if !each(camera, frame, dropped + recorder.dropped().frames)? {
                     return Ok(false);
                 }

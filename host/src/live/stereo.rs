@@ -91,6 +91,7 @@ impl StereoStage {
             stage_ms: frame.timings,
             latency_ms: ready_us.map(|t| (t - left_end.max(right_end)) / 1000.0),
             frames_dropped,
+            jobs_skipped: 0,
         };
         self.frames += 1;
         Ok((frame, record))

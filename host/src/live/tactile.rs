@@ -130,6 +130,7 @@ impl TactileStage {
             stage_ms: summary.timings,
             latency_ms: ready_us.map(|t| (t - dy_end) / 1000.0),
             frames_dropped,
+            jobs_skipped: 0,
         };
         self.pairs += 1;
         record

@@ -241,6 +241,10 @@ pub struct TactileRecord {
     pub latency_ms: Option<f64>,
     /// Camera frames lost so far in the run (dropped by the camera or not labelled).
     pub frames_dropped: u64,
+    /// Pairs the tactile stage skipped so far for a newer one while it was busy (live
+    /// only; offline nothing is skipped).
+    #[serde(default)]
+    pub jobs_skipped: u64,
 }
 
 /// One stereo frame's summary (`/stereotac/stereo/summary`).
@@ -265,6 +269,9 @@ pub struct StereoRecord {
     pub latency_ms: Option<f64>,
     /// Camera frames lost so far in the run.
     pub frames_dropped: u64,
+    /// Frame pairs the stereo stage skipped so far for a newer one while it was busy.
+    #[serde(default)]
+    pub jobs_skipped: u64,
 }
 
 /// Foxglove's timestamp of `unix_ns`.

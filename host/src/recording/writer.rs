@@ -165,6 +165,7 @@ pub struct Recorder {
     failed: Arc<Mutex<Option<String>>>,
     live_port: Option<u16>,
     wait_when_full: bool,
+    active: bool,
 }
 
 impl Recorder {
@@ -172,6 +173,7 @@ impl Recorder {
     /// is reported before anything runs), then the writer thread.
     pub fn start(options: RecorderOptions) -> Result<Self, RecordingError> {
         let file = options.mcap.as_deref().map(McapOut::create).transpose()?;
+        let active = file.is_some() || options.live_view.is_some();
         let live = options
             .live_view
             .as_deref()
@@ -212,7 +214,14 @@ impl Recorder {
             failed,
             live_port,
             wait_when_full: options.wait_when_full,
+            active,
         })
+    }
+
+    /// Whether anything is written or shown (no file and no live view: messages are
+    /// not worth preparing).
+    pub fn is_active(&self) -> bool {
+        self.active
     }
 
     /// The live view's port, if it runs.
@@ -225,6 +234,9 @@ impl Recorder {
     /// [`RecorderOptions::wait_when_full`].
     pub fn send(&self, item: Item) -> bool {
         let Some(tx) = &self.tx else { return false };
+        if !self.active {
+            return true;
+        }
         if self.wait_when_full || matches!(item, Item::Metadata { .. } | Item::Attachment { .. }) {
             return tx.send(item).is_ok();
         }

@@ -12,6 +12,8 @@ pub struct Report {
     tactile_latency: Vec<f64>,
     stereo_latency: Vec<f64>,
     contacts: u64,
+    /// Jobs each stage skipped for a newer one: (tactile, stereo).
+    skipped: (u64, u64),
 }
 
 impl Report {
@@ -22,6 +24,7 @@ impl Report {
             tactile_latency: Vec::new(),
             stereo_latency: Vec::new(),
             contacts: 0,
+            skipped: (0, 0),
         }
     }
 
@@ -31,6 +34,7 @@ impl Report {
             Output::Tactile { record, .. } => {
                 self.tactile_latency.extend(record.latency_ms);
                 self.contacts += u64::from(record.contact);
+                self.skipped.0 = self.skipped.0.max(record.jobs_skipped);
                 if self.jsonl {
                     emit(format_args!("{}", serde_json::to_string(record)?))
                 } else {
@@ -39,6 +43,7 @@ impl Report {
             }
             Output::Stereo { record, .. } => {
                 self.stereo_latency.extend(record.latency_ms);
+                self.skipped.1 = self.skipped.1.max(record.jobs_skipped);
                 self.jsonl || emit(format_args!("{}", stereo_line(record)))
             }
         };
@@ -54,16 +59,18 @@ impl Report {
         };
         if let Some(t) = &pipeline.tactile {
             eprintln!(
-                "tactile: {} dx/dy pairs reconstructed, {} with contact{}",
+                "tactile: {} dx/dy pairs reconstructed, {} with contact, {} skipped while busy{}",
                 t.pairs(),
                 self.contacts,
+                self.skipped.0,
                 fmt(self.tactile_latency)
             );
         }
         if let Some(s) = &pipeline.stereo {
             eprintln!(
-                "stereo: {} frame pairs{}",
+                "stereo: {} frame pairs, {} skipped while busy{}",
                 s.frames(),
+                self.skipped.1,
                 fmt(self.stereo_latency)
             );
         }

@@ -1,17 +1,18 @@
 //! `stereotac bench`: benchmarks on built-in synthetic data: `tactile` (time per stage
-//! against depth error) and `stereo` (remap, matching per kernel, whole frame, OpenCV in
-//! the same run).
+//! against depth error), `stereo` (remap, matching per kernel, whole frame, OpenCV in
+//! the same run) and `live` (the live path under load: rates, latency, CPU, memory).
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Subcommand;
+use stereotac::live::bench::{self as live_bench, LiveBenchOptions, LiveBenchProgress};
 use stereotac::stereo::bench::{self as stereo_bench, BenchOptions};
 use stereotac::tactile::bench::{self as tactile_bench, BenchConfig};
 
 use crate::args::parse_size;
 use crate::console::json_report;
-use crate::progress::bar;
+use crate::progress::{bar, spinner};
 
 /// `stereotac bench`.
 #[derive(Debug, clap::Args)]
@@ -28,6 +29,39 @@ pub enum BenchWhat {
     /// Stereo: remap, matching (per kernel, against OpenCV with --opencv) and the whole
     /// vision frame on 1 and 2 threads.
     Stereo(StereoArgs),
+    /// The live path under load: the simulated sensor in real time and two simulated
+    /// cameras, interleaved mode; each stage alone, then the live loop (frames/s,
+    /// latency p50/p99, CPU per frame, memory), against the goals.
+    Live(LiveArgs),
+}
+
+/// `stereotac bench live`.
+#[derive(Debug, clap::Args)]
+pub struct LiveArgs {
+    /// Length of the live loop, s (10 minutes shows whether memory stays flat).
+    #[arg(long, default_value_t = 600.0)]
+    pub duration_s: f64,
+    /// Camera frame rate (free-running).
+    #[arg(long, default_value_t = 60.0)]
+    pub fps: f64,
+    /// LED phase period, ms.
+    #[arg(long, default_value_t = 250)]
+    pub period_ms: u32,
+    /// Frame size.
+    #[arg(long, value_parser = parse_size, default_value = "640x480")]
+    pub size: (u32, u32),
+    /// Seconds per stage-alone measurement.
+    #[arg(long, default_value_t = 3.0)]
+    pub stage_s: f64,
+    /// Also record to this MCAP file (the recorder's cost included).
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
+    /// Print JSON instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the JSON report here.
+    #[arg(long)]
+    pub json_out: Option<PathBuf>,
 }
 
 /// `stereotac bench tactile`.
@@ -68,7 +102,40 @@ pub fn run(a: Args) -> Result<()> {
     match a.what {
         BenchWhat::Tactile(a) => tactile(a),
         BenchWhat::Stereo(a) => stereo(a),
+        BenchWhat::Live(a) => live(a),
     }
+}
+
+fn live(a: LiveArgs) -> Result<()> {
+    let progress = spinner("bench live");
+    let report = live_bench::run(
+        &LiveBenchOptions {
+            size: a.size,
+            fps: a.fps,
+            period_ms: a.period_ms,
+            duration_s: a.duration_s,
+            stage_s: a.stage_s,
+            mcap: a.mcap.clone(),
+        },
+        |p| match p {
+            LiveBenchProgress::Calibrating => {
+                progress.set_message("calibrating the built-in model")
+            }
+            LiveBenchProgress::Stages => progress.set_message("each stage alone"),
+            LiveBenchProgress::Loop(t, total) => {
+                progress.set_message(format!("live loop {t:.0} / {total:.0} s"))
+            }
+        },
+    );
+    progress.finish_and_clear();
+    let report = report?;
+    let json = json_report(&report, a.json_out.as_deref())?;
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{}", live_bench::format_table(&report));
+    }
+    Ok(())
 }
 
 fn tactile(a: TactileArgs) -> Result<()> {
