@@ -190,7 +190,21 @@ fn cameras_and_backends_this_build_lacks_are_refused_with_the_fix() {
             "--camera",
             "/dev/video0",
         ]);
-        assert!(!ok && err.contains("--features v4l2"), "{err}");
+        assert!(!ok && err.contains("`v4l2` feature"), "{err}");
+    } else if cfg!(target_os = "linux") {
+        // In the default Linux build: a camera that is not there is named, and no
+        // recording is left behind.
+        let out = std::env::temp_dir().join(format!("no-camera-{}.mcap", std::process::id()));
+        let (ok, _, err) = stereotac(&[
+            "--sim",
+            "record",
+            "--out",
+            out.to_str().unwrap(),
+            "--camera",
+            "/dev/video-stereotac-none",
+        ]);
+        assert!(!ok && err.contains("/dev/video-stereotac-none"), "{err}");
+        assert!(!out.exists(), "no file for a run that never started");
     }
     if !cfg!(feature = "libusb") {
         let (ok, _, err) = stereotac(&["--libusb", "devices"]);

@@ -62,7 +62,10 @@ fn a_foxglove_client_sees_the_channels_and_gets_the_messages_it_subscribes_to() 
     })
     .expect("live view starts");
     let port = recorder.live_port().expect("a port");
-    assert!(recorder.send(phase(0)), "the channel exists once a message went out");
+    assert!(
+        recorder.send(phase(0)),
+        "the channel exists once a message went out"
+    );
     std::thread::sleep(Duration::from_millis(100));
 
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
@@ -129,7 +132,11 @@ fn a_foxglove_client_sees_the_channels_and_gets_the_messages_it_subscribes_to() 
     }
     let (sub, log_time, data) = got.expect("a message after subscribing");
     assert_eq!(sub, 7);
-    assert_eq!(log_time, 1_700_000_000_000_000_000 + 42_000_000, "host µs on the epoch");
+    assert_eq!(
+        log_time,
+        1_700_000_000_000_000_000 + 42_000_000,
+        "host µs on the epoch"
+    );
     let info: serde_json::Value = serde_json::from_slice(&data).unwrap();
     assert_eq!(info["index"], 42);
     recorder.finish().unwrap();

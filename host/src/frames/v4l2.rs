@@ -1,4 +1,5 @@
-//! Live frames from a V4L2 camera (Linux, `v4l2` feature), stamped by the kernel.
+//! Live frames from a V4L2 camera (Linux, the default `v4l2` feature), stamped by the
+//! kernel.
 //!
 //! The kernel stamps every buffer with `CLOCK_MONOTONIC` (the clock
 //! [`crate::clock::MonotonicClock`] reads, so no conversion is needed) and a sequence

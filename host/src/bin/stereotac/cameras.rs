@@ -1,5 +1,5 @@
 //! The camera options of `record` and `run`, and opening the cameras they name: the
-//! simulated camera (with `--sim`) or V4L2 devices (with the `v4l2` feature).
+//! simulated camera (with `--sim`) or V4L2 devices (Linux; the default `v4l2` feature).
 
 use std::sync::Arc;
 
@@ -22,7 +22,7 @@ const SIM_SIZE: (u32, u32) = (640, 480);
 #[derive(Debug, Clone, clap::Args)]
 pub struct CameraArgs {
     /// Camera: `sim` (the simulated camera; needs --sim) or a V4L2 device such as
-    /// /dev/video0 (needs a build with `--features v4l2`). Repeat for several cameras.
+    /// /dev/video0 (Linux). Repeat for several cameras.
     #[arg(long = "camera", default_value = "sim")]
     pub cameras: Vec<String>,
     /// Exposure time, µs: the simulated camera's, and the one assumed for a V4L2 camera
@@ -167,7 +167,8 @@ impl CameraArgs {
 
 fn no_v4l2(name: &str) -> anyhow::Error {
     anyhow::anyhow!(
-        "camera {name}: this build has no V4L2 capture; rebuild with `--features v4l2` \
-         (Linux; needs libclang-dev), or use --sim --camera sim"
+        "camera {name}: this build has no V4L2 capture (it is Linux only, and this build \
+         turned off the default `v4l2` feature); use --sim --camera sim, or build on Linux \
+         with default features"
     )
 }

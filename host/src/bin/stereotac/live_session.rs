@@ -44,6 +44,8 @@ pub fn start(
     outputs: Outputs<'_>,
 ) -> Result<Live> {
     let opened = open(device)?;
+    // The cameras before the file: a camera that is not there leaves no recording.
+    let sources = cameras.open_all(&opened)?;
     let origin_ns = clock_origin_unix_ns(opened.sensor.clock().now_us());
     let recorder = Recorder::start(RecorderOptions {
         mcap: outputs.mcap,
@@ -59,7 +61,6 @@ pub fn start(
             .map_or("127.0.0.1", |(h, _)| h);
         eprintln!("live view: in Foxglove, Open connection → ws://{host}:{port}");
     }
-    let sources = cameras.open_all(&opened)?;
     for (i, s) in sources.iter().enumerate() {
         eprintln!("camera {i}: {}", s.describe());
     }
