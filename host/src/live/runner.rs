@@ -32,6 +32,9 @@ pub enum Stopped {
     Caller,
     /// The recorder failed (its error).
     Recorder(String),
+    /// A camera or the sensor failed for good (unplugged and not back): the LEDs were
+    /// stopped and every frame captured so far was processed and recorded.
+    Failed(String),
 }
 
 /// When to stop.
@@ -47,7 +50,7 @@ pub struct Until<'a> {
 /// (`false`: stop), each warning.
 pub trait Hooks {
     /// The caller's error.
-    type Error: From<CaptureError> + From<PipelineError> + From<SensorError>;
+    type Error: From<CaptureError> + From<PipelineError> + From<SensorError> + std::fmt::Display;
     /// A frame from camera `camera`, before routing.
     fn frame(&mut self, camera: usize, frame: &LabelledFrame) -> Result<(), Self::Error>;
     /// An output, after it was recorded; `false` stops the loop.
@@ -102,9 +105,13 @@ fn drive<H: Hooks>(
         if until.end_us.is_some_and(|e| sensor.clock().now_us() >= e) {
             break Stopped::Deadline;
         }
-        session.step(sensor, recorder, POLL, |camera, frame, dropped| {
+        let stepped = session.step(sensor, recorder, POLL, |camera, frame, dropped| {
             route(hooks, router, workers, camera, frame, dropped)
-        })?;
+        });
+        if let Err(e) = stepped {
+            // Stop cleanly: the LEDs off, every frame so far labelled and processed.
+            break Stopped::Failed(e.to_string());
+        }
         for w in session.take_warnings() {
             hooks.warning(w);
         }

@@ -169,6 +169,7 @@ pub struct SimulatedCamera {
     cursor: usize,
     drop_every: Option<u64>,
     cycle: Option<SceneCycle>,
+    unplugged_at_us: Option<f64>,
 }
 
 /// Scenes shown in turn.
@@ -220,6 +221,7 @@ impl SimulatedCamera {
             cursor,
             drop_every: None,
             cycle: None,
+            unplugged_at_us: None,
         }
     }
 
@@ -271,6 +273,12 @@ impl SimulatedCamera {
             SceneStep::Phases(n) => (phase_index.unwrap_or(0) / n) as usize,
         };
         &c.scenes[k % c.scenes.len()]
+    }
+
+    /// Pull the camera's cable at host time `at_us`: from then on it fails as an
+    /// unplugged V4L2 camera does.
+    pub fn unplug_at(&mut self, at_us: f64) {
+        self.unplugged_at_us = Some(at_us);
     }
 
     /// Drop every `n`th frame (the sequence number still advances, as a camera's does).
@@ -335,6 +343,15 @@ impl SimulatedCamera {
 
 impl FrameSource for SimulatedCamera {
     fn next_frame(&mut self, timeout: Duration) -> Result<Option<Frame>, FrameError> {
+        if self
+            .unplugged_at_us
+            .is_some_and(|t| self.clock.now_us() as f64 >= t)
+        {
+            return Err(FrameError::Camera {
+                device: "simulated camera".into(),
+                message: "No such device (os error 19): unplugged".into(),
+            });
+        }
         let deadline = self.clock.now_us() + timeout.as_micros() as u64;
         loop {
             if let Some(frame) = self.take_ready() {

@@ -204,8 +204,12 @@ pub fn run(a: Args) -> Result<()> {
     hooks.report.finish(&pipeline);
     live.print_cameras();
     print_recorded(&live.recorder.finish()?);
-    if let Stopped::Recorder(e) = stopped {
-        bail!("recording failed: {e}");
+    match stopped {
+        Stopped::Recorder(e) => bail!("recording failed: {e}"),
+        Stopped::Failed(e) => {
+            bail!("stopped: {e} (everything captured before is processed and recorded)")
+        }
+        _ => {}
     }
     Ok(())
 }
