@@ -2,7 +2,7 @@
 //! (the LEDs off, the failure named, every frame captured before processed and in a
 //! finished recording), and a stop flag raised by a signal does the same.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
@@ -122,7 +122,7 @@ fn run_with(unplug_us: Option<f64>, flag: &AtomicBool) -> (Stopped, Count, PathB
 }
 
 /// Frames per camera in a recording, read through to its summary.
-fn recorded_frames(path: &PathBuf) -> [u64; 2] {
+fn recorded_frames(path: &Path) -> [u64; 2] {
     let mut n = [0u64; 2];
     let (_, truncated) = reader::frames(path, |c, _| {
         if let Content::Frame(f) = c {
