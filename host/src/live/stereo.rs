@@ -70,14 +70,7 @@ impl StereoStage {
         let ready_us = now_us();
         let left_end = pair.left.frame.stamp.exposure_end_us(self.stamp_refs[0]);
         let right_end = pair.right.frame.stamp.exposure_end_us(self.stamp_refs[1]);
-        let mut valid: Vec<f32> = frame
-            .depth_mm
-            .as_slice()
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .collect();
-        valid.sort_by(f32::total_cmp);
+        let valid = frame.sorted_valid_depths();
         let record = StereoRecord {
             sequence: self.frames,
             phase: match pair.left.label {

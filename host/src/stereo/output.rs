@@ -99,14 +99,7 @@ pub fn write_outputs(
         Some(&grey),
         "stereotac stereo point cloud, mm, rectified left camera frame",
     )?;
-    let mut depths: Vec<f32> = frame
-        .depth_mm
-        .as_slice()
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    depths.sort_by(f32::total_cmp);
+    let depths = frame.sorted_valid_depths();
     let (w, h) = (frame.disparity.width(), frame.disparity.height());
     let summary = StereoSummary {
         width: w,

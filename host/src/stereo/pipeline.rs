@@ -118,6 +118,21 @@ pub struct StereoFrame {
     pub timings: StereoTimings,
 }
 
+impl StereoFrame {
+    /// The valid depths (mm), sorted: for medians, percentiles and fill rates.
+    pub fn sorted_valid_depths(&self) -> Vec<f32> {
+        let mut v: Vec<f32> = self
+            .depth_mm
+            .as_slice()
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
+        v.sort_by(f32::total_cmp);
+        v
+    }
+}
+
 /// Rectification maps, matcher and filter state for one calibrated pair.
 #[derive(Debug, Clone)]
 pub struct StereoPipeline {
