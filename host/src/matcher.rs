@@ -45,6 +45,14 @@ pub struct FrameStamp {
 }
 
 impl FrameStamp {
+    /// Start of the exposure, host µs, for a source whose stamps mark `stamp_ref`.
+    pub fn exposure_start_us(&self, stamp_ref: StampRef) -> f64 {
+        match stamp_ref {
+            StampRef::ExposureStart => self.timestamp_us,
+            StampRef::ExposureEnd => self.timestamp_us - self.exposure_us,
+        }
+    }
+
     /// End of the exposure, host µs, for a source whose stamps mark `stamp_ref`.
     pub fn exposure_end_us(&self, stamp_ref: StampRef) -> f64 {
         match stamp_ref {
@@ -299,10 +307,10 @@ impl FrameMatcher {
     }
 
     fn exposure(&self, f: &FrameStamp) -> (f64, f64) {
-        match self.config.stamp {
-            StampRef::ExposureStart => (f.timestamp_us, f.timestamp_us + f.exposure_us),
-            StampRef::ExposureEnd => (f.timestamp_us - f.exposure_us, f.timestamp_us),
-        }
+        (
+            f.exposure_start_us(self.config.stamp),
+            f.exposure_end_us(self.config.stamp),
+        )
     }
 
     fn decide(&mut self, frame: FrameStamp, at_end: bool) -> MatchedFrame {

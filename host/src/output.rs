@@ -52,7 +52,7 @@ fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '
     }
 }
 
-/// Reads an image as 8-bit grey (colour is converted to luma).
+/// Reads an image as 8-bit grey (colour is converted to luma, as [`grey`] does).
 pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
     let img = image::open(path).map_err(image_error(path))?.into_luma8();
     let (w, h) = img.dimensions();
@@ -60,6 +60,18 @@ pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
         path: path.to_path_buf(),
         why: format!("a {w}×{h} image whose pixels do not fill it"),
     })
+}
+
+/// An RGB frame as 8-bit grey: the `image` crate's luma (Rec. 709 weights), the one
+/// conversion for files (`stereo`) and live frames (`run`, `process`) alike.
+pub fn grey(image: &image::RgbImage) -> Grid<u8> {
+    let (w, h) = image.dimensions();
+    Grid::from_vec(
+        w as usize,
+        h as usize,
+        image::imageops::grayscale(image).into_raw(),
+    )
+    .expect("one value per pixel")
 }
 
 /// Writes `grid` as an 8-bit grey PNG.
@@ -231,6 +243,16 @@ pub fn write_points_ply(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn grey_is_the_image_crates_rec709_luma() {
+        let img = image::RgbImage::from_fn(3, 1, |x, _| match x {
+            0 => image::Rgb([255, 0, 0]),
+            1 => image::Rgb([0, 255, 0]),
+            _ => image::Rgb([255, 255, 255]),
+        });
+        assert_eq!(grey(&img).as_slice(), &[54, 182, 255]);
+    }
 
     #[test]
     fn npy_header_is_aligned_and_data_round_trips() {

@@ -299,3 +299,65 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn sigterm_and_sighup_finish_the_recording_with_its_summary_and_index() {
+    for signal in ["TERM", "HUP"] {
+        let dir = temp_dir(&format!("live-sig{signal}"));
+        let rec = dir.join("out.mcap");
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+            .args([
+                "--sim",
+                "run",
+                "--camera",
+                "sim",
+                "--size",
+                "320x240",
+                "--period-ms",
+                "100",
+                "--mcap",
+                path(&rec),
+                "--jsonl",
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Wait for the first JSON line: the run is under way.
+        let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+        let mut first = String::new();
+        std::io::BufRead::read_line(&mut stdout, &mut first).unwrap();
+        assert!(first.starts_with('{'), "{first}");
+        let killed = std::process::Command::new("kill")
+            .args([format!("-{signal}"), child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(killed.success());
+        let mut rest = String::new();
+        std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+        let status = child.wait().unwrap();
+        assert!(
+            status.success(),
+            "SIG{signal}: a clean stop, exit {status:?}"
+        );
+        // The file is finished: the summary section is there and every pair printed is in it.
+        let bytes = std::fs::read(&rec).unwrap();
+        let summary = mcap::Summary::read(&bytes)
+            .unwrap()
+            .expect("a summary section");
+        let printed = 1 + rest.lines().count();
+        let contact = summary
+            .channels
+            .values()
+            .find(|c| c.topic == "/stereotac/tactile/contact")
+            .expect("the contact channel")
+            .id;
+        let stats = summary.stats.expect("statistics");
+        assert_eq!(
+            stats.channel_message_counts.get(&contact).copied(),
+            Some(printed as u64),
+            "SIG{signal}: every printed pair recorded"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

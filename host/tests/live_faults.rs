@@ -115,8 +115,7 @@ fn run_with(unplug_us: Option<f64>, flag: &AtomicBool) -> (Stopped, Count, PathB
             end_us: Some(clock.now_us() + 3_000_000),
         },
         &mut hooks,
-    )
-    .unwrap();
+    );
     recorder.finish().unwrap();
     (stopped, hooks, path)
 }
@@ -128,7 +127,7 @@ fn recorded_frames(path: &Path) -> [u64; 2] {
         if let Content::Frame(f) = c {
             n[f.camera] += 1;
         }
-        Ok::<_, stereotac::recording::RecordingError>(())
+        Ok::<_, stereotac::recording::RecordingError>(std::ops::ControlFlow::Continue(()))
     })
     .unwrap();
     assert!(truncated.is_none(), "a finished file: {truncated:?}");

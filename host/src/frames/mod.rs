@@ -74,6 +74,11 @@ pub trait FrameSource {
     }
     /// What the timestamps mark.
     fn stamp_ref(&self) -> StampRef;
+    /// The size of its frames, when known before the first one arrives (a camera
+    /// that negotiated its format).
+    fn frame_size(&self) -> Option<(u32, u32)> {
+        None
+    }
     /// A short description for logs.
     fn describe(&self) -> String;
 }

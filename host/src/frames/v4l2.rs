@@ -331,6 +331,10 @@ impl FrameSource for V4l2Camera {
         self.stamp_ref
     }
 
+    fn frame_size(&self) -> Option<(u32, u32)> {
+        Some((self.layout.width, self.layout.height))
+    }
+
     fn describe(&self) -> String {
         let l = self.layout;
         format!(

@@ -41,6 +41,7 @@ use crate::tactile::poisson::SolverKind;
 use crate::tactile::reconstruct::{ReconstructError, Reconstructor};
 use crate::tactile::render::{Optics, builtin_scenes};
 use crate::tactile::synthetic::{BUILTIN_PRESSES, builtin_calibration};
+use crate::timing::quantiles;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -93,6 +94,9 @@ pub enum LiveBenchError {
     /// Bad options.
     #[error("{0}")]
     Options(String),
+    /// The live loop stopped on a failure.
+    #[error("the live loop failed: {0}")]
+    Loop(String),
 }
 
 impl From<ReconstructError> for LiveBenchError {
@@ -343,7 +347,7 @@ pub fn run(
         rss_start: None,
         last_progress: start,
     };
-    runner::run(
+    let stopped = runner::run(
         &mut session,
         &mut sensor,
         &recorder,
@@ -353,7 +357,10 @@ pub fn run(
             end_us: Some(clock.now_us() + (options.duration_s * 1e6) as u64),
         },
         &mut hooks,
-    )?;
+    );
+    if let runner::Stopped::Failed(e) = stopped {
+        return Err(LiveBenchError::Loop(e));
+    }
     let seconds = start.elapsed().as_secs_f64();
     let cpu = cpu_seconds().zip(cpu_start).map(|(b, a)| b - a);
     let rss_end = rss_mib();
@@ -464,16 +471,12 @@ fn rate<E>(time: Duration, mut f: impl FnMut() -> Result<(), E>) -> Result<f64, 
     Ok(n as f64 / start.elapsed().as_secs_f64())
 }
 
-fn latency(mut v: Vec<f64>) -> Option<Latency> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+fn latency(v: Vec<f64>) -> Option<Latency> {
+    let [p50_ms, p99_ms, max_ms] = quantiles(v, [0.5, 0.99, 1.0])?;
     Some(Latency {
-        p50_ms: at(0.5),
-        p99_ms: at(0.99),
-        max_ms: v[v.len() - 1],
+        p50_ms,
+        p99_ms,
+        max_ms,
     })
 }
 

@@ -77,6 +77,9 @@ pub enum PipelineError {
     /// The stereo stage.
     #[error("stereo: {0}")]
     Stereo(#[from] StereoError),
+    /// A stage's thread panicked (a bug: please report it).
+    #[error("the {0} stage stopped unexpectedly (a bug: please report it)")]
+    Panicked(&'static str),
 }
 
 /// The router and whichever stages are on.

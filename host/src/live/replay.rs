@@ -2,13 +2,12 @@
 //! themselves: `export --pairs` writes them as files, `calibrate` takes a recording's
 //! ball presses directly.
 
+use std::ops::ControlFlow;
 use std::path::Path;
 
 use image::RgbImage;
 
 use super::{Job, Router};
-use crate::frames::Frame;
-use crate::frames::capture::LabelledFrame;
 use crate::matcher::Label;
 use crate::recording::RecordingError;
 use crate::recording::reader::{self, Content};
@@ -51,36 +50,25 @@ pub fn pairs<E: From<RecordingError>>(
     mut each: impl FnMut(RecordedPair) -> Result<(), E>,
 ) -> Result<Option<String>, E> {
     let mut router = Router::default();
-    let (_, truncated) = reader::frames(path, |content, _| {
+    let (_, truncated) = reader::frames(path, |content, _| -> Result<ControlFlow<()>, E> {
         let Content::Frame(f) = content else {
-            return Ok(());
+            return Ok(ControlFlow::Continue(()));
         };
-        let label = f.info.label().map_err(|message| RecordingError::Message {
-            path: path.to_path_buf(),
-            topic: crate::recording::topics::camera_frame(f.camera),
-            log_time_ns: 0,
-            message,
-        })?;
-        let frame = LabelledFrame {
-            frame: Frame {
-                stamp: f.info.stamp(),
-                image: f.image,
-            },
-            label,
-        };
-        match router.push(f.camera, frame) {
+        let camera = f.camera;
+        match router.push(camera, f.into_labelled()) {
             Some(Job::Tactile(p)) => each(RecordedPair::Gradient {
                 name: name(&p.dx.label),
                 dx: p.dx.frame.image,
                 dy: p.dy.frame.image,
-            }),
+            })?,
             Some(Job::Stereo(p)) => each(RecordedPair::Stereo {
                 name: name(&p.left.label),
                 left: p.left.frame.image,
                 right: p.right.frame.image,
-            }),
-            None => Ok(()),
+            })?,
+            None => {}
         }
+        Ok(ControlFlow::Continue(()))
     })?;
     Ok(truncated)
 }

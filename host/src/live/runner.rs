@@ -32,8 +32,9 @@ pub enum Stopped {
     Caller,
     /// The recorder failed (its error).
     Recorder(String),
-    /// A camera or the sensor failed for good (unplugged and not back): the LEDs were
-    /// stopped and every frame captured so far was processed and recorded.
+    /// A camera, the sensor (unplugged and not back), a stage or the caller's check
+    /// failed: the LEDs were stopped and every frame captured so far was processed and
+    /// recorded.
     Failed(String),
 }
 
@@ -61,6 +62,9 @@ pub trait Hooks {
 
 /// Runs the loop (see the module documentation); the sequence must be running. The
 /// stages run on their own threads ([`Workers`]): a busy stage skips to the newest job.
+/// Whatever fails once the loop runs (a camera, the sensor for good, a stage, a frame
+/// the caller refuses) ends it as [`Stopped::Failed`] after the same clean stop, so the
+/// caller can always finish its recording.
 pub fn run<H: Hooks>(
     session: &mut Session,
     sensor: &mut Sensor,
@@ -68,10 +72,10 @@ pub fn run<H: Hooks>(
     pipeline: &mut Pipeline,
     until: Until<'_>,
     hooks: &mut H,
-) -> Result<Stopped, H::Error> {
+) -> Stopped {
     let (mut router, tactile, stereo) = std::mem::take(pipeline).into_parts();
     let workers = Workers::start(tactile, stereo, std::sync::Arc::clone(sensor.clock()));
-    let result = drive(
+    let mut stopped = drive(
         session,
         sensor,
         recorder,
@@ -82,11 +86,13 @@ pub fn run<H: Hooks>(
     );
     let (rest, tactile, stereo) = workers.finish();
     *pipeline = Pipeline::from_parts(router, tactile, stereo);
-    let stopped = result?;
-    if stopped != Stopped::Caller {
-        hand_on(rest, recorder, hooks)?;
+    if stopped != Stopped::Caller
+        && let Err(e) = hand_on(rest, recorder, hooks)
+        && !matches!(stopped, Stopped::Failed(_))
+    {
+        stopped = Stopped::Failed(e.to_string());
     }
-    Ok(stopped)
+    stopped
 }
 
 fn drive<H: Hooks>(
@@ -97,8 +103,8 @@ fn drive<H: Hooks>(
     workers: &Workers,
     until: Until<'_>,
     hooks: &mut H,
-) -> Result<Stopped, H::Error> {
-    let stopped = loop {
+) -> Stopped {
+    let mut stopped = loop {
         if until.flag.load(Ordering::SeqCst) {
             break Stopped::Flag;
         }
@@ -108,28 +114,34 @@ fn drive<H: Hooks>(
         let stepped = session.step(sensor, recorder, POLL, |camera, frame, dropped| {
             route(hooks, router, workers, camera, frame, dropped)
         });
-        if let Err(e) = stepped {
-            // Stop cleanly: the LEDs off, every frame so far labelled and processed.
-            break Stopped::Failed(e.to_string());
-        }
         for w in session.take_warnings() {
             hooks.warning(w);
         }
-        if !hand_on(workers.ready(), recorder, hooks)? {
-            break Stopped::Caller;
+        match stepped.and_then(|()| hand_on(workers.ready(), recorder, hooks)) {
+            Ok(true) => {}
+            Ok(false) => break Stopped::Caller,
+            Err(e) => break Stopped::Failed(e.to_string()),
         }
         if let Some(e) = recorder.failure() {
             break Stopped::Recorder(e);
         }
     };
+    // The clean stop: LEDs off, then every frame still pending labelled and routed.
     let stop = sensor.request(Request::Stop);
-    if stopped != Stopped::Caller {
-        session.finish(recorder, |camera, frame, dropped| {
+    if stopped != Stopped::Caller
+        && let Err(e) = session.finish(recorder, |camera, frame, dropped| {
             route(hooks, router, workers, camera, frame, dropped)
-        })?;
+        })
+        && !matches!(stopped, Stopped::Failed(_))
+    {
+        stopped = Stopped::Failed(e.to_string());
     }
-    stop?;
-    Ok(stopped)
+    if let Err(e) = stop
+        && !matches!(stopped, Stopped::Failed(_))
+    {
+        stopped = Stopped::Failed(format!("stopping the sequence: {e}"));
+    }
+    stopped
 }
 
 /// One frame: check, route, hand the job it completes to its stage.
@@ -140,12 +152,12 @@ fn route<H: Hooks>(
     camera: usize,
     frame: LabelledFrame,
     dropped: u64,
-) -> Result<bool, H::Error> {
+) -> Result<(), H::Error> {
     hooks.frame(camera, &frame)?;
     if let Some(job) = router.push(camera, frame) {
         workers.submit(job, dropped);
     }
-    Ok(true)
+    Ok(())
 }
 
 /// Outputs to the caller and the recorder; `false` once the caller says stop.

@@ -28,9 +28,6 @@ impl std::fmt::Debug for Session {
     }
 }
 
-/// What the caller says after each frame.
-pub type Keep = bool;
-
 impl Session {
     /// A session over `sources`, labelled with `config` (each source's own stamp
     /// reference is used).
@@ -65,15 +62,14 @@ impl Session {
     }
 
     /// One step: poll the sensor for at most `wait`, record, hand on each labelled
-    /// frame as `each(camera, frame, frames dropped so far)`; stops handing on (and
-    /// returns `false`) once `each` says so.
+    /// frame as `each(camera, frame, frames dropped so far)`.
     pub fn step<E: From<CaptureError>>(
         &mut self,
         sensor: &mut Sensor,
         recorder: &Recorder,
         wait: Duration,
-        each: impl FnMut(usize, LabelledFrame, u64) -> Result<Keep, E>,
-    ) -> Result<Keep, E> {
+        each: impl FnMut(usize, LabelledFrame, u64) -> Result<(), E>,
+    ) -> Result<(), E> {
         let events = sensor.poll(wait).map_err(CaptureError::from)?;
         for event in &events {
             let now = sensor.clock().now_us() as f64;
@@ -101,24 +97,35 @@ impl Session {
                 SensorEvent::Probe(_) => {}
             }
         }
+        // Every camera's frames are taken and handed on before a failed camera's error
+        // is returned: frames the others delivered are never lost to it.
         let mut labelled = Vec::with_capacity(self.captures.len());
+        let mut failed = None;
         for (i, capture) in self.captures.iter_mut().enumerate() {
-            labelled.push(capture.absorb(&events).map_err(|e| {
-                CaptureError::Frames(crate::frames::FrameError::Camera {
-                    device: format!("camera {i}"),
-                    message: e.to_string(),
-                })
-            })?);
+            match capture.absorb(&events) {
+                Ok(frames) => labelled.push(frames),
+                Err(e) => {
+                    labelled.push(Vec::new());
+                    failed.get_or_insert(CaptureError::Frames(crate::frames::FrameError::Camera {
+                        device: format!("camera {i}"),
+                        message: e.to_string(),
+                    }));
+                }
+            }
         }
-        self.hand_on(labelled, recorder, each)
+        self.hand_on(labelled, recorder, each)?;
+        match failed {
+            Some(e) => Err(e.into()),
+            None => Ok(()),
+        }
     }
 
     /// The end: label every frame still pending and hand it on.
-    pub fn finish<E: From<CaptureError>>(
+    pub fn finish<E>(
         &mut self,
         recorder: &Recorder,
-        each: impl FnMut(usize, LabelledFrame, u64) -> Result<Keep, E>,
-    ) -> Result<Keep, E> {
+        each: impl FnMut(usize, LabelledFrame, u64) -> Result<(), E>,
+    ) -> Result<(), E> {
         let labelled = self.captures.iter_mut().map(Capture::finish).collect();
         self.hand_on(labelled, recorder, each)
     }
@@ -127,8 +134,8 @@ impl Session {
         &mut self,
         labelled: Vec<Vec<LabelledFrame>>,
         recorder: &Recorder,
-        mut each: impl FnMut(usize, LabelledFrame, u64) -> Result<Keep, E>,
-    ) -> Result<Keep, E> {
+        mut each: impl FnMut(usize, LabelledFrame, u64) -> Result<(), E>,
+    ) -> Result<(), E> {
         let dropped = self.dropped_frames();
         for (camera, frames) in labelled.into_iter().enumerate() {
             let stamp_ref = self.captures[camera].stamp_ref();
@@ -140,12 +147,10 @@ impl Session {
                         image: frame.frame.image.clone(),
                     });
                 }
-                if !each(camera, frame, dropped + recorder.dropped().frames)? {
-                    return Ok(false);
-                }
+                each(camera, frame, dropped + recorder.dropped().frames)?;
             }
         }
-        Ok(true)
+        Ok(())
     }
 
     fn warn(&mut self, recorder: &Recorder, at_us: f64, message: String) {

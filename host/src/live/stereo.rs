@@ -1,11 +1,9 @@
 //! The stereo stage: dark frames of one phase from the left and right cameras in, depth,
 //! a point cloud and one [`StereoRecord`] per pair out, on the host clock.
 
-use image::RgbImage;
-
 use crate::frames::capture::LabelledFrame;
-use crate::grid::Grid;
 use crate::matcher::{Label, StampRef};
+use crate::output::grey;
 pub use crate::recording::messages::StereoRecord;
 use crate::stereo::StereoError;
 use crate::stereo::pipeline::{StereoFrame, StereoPipeline};
@@ -25,19 +23,6 @@ pub struct StereoStage {
     pipeline: StereoPipeline,
     stamp_refs: [StampRef; 2],
     frames: u64,
-}
-
-/// An RGB frame as 8-bit grey (ITU-R BT.601 luma, as OpenCV's `cvtColor`).
-pub fn grey(image: &RgbImage) -> Grid<u8> {
-    let (w, h) = (image.width() as usize, image.height() as usize);
-    let data = image
-        .pixels()
-        .map(|p| {
-            let [r, g, b] = p.0.map(u32::from);
-            ((299 * r + 587 * g + 114 * b + 500) / 1000) as u8
-        })
-        .collect();
-    Grid::from_vec(w, h, data).expect("one value per pixel")
 }
 
 impl StereoStage {
@@ -88,20 +73,5 @@ impl StereoStage {
         };
         self.frames += 1;
         Ok((frame, record))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn grey_is_bt601_luma() {
-        let img = RgbImage::from_fn(3, 1, |x, _| match x {
-            0 => image::Rgb([255, 0, 0]),
-            1 => image::Rgb([0, 255, 0]),
-            _ => image::Rgb([255, 255, 255]),
-        });
-        assert_eq!(grey(&img).as_slice(), &[76, 150, 255]);
     }
 }

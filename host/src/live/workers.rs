@@ -105,9 +105,12 @@ impl<S: Send + 'static> Worker<S> {
         Self { slot, thread }
     }
 
-    fn finish(self) -> Option<S> {
+    /// Closes the slot and waits for the thread; a stage that panicked is an error.
+    fn finish(self, name: &'static str) -> Result<S, PipelineError> {
         self.slot.close();
-        self.thread.join().ok()
+        self.thread
+            .join()
+            .map_err(|_| PipelineError::Panicked(name))
     }
 }
 
@@ -183,21 +186,29 @@ impl Workers {
         self.outputs.try_iter().collect()
     }
 
-    /// Jobs each stage dropped for a newer one: (tactile, stereo).
-    pub fn skipped(&self) -> (u64, u64) {
-        let n = |w: Option<&Arc<Slot>>| w.map_or(0, |s| s.dropped.load(Ordering::Relaxed));
-        (
-            n(self.tactile.as_ref().map(|w| &w.slot)),
-            n(self.stereo.as_ref().map(|w| &w.slot)),
-        )
-    }
-
     /// Lets each stage finish the job it holds, stops the threads, and returns the
     /// outputs still to hand on with the stages.
     pub fn finish(self) -> (Vec<Produced>, Option<TactileStage>, Option<StereoStage>) {
-        let tactile = self.tactile.and_then(Worker::finish);
-        let stereo = self.stereo.and_then(Worker::finish);
-        (self.outputs.try_iter().collect(), tactile, stereo)
+        let tactile = self.tactile.map(|w| w.finish("tactile"));
+        let stereo = self.stereo.map(|w| w.finish("stereo"));
+        let mut rest: Vec<Produced> = self.outputs.try_iter().collect();
+        let tactile = stage_or_error(tactile, &mut rest);
+        let stereo = stage_or_error(stereo, &mut rest);
+        (rest, tactile, stereo)
+    }
+}
+
+/// A finished stage, or its failure added to the outputs still to hand on.
+fn stage_or_error<S>(
+    stage: Option<Result<S, PipelineError>>,
+    rest: &mut Vec<Produced>,
+) -> Option<S> {
+    match stage? {
+        Ok(s) => Some(s),
+        Err(e) => {
+            rest.push(Err(e));
+            None
+        }
     }
 }
 

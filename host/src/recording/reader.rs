@@ -13,6 +13,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::Read;
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use foxglove::Decode;
@@ -22,6 +23,9 @@ use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOp
 
 use super::messages::{FrameInfo, rgb_from_raw};
 use super::{RecordingError, topics};
+use crate::frames::Frame;
+use crate::frames::capture::LabelledFrame;
+use crate::matcher::Label;
 
 /// One record of a recording.
 #[derive(Debug, Clone, PartialEq)]
@@ -229,10 +233,25 @@ impl Iterator for RecordingReader {
 pub struct RecordedFrame {
     /// Camera number.
     pub camera: usize,
-    /// Timing and label.
+    /// Timing and label, as recorded.
     pub info: FrameInfo,
+    /// The label, read from `info` (checked).
+    pub label: Label,
     /// Pixels.
     pub image: RgbImage,
+}
+
+impl RecordedFrame {
+    /// The frame as the live pipeline takes it.
+    pub fn into_labelled(self) -> LabelledFrame {
+        LabelledFrame {
+            frame: Frame {
+                stamp: self.info.stamp(),
+                image: self.image,
+            },
+            label: self.label,
+        }
+    }
 }
 
 /// What a recording says about itself: metadata records and attachments, by name.
@@ -255,16 +274,17 @@ pub enum Content {
 }
 
 /// Reads `path` through, joining frames: `each` gets every labelled frame and every
-/// other message in file order; the header is returned with how the file ended.
+/// other message in file order (and may break off); the header is returned with how the
+/// file ended.
 /// A frame's image and label are joined by camera and timestamp (the label comes
 /// first); an image whose label never came is reported, not guessed.
 pub fn frames<E: From<RecordingError>>(
     path: &Path,
-    mut each: impl FnMut(Content, (u64, u64)) -> Result<(), E>,
+    mut each: impl FnMut(Content, (u64, u64)) -> Result<ControlFlow<()>, E>,
 ) -> Result<(RecordingHeader, Option<String>), E> {
     let mut reader = RecordingReader::open(path)?;
     let mut header = RecordingHeader::default();
-    let mut labels: HashMap<(usize, u64), FrameInfo> = HashMap::new();
+    let mut labels: HashMap<(usize, u64), (FrameInfo, Label)> = HashMap::new();
     let bad = |topic: &str, log_time_ns, message: String| RecordingError::Message {
         path: path.to_path_buf(),
         topic: topic.to_string(),
@@ -284,43 +304,55 @@ pub fn frames<E: From<RecordingError>>(
                 Some(camera) if *topic == topics::camera_frame(camera) => {
                     let info: FrameInfo = serde_json::from_slice(data)
                         .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
-                    if let Err(e) = info.label() {
-                        return Err(bad(topic, *log_time_ns, e).into());
-                    }
-                    labels.insert((camera, *log_time_ns), info);
+                    let label = info.label().map_err(|e| bad(topic, *log_time_ns, e))?;
+                    labels.insert((camera, *log_time_ns), (info, label));
                 }
                 Some(camera) if *topic == topics::camera_image(camera) => {
                     let raw = RawImage::decode(data.as_slice())
                         .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
                     let image = rgb_from_raw(&raw).map_err(|e| bad(topic, *log_time_ns, e))?;
-                    let info = labels.remove(&(camera, *log_time_ns)).ok_or_else(|| {
-                        bad(
-                            topic,
-                            *log_time_ns,
-                            format!(
-                                "no label on {} for this image (same log time)",
-                                topics::camera_frame(camera)
-                            ),
-                        )
-                    })?;
-                    each(
+                    let (info, label) =
+                        labels.remove(&(camera, *log_time_ns)).ok_or_else(|| {
+                            bad(
+                                topic,
+                                *log_time_ns,
+                                format!(
+                                    "no label on {} for this image (same log time)",
+                                    topics::camera_frame(camera)
+                                ),
+                            )
+                        })?;
+                    if each(
                         Content::Frame(RecordedFrame {
                             camera,
                             info,
+                            label,
                             image,
                         }),
                         progress,
-                    )?;
+                    )?
+                    .is_break()
+                    {
+                        break;
+                    }
                 }
-                _ => each(Content::Other(record), progress)?,
+                _ => {
+                    if each(Content::Other(record), progress)?.is_break() {
+                        break;
+                    }
+                }
             },
             Record::Metadata { name, entries } => {
                 header.metadata.insert(name.clone(), entries.clone());
-                each(Content::Other(record), progress)?;
+                if each(Content::Other(record), progress)?.is_break() {
+                    break;
+                }
             }
             Record::Attachment { name, data, .. } => {
                 header.attachments.insert(name.clone(), data.clone());
-                each(Content::Other(record), progress)?;
+                if each(Content::Other(record), progress)?.is_break() {
+                    break;
+                }
             }
         }
     }

@@ -18,7 +18,7 @@ use std::fs::{File, OpenOptions};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -166,6 +166,7 @@ pub struct Recorder {
     live_port: Option<u16>,
     wait_when_full: bool,
     active: bool,
+    origin_ns: u64,
 }
 
 impl Recorder {
@@ -215,7 +216,13 @@ impl Recorder {
             live_port,
             wait_when_full: options.wait_when_full,
             active,
+            origin_ns: options.clock_origin_unix_ns,
         })
+    }
+
+    /// Unix time of the host clock's zero, ns, as it was given.
+    pub fn clock_origin_unix_ns(&self) -> u64 {
+        self.origin_ns
     }
 
     /// Whether anything is written or shown (no file and no live view: messages are
@@ -441,8 +448,14 @@ struct Outputs {
 
 impl Outputs {
     fn run(&mut self, rx: Receiver<Item>) -> Result<RecordingSummary, RecordingError> {
-        while let Ok(item) = rx.recv() {
-            self.item(item)?;
+        loop {
+            // Wake at least once a second, so the chunk is closed on time even when no
+            // message comes.
+            match rx.recv_timeout(FLUSH_EVERY) {
+                Ok(item) => self.item(item)?,
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => break,
+            }
             if let Some(m) = &mut self.mcap
                 && m.last_flush.elapsed() >= FLUSH_EVERY
             {
@@ -479,7 +492,8 @@ impl Outputs {
                 info,
                 image,
             } => {
-                let at = self.ns(info.timestamp_us);
+                // Stamped at the start of the exposure, whatever the camera's stamps mark.
+                let at = self.ns(info.stamp().exposure_start_us(info.stamp_ref()));
                 let frame_id = format!("cam{camera}");
                 self.json(
                     &topics::camera_frame(camera),

@@ -370,6 +370,10 @@ impl FrameSource for SimulatedCamera {
         StampRef::ExposureStart
     }
 
+    fn frame_size(&self) -> Option<(u32, u32)> {
+        Some(self.images.dark.dimensions())
+    }
+
     fn describe(&self) -> String {
         match self.clocking {
             SimClocking::Triggered { latency_us } => format!(

@@ -18,7 +18,7 @@ use crate::frames::capture::CaptureError;
 use crate::live::session::Session;
 use crate::matcher::{CameraSync, MatchStats, MatcherConfig};
 use crate::recording::metadata::{self, RunInfo};
-use crate::recording::writer::{Recorder, clock_origin_unix_ns};
+use crate::recording::writer::Recorder;
 
 /// What to record.
 #[derive(Debug, Clone)]
@@ -54,6 +54,10 @@ pub enum ScriptError {
     Mode(&'static str),
 }
 
+/// Where the session's virtual host clock starts, µs (give the recorder
+/// `clock_origin_unix_ns(START_US)` to date the recording now).
+pub const START_US: u64 = 1_000_000;
+
 /// Delay from trigger edge to exposure start of the scripted cameras, µs.
 const LATENCY_US: f64 = 150.0;
 
@@ -76,7 +80,7 @@ pub fn record(
 ) -> Result<Vec<MatchStats>, ScriptError> {
     let per_scene =
         cycle(script.mode).ok_or(ScriptError::Mode(crate::describe::mode(script.mode)))?;
-    let clock: Arc<dyn HostClock> = Arc::new(VirtualClock::starting_at(1_000_000));
+    let clock: Arc<dyn HostClock> = Arc::new(VirtualClock::starting_at(START_US));
     let rig = super::connect(
         *b"SCRIPTED",
         Arc::clone(&clock),
@@ -113,12 +117,11 @@ pub fn record(
         cam.cycle_scenes_by_phase(scenes, per_scene);
         sources.push(Box::new(cam));
     }
-    let origin = clock_origin_unix_ns(clock.now_us());
     let run = RunInfo {
         command: script.command.clone(),
         mode: script.mode,
         period_ms: script.period_us / 1000,
-        clock_origin_unix_ns: origin,
+        clock_origin_unix_ns: recorder.clock_origin_unix_ns(),
         cameras: sources
             .iter()
             .map(|s| (s.describe(), s.stamp_ref()))
@@ -148,7 +151,7 @@ pub fn record(
     let length_us = (frames + 2) * u64::from(script.period_us);
     let end = clock.now_us() + 2 * length_us;
     let total = script.scenes.len();
-    let mut keep = |_: usize, _, _| Ok::<_, CaptureError>(true);
+    let mut keep = |_: usize, _, _| Ok::<_, CaptureError>(());
     while clock.now_us() < end && session.stats().iter().any(|s| s.frames < frames) {
         session.step(&mut sensor, recorder, Duration::from_millis(20), &mut keep)?;
         let done = session.stats().iter().map(|s| s.frames).min().unwrap_or(0);

@@ -85,31 +85,33 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// Pipeline settings shared by `stereo` and `stereo-eval`.
+/// Pipeline settings shared by `stereo`, `stereo-eval` and `run` (defaults: the
+/// library's [`StereoConfig`]).
 #[derive(Debug, Clone, clap::Args)]
 pub struct PipelineArgs {
     /// Nearest depth searched, mm.
-    #[arg(long, default_value_t = 50.0)]
+    #[arg(long, default_value_t = StereoConfig::default().near_mm)]
     pub near_mm: f64,
     /// Farthest depth searched, mm.
-    #[arg(long, default_value_t = 600.0)]
+    #[arg(long, default_value_t = StereoConfig::default().far_mm)]
     pub far_mm: f64,
     /// Rectified focal length as a share of the cameras' (below 1 keeps more of a wide
     /// lens's field of view).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = StereoConfig::default().rectify_scale)]
     pub scale: f64,
     /// Matching window side (odd).
-    #[arg(long, default_value_t = 9)]
+    #[arg(long, default_value_t = StereoConfig::default().block_size)]
     pub block_size: u32,
 }
 
 impl Default for PipelineArgs {
     fn default() -> Self {
+        let c = StereoConfig::default();
         Self {
-            near_mm: 50.0,
-            far_mm: 600.0,
-            scale: 1.0,
-            block_size: 9,
+            near_mm: c.near_mm,
+            far_mm: c.far_mm,
+            scale: c.rectify_scale,
+            block_size: c.block_size,
         }
     }
 }

@@ -2,6 +2,7 @@
 
 use anyhow::Result;
 use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
+use stereotac::timing::quantiles;
 
 use crate::console::emit;
 
@@ -53,7 +54,7 @@ impl Report {
     /// The closing figures, on stderr.
     pub fn finish(self, pipeline: &Pipeline) {
         let fmt = |v: Vec<f64>| {
-            percentiles(v).map_or(String::new(), |(p50, p99)| {
+            quantiles(v, [0.5, 0.99]).map_or(String::new(), |[p50, p99]| {
                 format!("; latency p50 {p50:.2} ms, p99 {p99:.2} ms")
             })
         };
@@ -75,16 +76,6 @@ impl Report {
             );
         }
     }
-}
-
-/// (p50, p99) of `v`.
-fn percentiles(mut v: Vec<f64>) -> Option<(f64, f64)> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    Some((at(0.5), at(0.99)))
 }
 
 fn latency(ms: Option<f64>) -> String {

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use stereotac::frames::FrameSource;
 use stereotac::live::session::Session;
 use stereotac::matcher::MatcherConfig;
 use stereotac::recording::metadata::{self, RunInfo};
@@ -34,18 +35,20 @@ pub struct Outputs<'a> {
     pub foxglove: Option<&'a str>,
 }
 
-/// Connects, starts the recorder, opens the cameras and writes the header (`command`:
-/// which command is recording).
+/// Connects, opens the cameras, lets `check` refuse them (frame sizes a model or
+/// calibration cannot take), starts the recorder and writes the header (`command`: which
+/// command is recording). Nothing is created on disk before the checks pass.
 pub fn start(
     command: &str,
     device: &DeviceArgs,
     cameras: &CameraArgs,
     sequence: &SequenceArgs,
     outputs: Outputs<'_>,
+    check: impl FnOnce(&[Box<dyn FrameSource>]) -> Result<()>,
 ) -> Result<Live> {
     let opened = open(device)?;
-    // The cameras before the file: a camera that is not there leaves no recording.
     let sources = cameras.open_all(&opened)?;
+    check(&sources)?;
     let origin_ns = clock_origin_unix_ns(opened.sensor.clock().now_us());
     let recorder = Recorder::start(RecorderOptions {
         mcap: outputs.mcap,

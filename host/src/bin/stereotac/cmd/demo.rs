@@ -15,7 +15,7 @@ use stereotac::clock::{HostClock, VirtualClock};
 use stereotac::device::{hex, status_line};
 use stereotac::frames::capture::{Capture, GradientPair, LabelledFrame};
 use stereotac::matcher::{CameraSync, Label, MatcherConfig};
-use stereotac::recording::writer::{Recorder, RecorderOptions};
+use stereotac::recording::writer::{Recorder, RecorderOptions, clock_origin_unix_ns};
 use stereotac::sim::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamera};
 use stereotac::sim::link::LoopbackConfig;
 use stereotac::sim::scripted::{self, Script};
@@ -423,7 +423,7 @@ fn recordings(out: &Path, period_ms: u32) -> Result<()> {
             live_view: None,
             queue: 16,
             wait_when_full: true,
-            clock_origin_unix_ns: 0,
+            clock_origin_unix_ns: clock_origin_unix_ns(scripted::START_US),
         })?;
         if let Some(rig) = script.stereo {
             StereoSetup {

@@ -77,5 +77,9 @@ fn write_new(path: &Path, img: &RgbImage) -> Result<()> {
     let mut w = std::io::BufWriter::new(file);
     img.write_to(&mut w, image::ImageFormat::Png)
         .with_context(|| format!("writing {}", path.display()))?;
+    // A write error in the last buffered bytes (a full disk) is an error, not a short file.
+    w.into_inner()
+        .map_err(|e| e.into_error())
+        .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

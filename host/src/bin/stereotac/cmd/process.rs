@@ -5,11 +5,11 @@
 //! recording are used unless others are given.
 
 use std::collections::BTreeMap;
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use stereotac::frames::Frame;
-use stereotac::frames::capture::LabelledFrame;
+use foxglove::Decode;
 use stereotac::live::{Job, Pipeline};
 use stereotac::recording::messages::{ClockInfo, PhaseInfo};
 use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
@@ -108,72 +108,74 @@ pub fn run(a: Args) -> Result<()> {
     let mut dropped = 0u64;
     let mut sizes_checked = [false; 2];
     let progress = bar(1, "processing");
-    let mut flush = |jobs: &mut Vec<Job>, pipeline: &mut Pipeline, dropped| -> Result<()> {
+    // Runs the gathered jobs; `false` once stdout is gone (then processing stops, and
+    // the output file is still finished).
+    let mut flush = |jobs: &mut Vec<Job>, pipeline: &mut Pipeline, dropped| -> Result<bool> {
+        let mut open = true;
         for output in pipeline.run_batch(jobs, || None, dropped) {
             let Some(output) = output? else { continue };
-            report.print(&output)?;
+            open = open && report.print(&output)?;
             recorder.send(output.into_item());
         }
         jobs.clear();
-        Ok(())
+        Ok(open)
     };
-    let (_, truncated) = reader::frames(&a.recording, |content, (done, len)| -> Result<()> {
-        progress.set_length(len.max(1));
-        progress.set_position(done);
-        let frame = match content {
-            Content::Frame(f) => f,
-            Content::Other(Record::Message {
-                topic,
-                data,
-                log_time_ns,
-                ..
-            }) => {
-                pass_through(&recorder, &topic, &data, log_time_ns);
-                return Ok(());
-            }
-            Content::Other(_) => return Ok(()),
-        };
-        let camera = frame.camera;
-        if let Some(prev) = last_sequence.insert(camera, frame.info.sequence) {
-            dropped += frame.info.sequence.saturating_sub(prev + 1);
-        }
-        if camera < 2 && !std::mem::replace(&mut sizes_checked[camera], true) {
-            let size = frame.image.dimensions();
-            let name = format!("camera {camera} of the recording");
-            let checks = (|| -> Result<()> {
-                if let (0, Some(t)) = (camera, &tactile) {
-                    t.check_size(&name, size)?;
+    let mut stdout_open = true;
+    let read = reader::frames(
+        &a.recording,
+        |content, (done, len)| -> Result<ControlFlow<()>> {
+            progress.set_length(len.max(1));
+            progress.set_position(done);
+            let frame = match content {
+                Content::Frame(f) => f,
+                Content::Other(Record::Message {
+                    topic,
+                    data,
+                    log_time_ns,
+                    ..
+                }) => {
+                    pass_through(&recorder, &topic, &data, log_time_ns, origin_ns);
+                    return Ok(ControlFlow::Continue(()));
                 }
-                if let Some(s) = &stereo {
-                    s.check_size(&name, camera == 0, size)?;
-                }
-                Ok(())
-            })();
-            checks?;
-        }
-        let label = frame.info.label().map_err(anyhow::Error::msg)?;
-        recorder.send(Item::Frame {
-            camera,
-            info: frame.info.clone(),
-            image: frame.image.clone(),
-        });
-        let labelled = LabelledFrame {
-            frame: Frame {
-                stamp: frame.info.stamp(),
-                image: frame.image,
-            },
-            label,
-        };
-        if let Some(job) = pipeline.route(camera, labelled) {
-            jobs.push(job);
-            if jobs.len() >= BATCH {
-                flush(&mut jobs, &mut pipeline, dropped)?;
+                Content::Other(_) => return Ok(ControlFlow::Continue(())),
+            };
+            let camera = frame.camera;
+            if let Some(prev) = last_sequence.insert(camera, frame.info.sequence) {
+                dropped += frame.info.sequence.saturating_sub(prev + 1);
             }
-        }
-        Ok(())
-    })
-    .with_context(|| format!("processing {}", a.recording.display()))?;
-    flush(&mut jobs, &mut pipeline, dropped)?;
+            if camera < 2 && !std::mem::replace(&mut sizes_checked[camera], true) {
+                let size = frame.image.dimensions();
+                let name = format!("camera {camera} of the recording");
+                let checks = (|| -> Result<()> {
+                    if let (0, Some(t)) = (camera, &tactile) {
+                        t.check_size(&name, size)?;
+                    }
+                    if let Some(s) = &stereo {
+                        s.check_size(&name, camera == 0, size)?;
+                    }
+                    Ok(())
+                })();
+                checks?;
+            }
+            recorder.send(Item::Frame {
+                camera,
+                info: frame.info.clone(),
+                image: frame.image.clone(),
+            });
+            if let Some(job) = pipeline.route(camera, frame.into_labelled()) {
+                jobs.push(job);
+                if jobs.len() >= BATCH && !flush(&mut jobs, &mut pipeline, dropped)? {
+                    stdout_open = false;
+                    return Ok(ControlFlow::Break(()));
+                }
+            }
+            Ok(ControlFlow::Continue(()))
+        },
+    );
+    let (_, truncated) = read.with_context(|| format!("processing {}", a.recording.display()))?;
+    if stdout_open {
+        flush(&mut jobs, &mut pipeline, dropped)?;
+    }
     progress.finish_and_clear();
     if let Some(why) = truncated {
         eprintln!("warning: {}: {why}", a.recording.display());
@@ -192,9 +194,15 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// LED phases and clock states go to the output as they were.
-fn pass_through(recorder: &Recorder, topic: &str, data: &[u8], _log_time_ns: u64) {
+/// LED phases, clock states and warnings go to the output as they were.
+fn pass_through(recorder: &Recorder, topic: &str, data: &[u8], log_time_ns: u64, origin_ns: u64) {
     let item = match topic {
+        topics::LOG => foxglove::messages::Log::decode(data)
+            .ok()
+            .map(|log| Item::Warning {
+                at_us: log_time_ns.saturating_sub(origin_ns) as f64 / 1000.0,
+                message: log.message,
+            }),
         topics::LED_PHASE => serde_json::from_slice::<PhaseInfo>(data)
             .ok()
             .map(Item::Phase),

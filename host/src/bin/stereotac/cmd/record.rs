@@ -13,6 +13,8 @@ use stereotac::device::SensorEvent;
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
 use stereotac::frames::replay::Recorder;
+use stereotac::live::runner::{self, Hooks, Stopped, Until};
+use stereotac::live::{Output, Pipeline};
 use stereotac::matcher::{MatchedFrame, MatcherConfig, phase_str};
 use stereotac_protocol::Request;
 
@@ -106,20 +108,28 @@ pub fn run(a: Args) -> Result<()> {
     a.sequence.start(sensor)?;
     let end = a.sequence.deadline(sensor)?;
     let progress = spinner("recording");
+    let mut failure = None;
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        let events = sensor.poll(Duration::from_millis(20))?;
-        for event in &events {
-            if let SensorEvent::Phase(p) = event {
-                progress.set_message(format!(
-                    "phase {} ({})",
-                    p.event.index,
-                    phase_str(p.event.phase)
-                ));
+        let step = (|| -> Result<()> {
+            let events = sensor.poll(Duration::from_millis(20))?;
+            for event in &events {
+                if let SensorEvent::Phase(p) = event {
+                    progress.set_message(format!(
+                        "phase {} ({})",
+                        p.event.index,
+                        phase_str(p.event.phase)
+                    ));
+                }
             }
-        }
-        for camera in &mut cameras {
-            let frames = camera.capture.absorb(&events)?;
-            progress.inc(camera.write(frames)?);
+            for camera in &mut cameras {
+                let frames = camera.capture.absorb(&events)?;
+                progress.inc(camera.write(frames)?);
+            }
+            Ok(())
+        })();
+        if let Err(e) = step {
+            failure = Some(e);
+            break;
         }
     }
     // Ctrl-C or the end: stop the LEDs, then label and write every captured frame.
@@ -130,6 +140,9 @@ pub fn run(a: Args) -> Result<()> {
         camera.recorder.flush()?;
     }
     progress.finish_and_clear();
+    if let Some(e) = failure {
+        return Err(e.context("stopped (every frame captured before is written)"));
+    }
     stopped?;
     for camera in &cameras {
         let s = camera.capture.stats();
@@ -149,7 +162,8 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// The default: one MCAP file.
+/// The default: one MCAP file, through the live loop with no stage on (the same clean
+/// stop as `run` on a signal or a failed camera).
 fn record_mcap(a: Args, stop: &AtomicBool) -> Result<()> {
     let mut live = live_session::start(
         "record",
@@ -160,44 +174,60 @@ fn record_mcap(a: Args, stop: &AtomicBool) -> Result<()> {
             mcap: Some(a.out.clone()),
             foxglove: a.foxglove.as_deref(),
         },
+        |_| Ok(()),
     )?;
     let sensor = &mut live.opened.sensor;
     a.sequence.start(sensor)?;
-    let end = a.sequence.deadline(sensor)?;
-    let progress = spinner("recording");
-    let frames = std::cell::Cell::new(0u64);
-    let mut count = |_: usize, _: LabelledFrame, _: u64| -> Result<bool> {
-        frames.set(frames.get() + 1);
-        Ok(true)
+    let until = Until {
+        flag: stop,
+        end_us: a.sequence.deadline(sensor)?,
     };
-    let mut failure = None;
-    while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
-        live.session
-            .step(
-                sensor,
-                &live.recorder,
-                Duration::from_millis(20),
-                &mut count,
-            )
-            .context("capturing")?;
-        for w in live.session.take_warnings() {
-            progress.suspend(|| eprintln!("warning: {w}"));
-        }
-        if let Some(e) = live.recorder.failure() {
-            failure = Some(e);
-            break;
-        }
-        progress.set_message(format!("{} frames", frames.get()));
-    }
-    let stopped = sensor.request(Request::Stop);
-    live.session.finish(&live.recorder, &mut count)?;
-    progress.finish_and_clear();
+    let mut hooks = Progress {
+        bar: spinner("recording"),
+        frames: 0,
+    };
+    let stopped = runner::run(
+        &mut live.session,
+        sensor,
+        &live.recorder,
+        &mut Pipeline::default(),
+        until,
+        &mut hooks,
+    );
+    hooks.bar.finish_and_clear();
     live.print_cameras();
-    let summary = live.recorder.finish();
-    stopped.context("stopping the sequence")?;
-    print_recorded(&summary?);
-    if let Some(e) = failure {
-        bail!("recording failed: {e}");
+    print_recorded(&live.recorder.finish()?);
+    match stopped {
+        Stopped::Recorder(e) => bail!("recording failed: {e}"),
+        Stopped::Failed(e) => {
+            bail!("stopped: {e} (everything captured before is in the recording)")
+        }
+        _ => Ok(()),
     }
-    Ok(())
+}
+
+/// `record`'s view of the live loop: a frame count on the spinner.
+struct Progress {
+    bar: indicatif::ProgressBar,
+    frames: u64,
+}
+
+impl Hooks for Progress {
+    type Error = anyhow::Error;
+
+    fn frame(&mut self, _: usize, _: &LabelledFrame) -> Result<()> {
+        self.frames += 1;
+        if self.frames.is_multiple_of(8) {
+            self.bar.set_message(format!("{} frames", self.frames));
+        }
+        Ok(())
+    }
+
+    fn output(&mut self, _: &Output) -> Result<bool> {
+        Ok(true)
+    }
+
+    fn warning(&mut self, message: String) {
+        self.bar.suspend(|| eprintln!("warning: {message}"));
+    }
 }

@@ -143,17 +143,6 @@ pub fn run(a: Args) -> Result<()> {
         bail!("at most 4 cameras ({} given)", a.cameras.cameras.len());
     }
     let (tactile, stereo) = setups(&a)?;
-    if a.cameras.cameras.iter().all(|c| c == "sim") {
-        let o = a.cameras.sim_optics();
-        let size = (o.width as u32, o.height as u32);
-        if let Some(t) = &tactile {
-            t.check_size("the simulated camera", size)?;
-        }
-        if let Some(s) = &stereo {
-            s.check_size("the simulated cameras", true, size)?;
-            s.check_size("the simulated cameras", false, size)?;
-        }
-    }
     let mut live = live_session::start(
         "run",
         &a.device,
@@ -162,6 +151,17 @@ pub fn run(a: Args) -> Result<()> {
         Outputs {
             mcap: a.mcap.clone(),
             foxglove: a.foxglove.as_deref(),
+        },
+        |sources| {
+            // Refused before anything runs: a model or calibration of another size.
+            for (camera, source) in sources.iter().enumerate() {
+                // A camera that cannot tell before its first frame is checked on it.
+                if let Some(size) = source.frame_size() {
+                    let name = format!("camera {camera} ({})", a.cameras.cameras[camera]);
+                    check_size(camera, &name, size, tactile.as_ref(), stereo.as_ref())?;
+                }
+            }
+            Ok(())
         },
     )?;
     if let Some(t) = &tactile {
@@ -197,7 +197,7 @@ pub fn run(a: Args) -> Result<()> {
         &mut pipeline,
         until,
         &mut hooks,
-    )?;
+    );
     if stopped == Stopped::Caller {
         eprintln!("stdout closed: stopped");
     }
@@ -231,15 +231,9 @@ impl Hooks for RunHooks<'_> {
         if std::mem::replace(&mut self.sizes_checked[camera], true) {
             return Ok(());
         }
-        let size = frame.frame.image.dimensions();
         let name = format!("camera {camera} ({})", self.cameras[camera]);
-        if let (0, Some(t)) = (camera, self.tactile) {
-            t.check_size(&name, size)?;
-        }
-        if let (0 | 1, Some(s)) = (camera, self.stereo) {
-            s.check_size(&name, camera == 0, size)?;
-        }
-        Ok(())
+        let size = frame.frame.image.dimensions();
+        check_size(camera, &name, size, self.tactile, self.stereo)
     }
 
     fn output(&mut self, output: &Output) -> Result<bool> {
@@ -249,4 +243,22 @@ impl Hooks for RunHooks<'_> {
     fn warning(&mut self, message: String) {
         eprintln!("warning: {message}");
     }
+}
+
+/// Refuses a tactile model (camera 0) or a stereo calibration (cameras 0 and 1) of
+/// another frame size than camera `camera`'s.
+fn check_size(
+    camera: usize,
+    name: &str,
+    size: (u32, u32),
+    tactile: Option<&TactileSetup>,
+    stereo: Option<&StereoSetup>,
+) -> Result<()> {
+    if let (0, Some(t)) = (camera, tactile) {
+        t.check_size(name, size)?;
+    }
+    if let (0 | 1, Some(s)) = (camera, stereo) {
+        s.check_size(name, camera == 0, size)?;
+    }
+    Ok(())
 }
