@@ -21,13 +21,13 @@
 //! * Pipelines: [`tactile`] (photometric stereo: dx/dy images to depth of the imprint),
 //!   [`stereo`] (stereo depth through the skin: calibration, rectification, matching,
 //!   point clouds, evaluation).
+//! * [`sim`]: the simulated sensor, its USB link and its cameras, one place: test
+//!   inputs and the demo's data, reached through the same code paths as hardware.
 //! * [`recording`]: MCAP recordings and the Foxglove live view (topics, messages, the
 //!   recorder, the streaming reader).
-//! * [`live`]: the live pipeline (router, tactile and stereo stages, the capture session
-//!   of `run` and `record`, pairs from a recording).
-//! * [`sim`]: the simulated sensor, its USB link, its cameras and scripted recorded
-//!   sessions, one place: test inputs and the demo's data, reached through the same code
-//!   paths as hardware.
+//! * [`live`]: the live pipeline (router, tactile and stereo stages on their threads,
+//!   the capture session and loop of `run` and `record`, pairs from a recording, scripted
+//!   simulated sessions, `bench live`).
 #![warn(missing_docs)]
 
 pub mod client;

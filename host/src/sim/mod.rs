@@ -9,7 +9,6 @@
 
 pub mod camera;
 pub mod link;
-pub mod scripted;
 pub mod sensor;
 
 use std::sync::{Arc, Mutex};

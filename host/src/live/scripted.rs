@@ -9,16 +9,16 @@ use std::time::Duration;
 
 use stereotac_protocol::{Mode, Request};
 
-use super::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamera};
-use super::link::LoopbackConfig;
+use super::session::Session;
 use crate::clock::{HostClock, VirtualClock};
 use crate::device::SensorError;
 use crate::frames::FrameSource;
 use crate::frames::capture::CaptureError;
-use crate::live::session::Session;
 use crate::matcher::{CameraSync, MatchStats, MatcherConfig};
 use crate::recording::metadata::{self, RunInfo};
 use crate::recording::writer::Recorder;
+use crate::sim::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamera};
+use crate::sim::link::LoopbackConfig;
 
 /// What to record.
 #[derive(Debug, Clone)]
@@ -81,7 +81,7 @@ pub fn record(
     let per_scene =
         cycle(script.mode).ok_or(ScriptError::Mode(crate::describe::mode(script.mode)))?;
     let clock: Arc<dyn HostClock> = Arc::new(VirtualClock::starting_at(START_US));
-    let rig = super::connect(
+    let rig = crate::sim::connect(
         *b"SCRIPTED",
         Arc::clone(&clock),
         LoopbackConfig {
