@@ -4,7 +4,7 @@
 use image::RgbImage;
 use stereotac::tactile::bench::errors;
 use stereotac::tactile::calibrate::{
-    CalibrationError, CalibrationPair, CalibrationSettings, calibrate,
+    CalibrationError, CalibrationPair, CalibrationSettings, Rejection, calibrate,
 };
 use stereotac::tactile::images::{ImageError, load_pairs};
 use stereotac::tactile::model::{ModelError, ModelKind, TactileModel};
@@ -329,9 +329,15 @@ fn calibration_rejects_bad_input_with_clear_errors() {
     )
     .unwrap_err();
     assert!(
-        matches!(err, CalibrationError::NoContact(ref n) if n == "flat"),
+        matches!(
+            err,
+            CalibrationError::TooFewPresses { good: 0, ref rejected, .. }
+                if rejected[0].name == "flat"
+                    && matches!(rejected[0].reason, Rejection::NoContact { .. })
+        ),
         "{err}"
     );
+    assert!(err.to_string().contains("flat: no contact found"), "{err}");
     assert!(matches!(
         calibrate(std::slice::from_ref(&pair), None, &s, |_| {}),
         Err(CalibrationError::TooFewForMedian(1))
@@ -340,16 +346,28 @@ fn calibration_rejects_bad_input_with_clear_errors() {
     odd[1].dy = RgbImage::new(10, 10);
     let err = calibrate(&odd, None, &s, |_| {}).unwrap_err();
     assert!(err.to_string().contains("press01_dy"), "{err}");
-    // A ball much smaller than claimed is refused.
-    let presses = ball_presses(&optics, 3, 6.0, 5);
+    // A ball much smaller than claimed: every press is set aside with the reason.
+    let presses = ball_presses(&optics, 6, 6.0, 5);
     let tiny = CalibrationSettings {
         ball_diameter_mm: 2.0,
         ..s.clone()
     };
-    assert!(matches!(
-        calibrate(&presses, Some((&refs.0, &refs.1)), &tiny, |_| {}),
-        Err(CalibrationError::ImplausibleContact { .. })
-    ));
+    let err = calibrate(&presses, Some((&refs.0, &refs.1)), &tiny, |_| {}).unwrap_err();
+    match &err {
+        CalibrationError::TooFewPresses {
+            good: 0,
+            total: 6,
+            rejected,
+            ..
+        } => assert!(
+            rejected
+                .iter()
+                .all(|r| matches!(r.reason, Rejection::TooLarge { .. })),
+            "{err}"
+        ),
+        _ => panic!("{err}"),
+    }
+    assert!(err.to_string().contains("--ball-diameter-mm"), "{err}");
 }
 
 #[test]

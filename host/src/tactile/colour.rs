@@ -65,6 +65,18 @@ impl Reference {
         )
     }
 
+    /// Reference from mean colours `[R, G, B]` (block or neighbourhood means of a
+    /// no-contact frame), `width × height` of them.
+    pub fn from_means(width: usize, height: usize, means: &[[f32; 3]]) -> Self {
+        Self::from_planes(
+            width,
+            height,
+            means
+                .iter()
+                .map(|&[red, green, blue]| [red - green, blue - green, green]),
+        )
+    }
+
     /// Reference from per-pixel LED light (`red`, `blue` after ambient removal, and green).
     pub fn from_planes(
         width: usize,
@@ -101,14 +113,38 @@ impl Reference {
         self.height
     }
 
+    /// Weights `(red, blue)` of the two channels' departures at pixel `i`: each channel's
+    /// share of the reference's LED light, times two (flat-skin balance gives `(1, 1)`).
+    /// A channel lit weakly at this place counts for little: its ratio to the reference
+    /// is mostly noise.
+    #[inline]
+    pub fn weights(&self, i: usize) -> (f32, f32) {
+        let (ir, ib) = (self.inv_red[i], self.inv_blue[i]);
+        let s = 2.0 / (ir + ib);
+        (ib * s, ir * s)
+    }
+
     /// Normalised LED colour `(red, blue)` of `pixel` at index `i`, or `None` when the
     /// filter rejects it. Flat skin gives about `(1, 1)`.
     #[inline]
     pub fn normalise(&self, filter: &ColourFilter, i: usize, pixel: [u8; 3]) -> Option<(f32, f32)> {
-        if pixel.iter().any(|&c| c >= filter.saturation) {
+        self.normalise_mean(filter, i, pixel.map(f32::from))
+    }
+
+    /// [`Self::normalise`] for a mean colour (of a block or a neighbourhood); a mean at or
+    /// above the saturation level counts as saturated.
+    #[inline]
+    pub fn normalise_mean(
+        &self,
+        filter: &ColourFilter,
+        i: usize,
+        pixel: [f32; 3],
+    ) -> Option<(f32, f32)> {
+        let saturation = f32::from(filter.saturation);
+        if pixel.iter().any(|&c| c >= saturation) {
             return None;
         }
-        let [r, g, b] = pixel.map(f32::from);
+        let [r, g, b] = pixel;
         let (led_r, led_b) = (r - g, b - g);
         if led_r.max(led_b) < filter.min_led
             || g > filter.max_white_ratio * r.max(b)

@@ -1,9 +1,11 @@
 //! Contact detection: where does the colour differ from flat skin, and which small
 //! rectangles (regions of interest) must the rest of the pipeline look at?
 //!
-//! Detection samples a coarse grid (every `coarse_step` pixels) so a frame with no contact
-//! costs a few tens of thousands of pixel reads and nothing else. Marked cells are grouped
-//! into 8-connected components; components smaller than `min_cells` are noise. Each
+//! Detection compares the mean colour of `coarse_step × coarse_step` blocks with the
+//! references' (a block mean is several times less noisy than a pixel), so a frame with
+//! no contact costs one pass of integer sums over the images and nothing else. The
+//! threshold is measured by calibration on the frames' own flat skin. Marked blocks are
+//! grouped into 8-connected components; components smaller than `min_cells` are noise. Each
 //! component's bounding box, padded, becomes a region; overlapping regions merge, and each
 //! is grown to a length the FFT solvers handle efficiently (5-smooth) where the frame
 //! allows.
@@ -13,15 +15,18 @@ use serde::{Deserialize, Serialize};
 
 use super::colour::{ColourFilter, Reference};
 use super::poisson::SolverKind;
+use super::smooth::BlockMeans;
 
 /// Thresholds of contact detection.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ContactParams {
-    /// A pixel is touched when `Σ |normalised colour − 1|` over both images exceeds this.
+    /// A block is touched when its mean colour's weighted departure from flat skin
+    /// (`Σ w·|normalised colour − 1|` over both images, see [`colours_of`]) exceeds this.
+    /// Calibration measures it on the frames' flat skin.
     pub threshold: f32,
-    /// Sampling step of the coarse detection grid (px).
+    /// Block size of detection (px).
     pub coarse_step: usize,
-    /// Smallest component on the coarse grid that counts as a contact (cells).
+    /// Smallest component of touched blocks that counts as a contact (blocks).
     pub min_cells: usize,
     /// Flat margin around each contact inside its region (px).
     pub pad_px: usize,
@@ -89,9 +94,33 @@ impl Roi {
     }
 }
 
-/// Normalised colours `[r_dx, b_dx, r_dy, b_dy]` of pixel `(x, y)` (NaN where the colour
-/// filter rejects that phase) and how far they are from flat skin: `Σ |colour − 1|` over
-/// the accepted phases (a rejected phase counts as flat).
+/// Normalised colours `[r_dx, b_dx, r_dy, b_dy]` of the (mean) colours `dx` and `dy` at
+/// index `i` of `refs` (NaN where the colour filter rejects that phase) and how far they
+/// are from flat skin: `Σ w·|colour − 1|` over the accepted phases (a rejected phase
+/// counts as flat), each channel weighted by its share of the reference's LED light there
+/// ([`Reference::weights`]), so the faint light of a far strip does not turn noise into
+/// contact.
+#[inline]
+pub fn colours_of(
+    refs: &References,
+    filter: &ColourFilter,
+    i: usize,
+    dx: [f32; 3],
+    dy: [f32; 3],
+) -> ([f32; 4], f32) {
+    let mut colour = [f32::NAN; 4];
+    let mut deviation = 0.0;
+    for (phase, (px, reference)) in [(dx, &refs.dx), (dy, &refs.dy)].into_iter().enumerate() {
+        if let Some((r, b)) = reference.normalise_mean(filter, i, px) {
+            (colour[2 * phase], colour[2 * phase + 1]) = (r, b);
+            let (wr, wb) = reference.weights(i);
+            deviation += wr * (r - 1.0).abs() + wb * (b - 1.0).abs();
+        }
+    }
+    (colour, deviation)
+}
+
+/// [`colours_of`] for pixel `(x, y)` of the images.
 #[inline]
 pub fn pixel_colours(
     refs: &References,
@@ -102,63 +131,89 @@ pub fn pixel_colours(
     y: usize,
 ) -> ([f32; 4], f32) {
     let i = y * refs.dx.width() + x;
-    let mut colour = [f32::NAN; 4];
-    let mut deviation = 0.0;
-    for (phase, (img, reference)) in [(dx, &refs.dx), (dy, &refs.dy)].into_iter().enumerate() {
-        if let Some((r, b)) = reference.normalise(filter, i, img.get_pixel(x as u32, y as u32).0) {
-            (colour[2 * phase], colour[2 * phase + 1]) = (r, b);
-            deviation += (r - 1.0).abs() + (b - 1.0).abs();
-        }
-    }
-    (colour, deviation)
+    let at = |img: &RgbImage| img.get_pixel(x as u32, y as u32).0.map(f32::from);
+    colours_of(refs, filter, i, at(dx), at(dy))
 }
 
-/// How far pixel `(x, y)` is from flat skin (see [`pixel_colours`]).
-#[inline]
-pub fn deviation(
-    refs: &References,
+/// The deviation from flat skin of every block of a pair's block means.
+pub fn block_deviations(
+    dx: &BlockMeans,
+    dy: &BlockMeans,
+    block_refs: &References,
     filter: &ColourFilter,
-    dx: &RgbImage,
-    dy: &RgbImage,
-    x: usize,
-    y: usize,
-) -> f32 {
-    pixel_colours(refs, filter, dx, dy, x, y).1
+) -> Vec<f32> {
+    dx.means
+        .iter()
+        .zip(&dy.means)
+        .enumerate()
+        .map(|(i, (a, b))| colours_of(block_refs, filter, i, *a, *b).1)
+        .collect()
 }
 
-/// Finds the regions of interest around contacts; empty when nothing touches the skin.
-/// Images and references must have the same size (checked by the caller).
+/// Where contact was found: the regions to integrate, and the blocks (of
+/// `ContactParams::coarse_step` px) that belong to a contact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Regions of interest; empty when nothing touches the skin.
+    pub regions: Vec<Roi>,
+    /// Block size (px).
+    pub step: usize,
+    /// Blocks across.
+    pub blocks_across: usize,
+    /// Per block: part of a contact large enough to count.
+    pub touched: Vec<bool>,
+}
+
+impl Detection {
+    /// Whether pixel `(x, y)` lies in a touched block.
+    #[inline]
+    pub fn touched_at(&self, x: usize, y: usize) -> bool {
+        self.touched[(y / self.step) * self.blocks_across + x / self.step]
+    }
+}
+
+/// Finds the regions of interest around contacts from the images' block means, compared
+/// with `block_refs` (references at block resolution, [`block_references`]); no regions
+/// when nothing touches the skin. Images must have the model's size (checked by the
+/// caller).
 pub fn find_regions(
     dx: &RgbImage,
     dy: &RgbImage,
-    refs: &References,
+    block_refs: &References,
     filter: &ColourFilter,
     params: &ContactParams,
     solver: SolverKind,
-) -> Vec<Roi> {
+) -> Detection {
     let (w, h) = (dx.width() as usize, dx.height() as usize);
     let step = params.coarse_step.max(1);
-    let (gw, gh) = (w.div_ceil(step), h.div_ceil(step));
-    let mut marked = vec![false; gw * gh];
-    let mut any = false;
-    for gy in 0..gh {
-        let y = (gy * step + step / 2).min(h - 1);
-        for gx in 0..gw {
-            let x = (gx * step + step / 2).min(w - 1);
-            if deviation(refs, filter, dx, dy, x, y) > params.threshold {
-                marked[gy * gw + gx] = true;
-                any = true;
-            }
-        }
-    }
-    if !any {
-        return Vec::new();
-    }
-    let mut regions: Vec<Roi> = label_components(&marked, gw, gh)
-        .1
+    let (mx, my) = (BlockMeans::of(dx, step), BlockMeans::of(dy, step));
+    let (gw, gh) = (mx.width, mx.height);
+    let marked: Vec<bool> = block_deviations(&mx, &my, block_refs, filter)
         .into_iter()
-        .filter(|c| c.cells >= params.min_cells)
-        .map(|c| {
+        .map(|d| d > params.threshold)
+        .collect();
+    let mut detection = Detection {
+        regions: Vec::new(),
+        step,
+        blocks_across: gw,
+        touched: vec![false; gw * gh],
+    };
+    if !marked.iter().any(|&m| m) {
+        return detection;
+    }
+    let (labels, components) = label_components(&marked, gw, gh);
+    let keep: Vec<bool> = components
+        .iter()
+        .map(|c| c.cells >= params.min_cells)
+        .collect();
+    for (t, l) in detection.touched.iter_mut().zip(&labels) {
+        *t = *l > 0 && keep[*l as usize - 1];
+    }
+    let mut regions: Vec<Roi> = components
+        .iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|(c, _)| {
             let x0 = (c.x0 * step).saturating_sub(params.pad_px);
             let y0 = (c.y0 * step).saturating_sub(params.pad_px);
             let x1 = ((c.x1 + 1) * step + params.pad_px).min(w);
@@ -178,7 +233,17 @@ pub fn find_regions(
     }
     // Growing may make regions overlap again; merged ones keep their (valid) size.
     merge_overlapping(&mut regions);
-    regions
+    detection.regions = regions;
+    detection
+}
+
+/// References at block resolution from no-contact frames.
+pub fn block_references(dx: &RgbImage, dy: &RgbImage, step: usize) -> References {
+    let (a, b) = (BlockMeans::of(dx, step), BlockMeans::of(dy, step));
+    References {
+        dx: Reference::from_means(a.width, a.height, &a.means),
+        dy: Reference::from_means(b.width, b.height, &b.means),
+    }
 }
 
 /// Grows `[start, start+len)` to an efficient solver length inside `[0, total)`, keeping
@@ -262,6 +327,44 @@ pub(crate) fn label_components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, 
     (labels, out)
 }
 
+/// Sets every unset pixel not 4-connected to the frame border through unset pixels.
+pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
+    let mut outside = vec![false; mask.len()];
+    let mut stack: Vec<usize> = (0..mask.len())
+        .filter(|&i| {
+            let (x, y) = (i % w, i / w);
+            (x == 0 || y == 0 || x == w - 1 || y == h - 1) && !mask[i]
+        })
+        .collect();
+    for &i in &stack {
+        outside[i] = true;
+    }
+    while let Some(i) = stack.pop() {
+        let (x, y) = (i % w, i / w);
+        let mut visit = |j: usize| {
+            if !mask[j] && !outside[j] {
+                outside[j] = true;
+                stack.push(j);
+            }
+        };
+        if x > 0 {
+            visit(i - 1);
+        }
+        if x + 1 < w {
+            visit(i + 1);
+        }
+        if y > 0 {
+            visit(i - w);
+        }
+        if y + 1 < h {
+            visit(i + w);
+        }
+    }
+    for (m, o) in mask.iter_mut().zip(&outside) {
+        *m = !*o;
+    }
+}
+
 /// Grows a `w × h` mask by `r` pixels (square structuring element), in place.
 pub fn dilate(mask: &mut [bool], w: usize, h: usize, r: usize) {
     if r == 0 || w == 0 || h == 0 {
@@ -302,6 +405,20 @@ pub fn dilate(mask: &mut [bool], w: usize, h: usize, r: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn holes_fill_but_border_bays_stay_open() {
+        let (w, h) = (7, 5);
+        let mut m = vec![false; w * h];
+        for y in 1..4 {
+            for x in 1..4 {
+                m[y * w + x] = !(x == 2 && y == 2);
+            }
+        }
+        fill_holes(&mut m, w, h);
+        assert!(m[2 * w + 2]);
+        assert!(!m[0] && !m[2 * w + 5]);
+    }
 
     #[test]
     fn dilate_grows_by_exactly_r() {

@@ -6,7 +6,9 @@
 //! of interest (no contact → no further work); [`model`] turns colour into slopes (lookup
 //! table or small MLP, trained by [`calibrate`]); [`sanitize`] bounds the slopes;
 //! [`poisson`] integrates them; [`output`] writes NPY/PNG/PLY/JSON. [`render`] is our own
-//! synthetic sensor used by the demo, the benchmark and the tests.
+//! synthetic sensor used by the demo, the benchmark and the tests; [`skins`] draws skins
+//! with randomised physics from it and from an independent renderer, to judge the
+//! pipeline on skins it was not tuned on.
 
 pub mod bench;
 pub mod calibrate;
@@ -19,4 +21,6 @@ pub mod poisson;
 pub mod reconstruct;
 pub mod render;
 pub mod sanitize;
+pub mod skins;
+pub mod smooth;
 pub mod synthetic;

@@ -2,6 +2,9 @@
 //! detection, gradient model on the touched pixels only, sanitising, Poisson integration
 //! per region of interest, depth in millimetres.
 //!
+//! Depth is zero outside the imprint (the touched pixels and the holes they enclose) and
+//! measured from the ring of skin around it.
+//!
 //! Work is proportional to contact area: a frame without contact stops after the coarse
 //! detection grid; with contact, only the padded regions around contacts are normalised,
 //! only their touched pixels go through the model, and only the regions are integrated.
@@ -89,6 +92,7 @@ pub struct Reconstructor {
     kind: ModelKind,
     solver_kind: SolverKind,
     refs: References,
+    block_refs: References,
     solver: PoissonSolver<f32>,
     max_slope: f32,
     features: Vec<[f32; 4]>,
@@ -105,6 +109,7 @@ impl Reconstructor {
             kind: self.kind,
             solver_kind: self.solver_kind,
             refs: self.refs.clone(),
+            block_refs: self.block_refs.clone(),
             solver: PoissonSolver::new(),
             max_slope: self.max_slope,
             features: Vec::new(),
@@ -123,7 +128,7 @@ impl Reconstructor {
         references: Option<(&RgbImage, &RgbImage)>,
     ) -> Result<Self, ReconstructError> {
         let want = (model.width as u32, model.height as u32);
-        let refs = match references {
+        let (refs, block_refs) = match references {
             Some((dx, dy)) => {
                 for (what, img) in [("reference dx", dx), ("reference dy", dy)] {
                     if img.dimensions() != want {
@@ -134,18 +139,29 @@ impl Reconstructor {
                         });
                     }
                 }
-                References {
-                    dx: Reference::from_image(dx),
-                    dy: Reference::from_image(dy),
-                }
+                (
+                    References {
+                        dx: Reference::from_image(dx),
+                        dy: Reference::from_image(dy),
+                    },
+                    contact::block_references(dx, dy, model.contact.coarse_step),
+                )
             }
-            None => model.background.references(model.width, model.height),
+            None => (
+                model.background.references(model.width, model.height),
+                model.background.references_at(
+                    model.width,
+                    model.height,
+                    model.contact.coarse_step,
+                ),
+            ),
         };
         Ok(Self {
             model,
             kind,
             solver_kind,
             refs,
+            block_refs,
             solver: PoissonSolver::new(),
             max_slope: DEFAULT_MAX_SLOPE,
             features: Vec::new(),
@@ -183,7 +199,8 @@ impl Reconstructor {
         let (w, h) = (self.model.width, self.model.height);
         let filter = self.model.filter;
         let params = self.model.contact;
-        let regions = contact::find_regions(dx, dy, &self.refs, &filter, &params, self.solver_kind);
+        let detection =
+            contact::find_regions(dx, dy, &self.block_refs, &filter, &params, self.solver_kind);
         let mut out = Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),
             contact_mask: Grid::filled(w, h, false),
@@ -195,10 +212,10 @@ impl Reconstructor {
                 ..Default::default()
             },
         };
-        for roi in &regions {
-            self.region(dx, dy, roi, &mut out)?;
+        for roi in &detection.regions {
+            self.region(dx, dy, roi, &detection, &mut out)?;
         }
-        out.regions = regions;
+        out.regions = detection.regions;
         out.timings.total_ms = ms(start, Instant::now());
         Ok(out)
     }
@@ -208,6 +225,7 @@ impl Reconstructor {
         dx: &RgbImage,
         dy: &RgbImage,
         roi: &Roi,
+        detection: &contact::Detection,
         out: &mut Reconstruction,
     ) -> Result<(), ReconstructError> {
         let t0 = Instant::now();
@@ -222,10 +240,10 @@ impl Reconstructor {
             let y = roi.y + ry;
             for rx in 0..roi.width {
                 let x = roi.x + rx;
-                let (c, dev) = contact::pixel_colours(&self.refs, &filter, dx, dy, x, y);
+                let (c, _) = contact::pixel_colours(&self.refs, &filter, dx, dy, x, y);
                 out.rejected_pixels += c.iter().step_by(2).filter(|v| v.is_nan()).count();
                 colour[ry * roi.width + rx] = c;
-                mask[ry * roi.width + rx] = dev > params.threshold;
+                mask[ry * roi.width + rx] = detection.touched_at(x, y);
             }
         }
         contact::dilate(&mut mask, roi.width, roi.height, params.dilate_px);
@@ -272,13 +290,21 @@ impl Reconstructor {
         out.sanitized_slopes +=
             fixed.non_finite + fixed.clamped + fixed_q.non_finite + fixed_q.clamped;
         let depth_px = self.solver.integrate(self.solver_kind, &p, &q)?;
+        // The imprint is the touched pixels with the holes they enclose (a flat-bottomed
+        // object's plateau has no slope but is pressed in). Skin outside it is at rest:
+        // its depth is zero, and the imprint's depth is measured from the ring of skin
+        // just around it rather than from the region's border.
+        let mut imprint = mask.clone();
+        contact::fill_holes(&mut imprint, roi.width, roi.height);
+        let anchor = ring_median(depth_px.as_slice(), &imprint, roi.width, roi.height);
         let scale = 1.0 / self.model.px_per_mm as f32;
         for ry in 0..roi.height {
             let y = roi.y + ry;
             let src = depth_px.row(ry);
+            let inside = &imprint[ry * roi.width..(ry + 1) * roi.width];
             let dst = &mut out.depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
-            for (d, s) in dst.iter_mut().zip(src) {
-                *d = s * scale;
+            for ((d, s), &keep) in dst.iter_mut().zip(src).zip(inside) {
+                *d = if keep { (s - anchor) * scale } else { 0.0 };
             }
             let m = &mut out.contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
             for (d, s) in m
@@ -292,6 +318,32 @@ impl Reconstructor {
         out.timings.solve_ms += ms(t2, Instant::now());
         Ok(())
     }
+}
+
+/// Median of `depth` over the pixels outside `imprint` that touch it (4-neighbours); 0
+/// when there are none (the imprint fills its region: the solver's own anchor stands).
+fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
+    let mut ring = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if imprint[i] {
+                continue;
+            }
+            let touches = (x > 0 && imprint[i - 1])
+                || (x + 1 < w && imprint[i + 1])
+                || (y > 0 && imprint[i - w])
+                || (y + 1 < h && imprint[i + w]);
+            if touches {
+                ring.push(depth[i]);
+            }
+        }
+    }
+    if ring.is_empty() {
+        return 0.0;
+    }
+    let k = ring.len() / 2;
+    *ring.select_nth_unstable_by(k, f32::total_cmp).1
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {

@@ -236,10 +236,45 @@ pub struct Optics {
     pub spot: Option<Spot>,
     /// Fraction of each LED's light that the camera also records in green.
     pub green_leak: f64,
+    /// Fraction of the red LED's light recorded in blue, and of the blue LED's in red.
+    pub cross_leak: f64,
+    /// Per-strip variation, strips in order 1 (x−), 2 (y−), 3 (x+), 4 (y+).
+    pub strips: [StripVariation; 4],
+    /// Colour of the ambient light (multiplier per channel R, G, B).
+    pub ambient_colour: [f64; 3],
+    /// Fraction of the ambient light (and spot) a touching object blocks where it
+    /// presses in.
+    pub ambient_block: f64,
+    /// Camera gain on everything before the response curve.
+    pub exposure: f64,
+    /// Vignetting `1 − k·r²` (r: distance from the centre over the half-diagonal).
+    pub vignetting: f64,
     /// Camera noise, standard deviation (DN).
     pub noise: f64,
+    /// MJPG compression quality, `None` for raw frames.
+    pub jpeg_quality: Option<u8>,
     /// Noise seed.
     pub seed: u64,
+}
+
+/// How one strip differs from the nominal one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StripVariation {
+    /// Brightness multiplier.
+    pub gain: f64,
+    /// Added to both light elevations (degrees).
+    pub elevation_deg: f64,
+    /// Multiplier on the fall-off distance.
+    pub falloff: f64,
+}
+
+impl StripVariation {
+    /// A nominal strip.
+    pub const NOMINAL: StripVariation = StripVariation {
+        gain: 1.0,
+        elevation_deg: 0.0,
+        falloff: 1.0,
+    };
 }
 
 impl Optics {
@@ -271,8 +306,69 @@ impl Optics {
             ambient: 6.0,
             spot: None,
             green_leak: 0.0,
+            cross_leak: 0.0,
+            strips: [StripVariation::NOMINAL; 4],
+            ambient_colour: [1.0; 3],
+            ambient_block: 0.0,
+            exposure: 1.0,
+            vignetting: 0.0,
             noise: 1.0,
+            jpeg_quality: None,
             seed: 1,
+        }
+    }
+
+    /// The standard optics with every physical parameter drawn at random from `seed`
+    /// within the ranges of a plausible real skin: LED elevation and fall-off per strip,
+    /// strip brightness imbalance, crosstalk, gloss or a camera gamma, exposure,
+    /// vignetting, tinted ambient light partly blocked by a touching object, a ceiling
+    /// spot anywhere, noise and MJPG compression.
+    pub fn random(width: usize, height: usize, seed: u64) -> Self {
+        let mut rng = Rng::new(seed ^ 0x5EED_0F0F_7C5A_11AA);
+        let base = Self::resolution(width, height);
+        let mut strip = || StripVariation {
+            gain: rng.range(0.85, 1.15),
+            elevation_deg: rng.range(-6.0, 6.0),
+            falloff: rng.range(0.7, 1.4),
+        };
+        let strips = [strip(), strip(), strip(), strip()];
+        let reflectance = match rng.next_u64() % 3 {
+            0 => Reflectance::Lambert,
+            1 => Reflectance::Glossy {
+                strength: rng.range(0.05, 0.3),
+                shininess: rng.range(8.0, 40.0),
+            },
+            _ => Reflectance::Gamma(rng.range(1.4, 2.4)),
+        };
+        let spot = (rng.uniform() < 0.6).then(|| Spot {
+            x: rng.range(0.0, width as f64),
+            y: rng.range(0.0, height as f64),
+            radius: rng.range(15.0, 60.0) * base.px_per_mm / 15.0,
+            level: rng.range(30.0, 110.0),
+        });
+        Self {
+            elevation_far_deg: rng.range(24.0, 36.0),
+            elevation_near_deg: rng.range(40.0, 55.0),
+            falloff_mm: rng.range(18.0, 45.0),
+            flat_level: rng.range(80.0, 130.0),
+            reflectance,
+            ambient: rng.range(3.0, 25.0),
+            spot,
+            green_leak: rng.range(0.0, 0.12),
+            cross_leak: rng.range(0.0, 0.06),
+            strips,
+            ambient_colour: [
+                rng.range(0.8, 1.2),
+                rng.range(0.8, 1.2),
+                rng.range(0.8, 1.2),
+            ],
+            ambient_block: rng.range(0.0, 0.7),
+            exposure: rng.range(0.85, 1.1),
+            vignetting: rng.range(0.0, 0.4),
+            noise: rng.range(0.7, 2.5),
+            jpeg_quality: (rng.uniform() < 0.5).then(|| 80 + (rng.next_u64() % 16) as u8),
+            seed: rng.next_u64(),
+            ..base
         }
     }
 }
@@ -298,55 +394,127 @@ pub enum Axis {
 /// Renders the dx and dy images of `scene`. `frame` varies the noise between frames.
 pub fn render(optics: &Optics, scene: &Scene, frame: u64) -> RenderedPair {
     let truth = scene.truth(optics.width, optics.height, optics.px_per_mm);
-    render_slopes(optics, &truth.p, &truth.q, frame)
+    let (dx, dy, _) = render_truth(optics, &truth, frame, [1.0; 3]);
+    RenderedPair { dx, dy }
+}
+
+/// Renders the dx, dy and LEDs-off images of a scene's truth, the ambient light scaled
+/// by `ambient[k]` in image `k` (scene light that changes between exposures).
+pub fn render_truth(
+    optics: &Optics,
+    truth: &SceneTruth,
+    frame: u64,
+    ambient: [f64; 3],
+) -> (RgbImage, RgbImage, RgbImage) {
+    let mut rng = Rng::new(optics.seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let depth = Some(&truth.depth);
+    (
+        shade(
+            optics,
+            Some(Axis::X),
+            &truth.p,
+            &truth.q,
+            depth,
+            ambient[0],
+            &mut rng,
+        ),
+        shade(
+            optics,
+            Some(Axis::Y),
+            &truth.p,
+            &truth.q,
+            depth,
+            ambient[1],
+            &mut rng,
+        ),
+        shade(
+            optics, None, &truth.p, &truth.q, depth, ambient[2], &mut rng,
+        ),
+    )
 }
 
 /// Renders a pair from slope fields (shared by [`render`] and tests of odd inputs).
 pub fn render_slopes(optics: &Optics, p: &Grid<f32>, q: &Grid<f32>, frame: u64) -> RenderedPair {
     let mut rng = Rng::new(optics.seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
     RenderedPair {
-        dx: shade(optics, Axis::X, p, q, &mut rng),
-        dy: shade(optics, Axis::Y, p, q, &mut rng),
+        dx: shade(optics, Some(Axis::X), p, q, None, 1.0, &mut rng),
+        dy: shade(optics, Some(Axis::Y), p, q, None, 1.0, &mut rng),
     }
 }
 
-fn shade(optics: &Optics, axis: Axis, p: &Grid<f32>, q: &Grid<f32>, rng: &mut Rng) -> RgbImage {
+/// One image: the phase of `axis`, or LEDs off when `None`.
+fn shade(
+    optics: &Optics,
+    axis: Option<Axis>,
+    p: &Grid<f32>,
+    q: &Grid<f32>,
+    depth: Option<&Grid<f32>>,
+    ambient_scale: f64,
+    rng: &mut Rng,
+) -> RgbImage {
     let (w, h) = (optics.width, optics.height);
     let mm = |px: usize| (px as f64 + 0.5) / optics.px_per_mm;
     let (span_w, span_h) = (w as f64 / optics.px_per_mm, h as f64 / optics.px_per_mm);
+    // Strips (index into `optics.strips`) lit blue and red in this phase.
+    let (blue_strip, red_strip) = match axis {
+        Some(Axis::X) | None => (0, 2),
+        Some(Axis::Y) => (1, 3),
+    };
     let centre_gain = {
         let d = match axis {
-            Axis::X => span_w / 2.0,
-            Axis::Y => span_h / 2.0,
+            Some(Axis::X) | None => span_w / 2.0,
+            Some(Axis::Y) => span_h / 2.0,
         };
         1.0 / falloff(d, optics.falloff_mm)
     };
+    let half_diagonal2 = (w as f64 * w as f64 + h as f64 * h as f64) / 4.0;
     let mut img = RgbImage::new(w as u32, h as u32);
     for y in 0..h {
         for x in 0..w {
             let (px, py) = (p.get(x, y) as f64, q.get(x, y) as f64);
             let norm = (1.0 + px * px + py * py).sqrt();
             let n = [px / norm, py / norm, 1.0 / norm];
-            // Distance to the blue strip (at the low side) and to the red one.
-            let (d_blue, d_red, sign) = match axis {
-                Axis::X => (mm(x), span_w - mm(x), [1.0, 0.0]),
-                Axis::Y => (mm(y), span_h - mm(y), [0.0, 1.0]),
+            let (blue, red) = match axis {
+                None => (0.0, 0.0),
+                Some(axis) => {
+                    // Distance to the blue strip (at the low side) and to the red one.
+                    let (d_blue, d_red, sign) = match axis {
+                        Axis::X => (mm(x), span_w - mm(x), [1.0, 0.0]),
+                        Axis::Y => (mm(y), span_h - mm(y), [0.0, 1.0]),
+                    };
+                    let strip = |k: usize, d: f64, dir: [f64; 2]| {
+                        let v = &optics.strips[k];
+                        v.gain * light(optics, v, &n, d, dir) * centre_gain
+                    };
+                    (
+                        strip(blue_strip, d_blue, [-sign[0], -sign[1]]),
+                        strip(red_strip, d_red, sign),
+                    )
+                }
             };
-            let blue = light(optics, &n, d_blue, [-sign[0], -sign[1]]) * centre_gain;
-            let red = light(optics, &n, d_red, sign) * centre_gain;
             let mut spot = 0.0;
             if let Some(s) = optics.spot {
                 let r2 = (x as f64 - s.x).powi(2) + (y as f64 - s.y).powi(2);
                 spot = s.level * (-r2 / (2.0 * s.radius * s.radius)).exp();
             }
-            let white = optics.ambient + spot;
+            let pressed = depth.map_or(0.0, |d| (d.get(x, y) as f64 / 0.05).clamp(0.0, 1.0));
+            let white =
+                (optics.ambient + spot) * ambient_scale * (1.0 - optics.ambient_block * pressed);
             let level = optics.flat_level;
-            let r = level * red + white;
-            let b = level * blue + white;
-            let g = optics.green_leak * level * (red + blue) + white;
-            let mut out = [r, g, b];
-            for v in &mut out {
-                *v += optics.noise * rng.gaussian();
+            let (red, blue) = (level * red, level * blue);
+            let led = [
+                red + optics.cross_leak * blue,
+                optics.green_leak * (red + blue),
+                blue + optics.cross_leak * red,
+            ];
+            let r2 = ((x as f64 + 0.5 - w as f64 / 2.0).powi(2)
+                + (y as f64 + 0.5 - h as f64 / 2.0).powi(2))
+                / half_diagonal2;
+            let gain = optics.exposure * (1.0 - optics.vignetting * r2);
+            let mut out = [0.0; 3];
+            for (c, v) in out.iter_mut().enumerate() {
+                *v = (led[c] + white * optics.ambient_colour[c]) * gain
+                    + optics.noise * rng.gaussian();
             }
             img.put_pixel(
                 x as u32,
@@ -355,7 +523,24 @@ fn shade(optics: &Optics, axis: Axis, p: &Grid<f32>, q: &Grid<f32>, rng: &mut Rn
             );
         }
     }
-    img
+    match optics.jpeg_quality {
+        Some(quality) => jpeg_round_trip(img, quality),
+        None => img,
+    }
+}
+
+/// The image as an MJPG camera delivers it: JPEG-compressed at `quality` and decoded.
+pub fn jpeg_round_trip(img: RgbImage, quality: u8) -> RgbImage {
+    let mut bytes = Vec::new();
+    let encoded =
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, quality).encode_image(&img);
+    if encoded.is_err() {
+        return img;
+    }
+    match image::load_from_memory_with_format(&bytes, image::ImageFormat::Jpeg) {
+        Ok(decoded) => decoded.to_rgb8(),
+        Err(_) => img,
+    }
 }
 
 fn falloff(d: f64, scale: f64) -> f64 {
@@ -364,10 +549,13 @@ fn falloff(d: f64, scale: f64) -> f64 {
 
 /// Light from a strip at distance `d` mm in horizontal direction `dir`, reflected by a
 /// surface with normal `n`, relative to flat skin lit from the same place.
-fn light(optics: &Optics, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
-    let blend = (-d / optics.falloff_mm * 3.0).exp();
+fn light(optics: &Optics, strip: &StripVariation, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
+    let falloff_mm = optics.falloff_mm * strip.falloff;
+    let blend = (-d / falloff_mm * 3.0).exp();
     let elevation = (optics.elevation_far_deg
-        + (optics.elevation_near_deg - optics.elevation_far_deg) * blend)
+        + (optics.elevation_near_deg - optics.elevation_far_deg) * blend
+        + strip.elevation_deg)
+        .clamp(5.0, 85.0)
         .to_radians();
     let (se, ce) = elevation.sin_cos();
     let l = [dir[0] * ce, dir[1] * ce, se];
@@ -390,7 +578,7 @@ fn light(optics: &Optics, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
         }
         Reflectance::Gamma(gamma) => matte.max(0.0).powf(1.0 / gamma),
     };
-    value.max(0.0) * falloff(d, optics.falloff_mm)
+    value.max(0.0) * falloff(d, falloff_mm)
 }
 
 /// The benchmark's and demo's built-in scenes, laid out for `optics`' frame size.

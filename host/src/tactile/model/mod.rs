@@ -164,35 +164,53 @@ impl Background {
         }
     }
 
-    /// Full-resolution references by bilinear interpolation between block centres.
-    pub fn references(&self, width: usize, height: usize) -> References {
+    /// Planes `[red − green, blue − green, green]` at pixel position `(x, y)` (pixel
+    /// centres at `+0.5`), bilinear between block centres.
+    fn sample(&self, blocks: &[[f32; 3]], x: f32, y: f32) -> [f32; 3] {
+        let f = self.factor as f32;
+        let u = (x / f - 0.5).clamp(0.0, (self.width - 1) as f32);
+        let v = (y / f - 0.5).clamp(0.0, (self.height - 1) as f32);
+        let (i, j) = (u as usize, v as usize);
+        let (i1, j1) = ((i + 1).min(self.width - 1), (j + 1).min(self.height - 1));
+        let (fu, fv) = (u - i as f32, v - j as f32);
+        let at = |i: usize, j: usize| blocks[j * self.width + i];
+        let mut out = [0.0; 3];
+        for (c, o) in out.iter_mut().enumerate() {
+            let top = at(i, j)[c] * (1.0 - fu) + at(i1, j)[c] * fu;
+            let bottom = at(i, j1)[c] * (1.0 - fu) + at(i1, j1)[c] * fu;
+            *o = top * (1.0 - fv) + bottom * fv;
+        }
+        out
+    }
+
+    /// References at `cell`-pixel resolution over a `width × height` frame: full
+    /// resolution with `cell = 1`, detection blocks with `cell = coarse_step`.
+    pub fn references_at(&self, width: usize, height: usize, cell: usize) -> References {
+        let cell = cell.max(1);
+        let (cw, ch) = (width.div_ceil(cell), height.div_ceil(cell));
         let plane = |blocks: &[[f32; 3]]| {
-            let f = self.factor as f32;
-            let sample = move |x: usize, y: usize| {
-                let u = ((x as f32 + 0.5) / f - 0.5).clamp(0.0, (self.width - 1) as f32);
-                let v = ((y as f32 + 0.5) / f - 0.5).clamp(0.0, (self.height - 1) as f32);
-                let (i, j) = (u as usize, v as usize);
-                let (i1, j1) = ((i + 1).min(self.width - 1), (j + 1).min(self.height - 1));
-                let (fu, fv) = (u - i as f32, v - j as f32);
-                let at = |i: usize, j: usize| blocks[j * self.width + i];
-                let mut out = [0.0; 3];
-                for (c, o) in out.iter_mut().enumerate() {
-                    let top = at(i, j)[c] * (1.0 - fu) + at(i1, j)[c] * fu;
-                    let bottom = at(i, j1)[c] * (1.0 - fu) + at(i1, j1)[c] * fu;
-                    *o = top * (1.0 - fv) + bottom * fv;
-                }
-                out
-            };
             Reference::from_planes(
-                width,
-                height,
-                (0..height).flat_map(move |y| (0..width).map(move |x| sample(x, y))),
+                cw,
+                ch,
+                (0..ch).flat_map(move |j| {
+                    (0..cw).map(move |i| {
+                        // Centre of the cell (of the pixels it has, at the frame's edges).
+                        let cx = (i * cell + ((i + 1) * cell).min(width)) as f32 / 2.0;
+                        let cy = (j * cell + ((j + 1) * cell).min(height)) as f32 / 2.0;
+                        self.sample(blocks, cx, cy)
+                    })
+                }),
             )
         };
         References {
             dx: plane(&self.dx),
             dy: plane(&self.dy),
         }
+    }
+
+    /// Full-resolution references by bilinear interpolation between block centres.
+    pub fn references(&self, width: usize, height: usize) -> References {
+        self.references_at(width, height, 1)
     }
 }
 

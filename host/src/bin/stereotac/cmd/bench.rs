@@ -1,14 +1,18 @@
 //! `stereotac bench`: benchmarks on built-in synthetic data: `tactile` (time per stage
 //! against depth error), `stereo` (remap, matching per kernel, whole frame, OpenCV in
-//! the same run) and `live` (the live path under load: rates, latency, CPU, memory).
+//! the same run), `live` (the live path under load: rates, latency, CPU, memory) and
+//! `skins` (the tactile goal table on tuning and evaluation skin families).
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Subcommand;
 use stereotac::live::bench::{self as live_bench, LiveBenchOptions, LiveBenchProgress};
 use stereotac::stereo::bench::{self as stereo_bench, BenchOptions};
 use stereotac::tactile::bench::{self as tactile_bench, BenchConfig};
+use stereotac::tactile::model::ModelKind;
+use stereotac::tactile::skins::evaluate::{EvalConfig, evaluate, format_report};
+use stereotac::tactile::skins::families::{families, family};
 
 use crate::args::parse_size;
 use crate::console::json_report;
@@ -33,6 +37,43 @@ pub enum BenchWhat {
     /// cameras, interleaved mode; each stage alone, then the live loop (frames/s,
     /// latency p50/p99, CPU per frame, memory), against the goals.
     Live(LiveArgs),
+    /// Tactile goal table on skin families: each skin calibrated from its own ball
+    /// presses, then disks, edge balls, the skin at rest, depth beside contacts, region
+    /// size and time per pair. Tuning families first, then the evaluation families
+    /// (including an independent renderer) nothing was tuned on.
+    Skins(SkinsArgs),
+}
+
+/// `stereotac bench skins`.
+#[derive(Debug, clap::Args)]
+pub struct SkinsArgs {
+    /// Families to run (default: all); `--list` names them.
+    #[arg(long = "family")]
+    pub families: Vec<String>,
+    /// List the families and exit.
+    #[arg(long)]
+    pub list: bool,
+    /// Skins drawn per family (seeds 1..=N).
+    #[arg(long, default_value_t = 1)]
+    pub skins: u64,
+    /// Ball presses per calibration.
+    #[arg(long, default_value_t = 30)]
+    pub presses: usize,
+    /// Placements of each disk.
+    #[arg(long, default_value_t = 30)]
+    pub placements: usize,
+    /// Frame size.
+    #[arg(long, value_parser = parse_size, default_value = "640x480")]
+    pub size: (u32, u32),
+    /// Gradient model.
+    #[arg(long, default_value = "lut")]
+    pub model: ModelKind,
+    /// Print JSON instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the JSON report here.
+    #[arg(long)]
+    pub json_out: Option<PathBuf>,
 }
 
 /// `stereotac bench live`.
@@ -103,7 +144,70 @@ pub fn run(a: Args) -> Result<()> {
         BenchWhat::Tactile(a) => tactile(a),
         BenchWhat::Stereo(a) => stereo(a),
         BenchWhat::Live(a) => live(a),
+        BenchWhat::Skins(a) => skins(a),
     }
+}
+
+fn skins(a: SkinsArgs) -> Result<()> {
+    let all = families();
+    if a.list {
+        for f in &all {
+            println!(
+                "{:<14} {:<10} ball {:>4.1} mm  {}",
+                f.name,
+                f.role.to_string(),
+                f.ball_diameter_mm,
+                f.about
+            );
+        }
+        return Ok(());
+    }
+    let chosen: Vec<_> = if a.families.is_empty() {
+        all
+    } else {
+        a.families
+            .iter()
+            .map(|name| {
+                family(name).with_context(|| {
+                    format!(
+                        "unknown family {name:?}; known: {}",
+                        all.iter().map(|f| f.name).collect::<Vec<_>>().join(", ")
+                    )
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    anyhow::ensure!(a.skins >= 1, "--skins must be at least 1");
+    let total = chosen.len() as u64 * a.skins;
+    let progress = bar(total, "skins");
+    let mut reports = Vec::new();
+    for f in &chosen {
+        for seed in 1..=a.skins {
+            let config = EvalConfig {
+                width: a.size.0 as usize,
+                height: a.size.1 as usize,
+                skin_seed: seed,
+                presses: a.presses,
+                placements: a.placements,
+                model: a.model,
+                ..Default::default()
+            };
+            let report = evaluate(f, &config, &mut |step| {
+                progress.set_message(format!("{} {seed}: {step}", f.name));
+            });
+            progress.inc(1);
+            if !a.json {
+                progress.suspend(|| print!("{}", format_report(&report)));
+            }
+            reports.push(report);
+        }
+    }
+    progress.finish_and_clear();
+    let json = json_report(&reports, a.json_out.as_deref())?;
+    if a.json {
+        println!("{json}");
+    }
+    Ok(())
 }
 
 fn live(a: LiveArgs) -> Result<()> {

@@ -1,14 +1,15 @@
 //! `stereotac calibrate`: the tactile model from ball presses (a directory of
 //! `NAME_dx.png` / `NAME_dy.png` pairs, or a recording's dx/dy pairs), with the fitted
-//! circle of each press.
+//! circle of each press, the presses set aside and why, and the calibration report.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
 use stereotac::tactile::calibrate::{
-    CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
+    Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
+    overlay,
 };
 use stereotac::tactile::images::{load_pairs, load_references};
 
@@ -36,6 +37,22 @@ pub struct Args {
     /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
     #[arg(long)]
     pub overrides: Option<PathBuf>,
+    /// Fewest usable presses to calibrate from (presses that cannot be fitted are set
+    /// aside with their reason).
+    #[arg(long, default_value_t = 5)]
+    pub min_presses: usize,
+    /// Use this contact threshold instead of measuring it on the frames' flat skin
+    /// (normalised-colour units; flat skin reads 0).
+    #[arg(long)]
+    pub contact_threshold: Option<f32>,
+    /// Write each press's dx image with its fitted circle here (green: used, magenta:
+    /// set aside), to check the fits by eye.
+    #[arg(long)]
+    pub overlays: Option<PathBuf>,
+    /// Also write the calibration report (presses, reasons, fit per region, coverage,
+    /// warnings) as JSON here.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
     /// Model file to write.
     #[arg(long)]
     pub out: PathBuf,
@@ -60,12 +77,21 @@ pub fn run(a: Args) -> Result<()> {
         })?,
         None => HashMap::new(),
     };
-    let settings = CalibrationSettings {
+    let mut settings = CalibrationSettings {
         ball_diameter_mm: a.ball_diameter_mm,
         px_per_mm: a.px_per_mm,
+        min_presses: a.min_presses,
         overrides,
         ..Default::default()
     };
+    if let Some(t) = a.contact_threshold {
+        anyhow::ensure!(
+            t.is_finite() && t > 0.0,
+            "--contact-threshold must be a finite positive number, got {t}"
+        );
+        settings.contact.threshold = t;
+        settings.fixed_threshold = true;
+    }
     let epochs = settings.mlp.epochs;
     let progress = bar(
         (pairs.len() + 2 * epochs) as u64,
@@ -103,6 +129,9 @@ pub fn run(a: Args) -> Result<()> {
             }
         );
     }
+    for r in &cal.rejected {
+        println!("{:<16} set aside: {}", r.name, r.reason);
+    }
     let f = cal.model.fit;
     println!(
         "slope RMS: lut {:.4} (held-out {:.4}), mlp {:.4} (held-out {:.4}); {} training / {} held-out pairs, {} samples per axis",
@@ -114,8 +143,65 @@ pub fn run(a: Args) -> Result<()> {
         f.validation_pairs,
         f.samples_per_axis
     );
+    let rep = &cal.report;
+    println!(
+        "contact threshold {:.3}{}; slope RMS per region (LUT, rows top to bottom): {}",
+        rep.contact_threshold,
+        match (&rep.flat_skin_noise, settings.fixed_threshold) {
+            (_, true) => " (given)".to_string(),
+            (Some(n), false) => format!(
+                " (1.5 × the 99.99th percentile of flat skin's deviation, {} px sampled)",
+                n.pixels
+            ),
+            (None, false) => " (provisional: no flat skin to measure)".to_string(),
+        },
+        rep.regions
+            .chunks(3)
+            .map(|row| row
+                .iter()
+                .map(|r| format!("{:.3}", r.lut_rms))
+                .collect::<Vec<_>>()
+                .join(" "))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    for w in &rep.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(dir) = &a.overlays {
+        write_overlays(dir, &pairs, &cal)?;
+    }
+    if let Some(path) = &a.report {
+        let json = serde_json::json!({
+            "presses": cal.presses,
+            "rejected": cal.rejected,
+            "report": cal.report,
+            "fit": cal.model.fit,
+        });
+        std::fs::write(path, serde_json::to_vec_pretty(&json)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     cal.model.save(&a.out)?;
     println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+/// One overlay image per press: `DIR/NAME.png`.
+fn write_overlays(dir: &Path, pairs: &[CalibrationPair], cal: &Calibration) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for pair in pairs {
+        let used = cal.presses.iter().find(|p| p.name == pair.name);
+        let rejected = cal.rejected.iter().find(|r| r.name == pair.name);
+        let circle = used
+            .map(|p| p.circle)
+            .or_else(|| rejected.and_then(|r| r.circle));
+        let image = overlay(&pair.dx, circle.as_ref(), used.is_some());
+        let path = dir.join(format!("{}.png", pair.name));
+        image
+            .save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    println!("wrote {} overlays to {}", pairs.len(), dir.display());
     Ok(())
 }
 

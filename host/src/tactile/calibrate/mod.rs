@@ -1,0 +1,650 @@
+//! Calibration from ball presses: find each contact's circle, derive the true slopes from
+//! the sphere's geometry, train the gradient models, report how well they fit.
+//!
+//! For a ball of radius `R` px touching the skin in a circle of radius `r` around
+//! `(cx, cy)`, the imprint is a spherical cap, so at distance `ρ < r` from the centre
+//! `∂d/∂x = −(x − cx) / √(R² − ρ²)` (and likewise in y). This is a slope, not the angle
+//! `asin((x − cx)/R)` some papers train on, which reads steep imprints shallow.
+//!
+//! One bad press never costs the calibration: a press whose circle cannot be found or
+//! does not fit the ball is set aside with its reason ([`RejectedPress`]) and the others
+//! are used, as long as [`CalibrationSettings::min_presses`] remain. The contact
+//! threshold comes from the frames' own flat skin ([`threshold`]); circles are fitted to
+//! the touched region's outline with outliers dropped ([`circle`]); [`report`] says how
+//! well the model fits across the frame and where the presses left gaps.
+
+pub mod circle;
+pub mod report;
+pub mod threshold;
+
+use std::collections::HashMap;
+use std::fmt;
+
+use image::RgbImage;
+use serde::Serialize;
+
+pub use circle::{Circle, OutlineFit, fit_circle};
+pub use report::{CalibrationReport, overlay};
+
+use super::colour::{ColourFilter, Reference, median_image};
+use super::contact::{self, ContactParams, References};
+use super::model::{
+    AxisModel, Background, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp,
+    MlpTraining, ModelKind, Sample, TactileModel, colour_features,
+};
+
+/// One ball press found in the calibration set.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PressFit {
+    /// Pair name (file stem before `_dx`/`_dy`).
+    pub name: String,
+    /// Contact circle.
+    pub circle: Circle,
+    /// Press depth implied by the circle and the ball (mm).
+    pub depth_mm: f64,
+    /// Whether the circle came from the override file.
+    pub overridden: bool,
+    /// RMS distance of the outline pixels from the circle (px).
+    pub fit_rms_px: f64,
+}
+
+/// Why a press was not used.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Rejection {
+    /// Nothing departs from flat skin enough to be a contact.
+    NoContact {
+        /// The contact threshold in force.
+        threshold: f32,
+    },
+    /// The contact is too large for the ball: deeper than 0.6 of its radius, or the
+    /// touched region spreads beyond the imprint.
+    TooLarge {
+        /// Fitted contact radius (px).
+        contact_px: f64,
+        /// Largest plausible contact radius (px).
+        max_px: f64,
+    },
+    /// The contact is too small to teach anything (under 3 px or 0.02 mm deep).
+    TooSmall {
+        /// Fitted contact radius (px).
+        contact_px: f64,
+    },
+    /// The outline is not a circle (two contacts, a smear, a ball that slid).
+    NotCircular {
+        /// RMS distance of the outline from the circle (px).
+        rms_px: f64,
+        /// Fraction of the outline near the circle.
+        inlier_fraction: f64,
+    },
+}
+
+impl fmt::Display for Rejection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Rejection::NoContact { threshold } => write!(
+                f,
+                "no contact found (no region departs from flat skin by more than {threshold:.3}): is the ball pressed in, are the reference frames right?"
+            ),
+            Rejection::TooLarge { contact_px, max_px } => write!(
+                f,
+                "contact radius {contact_px:.1} px is larger than a ball of this size can make ({max_px:.1} px at 0.6 of its radius deep): wrong --ball-diameter-mm or --px-per-mm, or light spreading beyond the imprint"
+            ),
+            Rejection::TooSmall { contact_px } => write!(
+                f,
+                "contact radius {contact_px:.1} px is too small to calibrate with: press deeper"
+            ),
+            Rejection::NotCircular {
+                rms_px,
+                inlier_fraction,
+            } => write!(
+                f,
+                "outline is not a circle (RMS {rms_px:.2} px, {:.0}% of it on the circle): two contacts, or the ball slid",
+                inlier_fraction * 100.0
+            ),
+        }
+    }
+}
+
+/// A press set aside, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RejectedPress {
+    /// Pair name.
+    pub name: String,
+    /// The circle that was fitted, when there was one.
+    pub circle: Option<Circle>,
+    /// Why it was not used.
+    pub reason: Rejection,
+}
+
+/// Calibration settings; [`Default`] gives the documented defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationSettings {
+    /// Ball diameter (mm).
+    pub ball_diameter_mm: f64,
+    /// Scale (px per mm).
+    pub px_per_mm: f64,
+    /// Colour filter.
+    pub filter: ColourFilter,
+    /// Contact detection. Its threshold is replaced by the one measured on the frames
+    /// unless [`Self::fixed_threshold`] is set.
+    pub contact: ContactParams,
+    /// Use `contact.threshold` as given instead of measuring it on the frames.
+    pub fixed_threshold: bool,
+    /// Fewest usable presses to calibrate from.
+    pub min_presses: usize,
+    /// LUT colour bins per axis.
+    pub lut_bins: usize,
+    /// LUT spatial cells `(across, down)`.
+    pub lut_cells: (usize, usize),
+    /// MLP training.
+    pub mlp: MlpTraining,
+    /// Block size of the stored background (px).
+    pub background_factor: usize,
+    /// Circles given by hand, by pair name.
+    pub overrides: HashMap<String, Circle>,
+}
+
+impl Default for CalibrationSettings {
+    fn default() -> Self {
+        Self {
+            ball_diameter_mm: 6.0,
+            px_per_mm: 15.0,
+            filter: ColourFilter::default(),
+            contact: ContactParams::default(),
+            fixed_threshold: false,
+            min_presses: 5,
+            lut_bins: 48,
+            lut_cells: (4, 3),
+            mlp: MlpTraining::default(),
+            background_factor: 8,
+            overrides: HashMap::new(),
+        }
+    }
+}
+
+/// A named dx/dy pair of a ball press.
+#[derive(Debug, Clone)]
+pub struct CalibrationPair {
+    /// Name (file stem before `_dx`/`_dy`).
+    pub name: String,
+    /// dx image.
+    pub dx: RgbImage,
+    /// dy image.
+    pub dy: RgbImage,
+}
+
+/// Why calibration failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// No pairs.
+    #[error("no calibration pairs given")]
+    NoPairs,
+    /// Without reference frames the background is a per-pixel median, which needs presses
+    /// at three or more places.
+    #[error("{0} pair(s) and no reference frames: give --ref-dx/--ref-dy or at least 3 pairs")]
+    TooFewForMedian(usize),
+    /// An image differs in size from the first one.
+    #[error("{name}: image is {got:?}, expected {want:?} like the first pair")]
+    Size {
+        /// Pair or reference name.
+        name: String,
+        /// Its size.
+        got: (u32, u32),
+        /// Expected size.
+        want: (u32, u32),
+    },
+    /// Too few presses were usable.
+    #[error(
+        "only {good} of {total} presses are usable, at least {needed} are needed{}",
+        rejected_list(rejected)
+    )]
+    TooFewPresses {
+        /// Usable presses.
+        good: usize,
+        /// Presses given.
+        total: usize,
+        /// The minimum.
+        needed: usize,
+        /// The others, with reasons.
+        rejected: Vec<RejectedPress>,
+    },
+    /// Invalid settings.
+    #[error("invalid setting: {0}")]
+    Settings(String),
+}
+
+fn rejected_list(rejected: &[RejectedPress]) -> String {
+    let mut s = String::new();
+    for r in rejected.iter().take(12) {
+        s.push_str(&format!("\n  {}: {}", r.name, r.reason));
+    }
+    if rejected.len() > 12 {
+        s.push_str(&format!("\n  … and {} more", rejected.len() - 12));
+    }
+    s
+}
+
+/// Progress of a calibration, for a progress bar.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CalibrationProgress {
+    /// Fitting circles: `done` of `total` pairs.
+    Circles {
+        /// Done.
+        done: usize,
+        /// Total.
+        total: usize,
+    },
+    /// Training the MLP of an axis (0 = x, 1 = y): epoch and training RMS.
+    Mlp {
+        /// Axis.
+        axis: usize,
+        /// Epoch done.
+        epoch: usize,
+        /// Of.
+        epochs: usize,
+        /// Current RMS.
+        rms: f32,
+    },
+}
+
+/// The calibration result.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    /// The model to save.
+    pub model: TactileModel,
+    /// Every press used.
+    pub presses: Vec<PressFit>,
+    /// Presses set aside, with reasons.
+    pub rejected: Vec<RejectedPress>,
+    /// How well the model fits and where the presses left gaps.
+    pub report: CalibrationReport,
+}
+
+/// Deepest plausible press, as a fraction of the ball's radius.
+const MAX_DEPTH_OF_RADIUS: f64 = 0.6;
+
+/// Calibrates from ball presses. `references` are no-contact dx/dy frames; without them
+/// the per-pixel median of the pairs is the background.
+pub fn calibrate(
+    pairs: &[CalibrationPair],
+    references: Option<(&RgbImage, &RgbImage)>,
+    settings: &CalibrationSettings,
+    mut progress: impl FnMut(CalibrationProgress),
+) -> Result<Calibration, CalibrationError> {
+    let first = pairs.first().ok_or(CalibrationError::NoPairs)?;
+    for (what, v) in [
+        ("ball diameter", settings.ball_diameter_mm),
+        ("px/mm", settings.px_per_mm),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(CalibrationError::Settings(format!(
+                "{what} must be a finite positive number, got {v}"
+            )));
+        }
+    }
+    let want = first.dx.dimensions();
+    let check = |name: &str, img: &RgbImage| {
+        if img.dimensions() == want {
+            Ok(())
+        } else {
+            Err(CalibrationError::Size {
+                name: name.to_string(),
+                got: img.dimensions(),
+                want,
+            })
+        }
+    };
+    for p in pairs {
+        check(&format!("{}_dx", p.name), &p.dx)?;
+        check(&format!("{}_dy", p.name), &p.dy)?;
+    }
+    let (ref_dx, ref_dy) = match references {
+        Some((dx, dy)) => {
+            check("reference dx", dx)?;
+            check("reference dy", dy)?;
+            (dx.clone(), dy.clone())
+        }
+        None => {
+            if pairs.len() < 3 {
+                return Err(CalibrationError::TooFewForMedian(pairs.len()));
+            }
+            let dxs: Vec<&RgbImage> = pairs.iter().map(|p| &p.dx).collect();
+            let dys: Vec<&RgbImage> = pairs.iter().map(|p| &p.dy).collect();
+            (
+                median_image(&dxs).expect("sizes checked"),
+                median_image(&dys).expect("sizes checked"),
+            )
+        }
+    };
+    let refs = References {
+        dx: Reference::from_image(&ref_dx),
+        dy: Reference::from_image(&ref_dy),
+    };
+    let (w, h) = (want.0 as usize, want.1 as usize);
+    let ball_px = settings.ball_diameter_mm / 2.0 * settings.px_per_mm;
+    let max_contact_px =
+        ball_px * (1.0 - (1.0 - MAX_DEPTH_OF_RADIUS) * (1.0 - MAX_DEPTH_OF_RADIUS)).sqrt();
+
+    // Press outlines, on box means around each pixel, with a threshold measured on the
+    // frames' flat skin.
+    let maps: Vec<Vec<f32>> = pairs
+        .iter()
+        .map(|p| threshold::outline_map(p, &refs, &settings.filter))
+        .collect();
+    let fit_all = |t: f32| -> Vec<Option<OutlineFit>> {
+        maps.iter()
+            .map(|m| {
+                let unknown: Vec<bool> = m.iter().map(|d| d.is_nan()).collect();
+                circle::fit_outline(m.iter().map(|&d| d > t).collect(), Some(&unknown), w, h)
+            })
+            .collect()
+    };
+    let circles_of = |fits: &[Option<OutlineFit>]| -> Vec<Option<Circle>> {
+        fits.iter().map(|f| f.map(|f| f.circle)).collect()
+    };
+    let first_threshold = threshold::provisional(&maps);
+    let first = fit_all(first_threshold);
+    let outline_noise = threshold::from_flat_skin(
+        &maps,
+        &circles_of(&first),
+        w,
+        h,
+        threshold::FLAT_CLEARANCE_PX,
+    );
+    let outline_threshold = outline_noise.map_or(first_threshold, |n| n.threshold);
+    let fits = fit_all(outline_threshold);
+    drop(maps);
+
+    // The detection threshold, on block means, unless fixed.
+    let mut contact_params = settings.contact;
+    let step = contact_params.coarse_step.max(1);
+    let mut noise = None;
+    if !settings.fixed_threshold {
+        let block_refs = contact::block_references(&ref_dx, &ref_dy, step);
+        let blocks: Vec<Vec<f32>> = pairs
+            .iter()
+            .map(|p| threshold::block_map(p, &block_refs, &settings.filter, step))
+            .collect();
+        let circles: Vec<Option<Circle>> = circles_of(&fits)
+            .iter()
+            .map(|c| c.map(|c| threshold::in_blocks(&c, step)))
+            .collect();
+        noise = threshold::from_flat_skin(
+            &blocks,
+            &circles,
+            w.div_ceil(step),
+            h.div_ceil(step),
+            threshold::FLAT_CLEARANCE_PX / step as f64,
+        );
+        if let Some(n) = noise {
+            contact_params.threshold = n.threshold;
+        }
+    }
+
+    let mut presses = Vec::with_capacity(pairs.len());
+    let mut rejected = Vec::new();
+    let mut used = Vec::with_capacity(pairs.len());
+    for (done, (pair, fit)) in pairs.iter().zip(&fits).enumerate() {
+        progress(CalibrationProgress::Circles {
+            done: done + 1,
+            total: pairs.len(),
+        });
+        let (circle, overridden, fit_rms_px) = match (settings.overrides.get(&pair.name), fit) {
+            (Some(c), _) => (*c, true, 0.0),
+            (None, Some(f)) => {
+                // The outline came from smoothed colours; the rim is refined on the
+                // pixels' own colours, averaged around the circumference.
+                let refined = circle::refine_radius(
+                    &f.circle,
+                    w,
+                    h,
+                    2.0 * threshold::OUTLINE_BOX_RADIUS as f64 + 4.0,
+                    |x, y| {
+                        let (c, d) = contact::pixel_colours(
+                            &refs,
+                            &settings.filter,
+                            &pair.dx,
+                            &pair.dy,
+                            x,
+                            y,
+                        );
+                        if c.iter().any(|v| v.is_nan()) {
+                            f32::NAN
+                        } else {
+                            d
+                        }
+                    },
+                );
+                let circle = Circle {
+                    r: refined.unwrap_or(f.circle.r),
+                    ..f.circle
+                };
+                (circle, false, f.rms_px)
+            }
+            (None, None) => {
+                rejected.push(RejectedPress {
+                    name: pair.name.clone(),
+                    circle: None,
+                    reason: Rejection::NoContact {
+                        threshold: outline_threshold,
+                    },
+                });
+                continue;
+            }
+        };
+        let reason = if !(circle.r.is_finite() && circle.r <= max_contact_px) {
+            Some(Rejection::TooLarge {
+                contact_px: circle.r,
+                max_px: max_contact_px,
+            })
+        } else if circle.r < 3.0
+            || ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt()
+                < 0.02 * settings.px_per_mm
+        {
+            Some(Rejection::TooSmall {
+                contact_px: circle.r,
+            })
+        } else {
+            match fit {
+                Some(f)
+                    if !overridden
+                        && (f.rms_px > (0.06 * f.circle.r).max(1.5) || f.inlier_fraction < 0.6) =>
+                {
+                    Some(Rejection::NotCircular {
+                        rms_px: f.rms_px,
+                        inlier_fraction: f.inlier_fraction,
+                    })
+                }
+                _ => None,
+            }
+        };
+        if let Some(reason) = reason {
+            rejected.push(RejectedPress {
+                name: pair.name.clone(),
+                circle: Some(circle),
+                reason,
+            });
+            continue;
+        }
+        let depth_px = ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt();
+        presses.push(PressFit {
+            name: pair.name.clone(),
+            circle,
+            depth_mm: depth_px / settings.px_per_mm,
+            overridden,
+            fit_rms_px,
+        });
+        used.push(pair);
+    }
+    if presses.len() < settings.min_presses.max(1) {
+        return Err(CalibrationError::TooFewPresses {
+            good: presses.len(),
+            total: pairs.len(),
+            needed: settings.min_presses.max(1),
+            rejected,
+        });
+    }
+    let per_pair: Vec<[Vec<Sample>; 2]> = used
+        .iter()
+        .zip(&presses)
+        .map(|(pair, press)| samples(pair, &refs, &settings.filter, press.circle, ball_px, w, h))
+        .collect();
+
+    // Hold out every fifth press for validation when there are enough.
+    let count = per_pair.len();
+    let holdout = |i: usize| count >= 5 && i % 5 == 4;
+    let mut axes = Vec::with_capacity(2);
+    let mut fit_report = FitReport {
+        training_pairs: (0..count).filter(|&i| !holdout(i)).count(),
+        validation_pairs: (0..count).filter(|&i| holdout(i)).count(),
+        ..Default::default()
+    };
+    let mut all_samples: [Vec<Sample>; 2] = [Vec::new(), Vec::new()];
+    for (axis, all) in all_samples.iter_mut().enumerate() {
+        let train: Vec<Sample> = per_pair
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !holdout(*i))
+            .flat_map(|(_, s)| s[axis].iter().copied())
+            .collect();
+        let valid: Vec<Sample> = per_pair
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| holdout(*i))
+            .flat_map(|(_, s)| s[axis].iter().copied())
+            .collect();
+        let lut = Lut::fit(
+            &train,
+            settings.lut_bins,
+            LUT_MAX_COLOUR,
+            settings.lut_cells.0,
+            settings.lut_cells.1,
+        );
+        let epochs = settings.mlp.epochs;
+        let mlp = Mlp::fit(&train, &settings.mlp, |epoch, rms| {
+            progress(CalibrationProgress::Mlp {
+                axis,
+                epoch,
+                epochs,
+                rms,
+            })
+        });
+        let model = AxisModel { lut, mlp };
+        let rms = |kind, set: &[Sample]| rms_error(&model, kind, set);
+        fit_report.samples_per_axis = fit_report.samples_per_axis.max(train.len());
+        if axis == 0 {
+            fit_report.lut_train_rms = rms(ModelKind::Lut, &train);
+            fit_report.mlp_train_rms = rms(ModelKind::Mlp, &train);
+            fit_report.lut_validation_rms = rms(ModelKind::Lut, &valid);
+            fit_report.mlp_validation_rms = rms(ModelKind::Mlp, &valid);
+        } else {
+            // Report the worse of the two axes.
+            let worse = |a: &mut f32, b: f32| *a = a.max(b);
+            worse(&mut fit_report.lut_train_rms, rms(ModelKind::Lut, &train));
+            worse(&mut fit_report.mlp_train_rms, rms(ModelKind::Mlp, &train));
+            worse(
+                &mut fit_report.lut_validation_rms,
+                rms(ModelKind::Lut, &valid),
+            );
+            worse(
+                &mut fit_report.mlp_validation_rms,
+                rms(ModelKind::Mlp, &valid),
+            );
+        }
+        all.extend(train);
+        all.extend(valid);
+        axes.push(model);
+    }
+    let dy = axes.pop().expect("two axes");
+    let dx = axes.pop().expect("two axes");
+    let model = TactileModel {
+        format: MODEL_FORMAT.to_string(),
+        version: MODEL_VERSION,
+        width: w,
+        height: h,
+        px_per_mm: settings.px_per_mm,
+        ball_diameter_mm: settings.ball_diameter_mm,
+        filter: settings.filter,
+        contact: contact_params,
+        background: Background::from_images(&ref_dx, &ref_dy, settings.background_factor.max(1)),
+        dx,
+        dy,
+        fit: fit_report,
+    };
+    let report = CalibrationReport::new(
+        &model,
+        &presses,
+        &rejected,
+        pairs.len(),
+        settings.min_presses,
+        (outline_threshold, noise),
+        &all_samples,
+    );
+    Ok(Calibration {
+        model,
+        presses,
+        rejected,
+        report,
+    })
+}
+
+/// RMS slope error of `model` on `set` (0 for an empty set).
+pub fn rms_error(model: &AxisModel, kind: ModelKind, set: &[Sample]) -> f32 {
+    if set.is_empty() {
+        return 0.0;
+    }
+    let features: Vec<[f32; 4]> = set.iter().map(|s| s.features).collect();
+    let mut out = vec![0.0; set.len()];
+    model.eval(kind, &features, &mut out);
+    let sq: f64 = out
+        .iter()
+        .zip(set)
+        .map(|(o, s)| ((o - s.target) as f64).powi(2))
+        .sum();
+    (sq / set.len() as f64).sqrt() as f32
+}
+
+/// Training samples of one pair: pixels inside the contact with the sphere's slopes, and
+/// a ring of flat skin around it with slope 0.
+fn samples(
+    pair: &CalibrationPair,
+    refs: &References,
+    filter: &ColourFilter,
+    c: Circle,
+    ball_px: f64,
+    w: usize,
+    h: usize,
+) -> [Vec<Sample>; 2] {
+    let mut out = [Vec::new(), Vec::new()];
+    let outer = c.r + 15.0;
+    let x0 = (c.cx - outer).floor().max(0.0) as usize;
+    let x1 = ((c.cx + outer).ceil() as usize).min(w - 1);
+    let y0 = (c.cy - outer).floor().max(0.0) as usize;
+    let y1 = ((c.cy + outer).ceil() as usize).min(h - 1);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let (dx, dy) = (x as f64 - c.cx, y as f64 - c.cy);
+            let rho = (dx * dx + dy * dy).sqrt();
+            let slopes = if rho < c.r - 1.0 {
+                let s = (ball_px * ball_px - rho * rho).sqrt();
+                [-dx / s, -dy / s]
+            } else if rho > c.r + 3.0 && (x + y) % 3 == 0 {
+                [0.0, 0.0]
+            } else {
+                continue;
+            };
+            let position = [x as f32 / w as f32, y as f32 / h as f32];
+            let (colour, _) = contact::pixel_colours(refs, filter, &pair.dx, &pair.dy, x, y);
+            for (axis, f) in colour_features(colour).into_iter().enumerate() {
+                if let Some([r, b]) = f {
+                    out[axis].push(Sample {
+                        features: [r, b, position[0], position[1]],
+                        target: slopes[axis] as f32,
+                    });
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,266 @@
+//! What a calibration tells its user besides the model: how well the model fits in each
+//! part of the frame, which slopes and places the presses covered, warnings where they
+//! left gaps, and overlay images of each fitted circle.
+
+use image::RgbImage;
+use serde::Serialize;
+
+use super::threshold::{FlatSkinNoise, MAX_THRESHOLD};
+use super::{Circle, PressFit, RejectedPress};
+use crate::tactile::model::{Sample, TactileModel};
+
+/// The frame is judged in this many regions across and down.
+pub const REGIONS: usize = 3;
+/// Slopes below this never seen: steeper walls are extrapolated.
+pub const STEEP_SLOPE: f32 = 0.8;
+/// Presses suggested for a good model.
+const SUGGESTED_PRESSES: usize = 10;
+/// A press counts as near an edge when its centre is within this fraction of the frame.
+const EDGE_FRACTION: f64 = 0.15;
+
+/// The LUT's fit in one region of the frame (both axes together).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RegionFit {
+    /// Column (0 = left).
+    pub col: usize,
+    /// Row (0 = top).
+    pub row: usize,
+    /// Training and held-out samples in the region.
+    pub samples: usize,
+    /// RMS slope error of the LUT there.
+    pub lut_rms: f32,
+}
+
+/// Presses whose centre lies near each edge of the frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct EdgePresses {
+    /// Near x = 0.
+    pub left: usize,
+    /// Near y = 0.
+    pub top: usize,
+    /// Near x = width.
+    pub right: usize,
+    /// Near y = height.
+    pub bottom: usize,
+}
+
+/// The report of one calibration.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CalibrationReport {
+    /// Presses given.
+    pub presses_given: usize,
+    /// Presses used.
+    pub presses_used: usize,
+    /// The contact threshold stored in the model (on detection blocks).
+    pub contact_threshold: f32,
+    /// The flat skin it was measured on (absent when fixed or not measurable).
+    pub flat_skin_noise: Option<FlatSkinNoise>,
+    /// The threshold press outlines were found with (on box means around each pixel).
+    pub outline_threshold: f32,
+    /// LUT fit per region, row by row.
+    pub regions: Vec<RegionFit>,
+    /// Largest |slope| taught, along x and along y.
+    pub max_slope: [f32; 2],
+    /// Presses near each edge.
+    pub edge_presses: EdgePresses,
+    /// Where the presses left gaps or the fit is poor.
+    pub warnings: Vec<String>,
+}
+
+impl CalibrationReport {
+    /// Builds the report; `samples` are every training and held-out sample per axis.
+    pub(super) fn new(
+        model: &TactileModel,
+        presses: &[PressFit],
+        rejected: &[RejectedPress],
+        given: usize,
+        min_presses: usize,
+        (outline_threshold, noise): (f32, Option<FlatSkinNoise>),
+        samples: &[Vec<Sample>; 2],
+    ) -> Self {
+        let mut warnings = Vec::new();
+        let used = presses.len();
+        if used < SUGGESTED_PRESSES {
+            warnings.push(format!(
+                "only {used} presses used (minimum {min_presses}): {SUGGESTED_PRESSES}-30 presses spread over the frame give a better model"
+            ));
+        }
+        if !rejected.is_empty() {
+            warnings.push(format!(
+                "{} of {given} presses set aside (reasons listed per press)",
+                rejected.len()
+            ));
+        }
+        let threshold = model.contact.threshold;
+        if noise.is_some_and(|n| n.unbounded > MAX_THRESHOLD) {
+            warnings.push(format!(
+                "flat skin departs from the references by up to {:.2} (threshold held at {MAX_THRESHOLD}): are the reference frames from this sensor and these lights?",
+                noise.map_or(0.0, |n| n.p9999)
+            ));
+        }
+
+        // Fit per region.
+        let mut sums = [(0usize, 0.0f64); REGIONS * REGIONS];
+        for (axis, set) in samples.iter().enumerate() {
+            let axis_model = if axis == 0 { &model.dx } else { &model.dy };
+            for s in set {
+                let col = ((s.features[2] * REGIONS as f32) as usize).min(REGIONS - 1);
+                let row = ((s.features[3] * REGIONS as f32) as usize).min(REGIONS - 1);
+                let f = s.features;
+                let e = (axis_model.lut.eval(f[0], f[1], f[2], f[3]) - s.target) as f64;
+                let cell = &mut sums[row * REGIONS + col];
+                cell.0 += 1;
+                cell.1 += e * e;
+            }
+        }
+        let regions: Vec<RegionFit> = sums
+            .iter()
+            .enumerate()
+            .map(|(i, &(n, sq))| RegionFit {
+                col: i % REGIONS,
+                row: i / REGIONS,
+                samples: n,
+                lut_rms: if n > 0 {
+                    (sq / n as f64).sqrt() as f32
+                } else {
+                    0.0
+                },
+            })
+            .collect();
+        let mut rms: Vec<f32> = regions
+            .iter()
+            .filter(|r| r.samples > 0)
+            .map(|r| r.lut_rms)
+            .collect();
+        rms.sort_by(f32::total_cmp);
+        let typical = rms.get(rms.len() / 2).copied().unwrap_or(0.0);
+        for r in &regions {
+            let name = region_name(r.col, r.row);
+            if r.samples == 0 {
+                warnings.push(format!(
+                    "no press in the {name} region: the model is extrapolated there"
+                ));
+            } else if r.lut_rms > 2.0 * typical && r.lut_rms > 0.05 {
+                warnings.push(format!(
+                    "the fit is poor in the {name} region (slope RMS {:.3}, {typical:.3} typical)",
+                    r.lut_rms
+                ));
+            }
+        }
+
+        let max_slope = [0, 1].map(|axis| {
+            samples[axis]
+                .iter()
+                .map(|s| s.target.abs())
+                .fold(0.0f32, f32::max)
+        });
+        for (axis, m) in ["x", "y"].iter().zip(max_slope) {
+            if m < STEEP_SLOPE {
+                warnings.push(format!(
+                    "slopes along {axis} above {m:.2} were never seen: steeper walls will read shallow (press deeper, or with a smaller ball)"
+                ));
+            }
+        }
+
+        let (w, h) = (model.width as f64, model.height as f64);
+        let mut edges = EdgePresses::default();
+        for p in presses {
+            let c = p.circle;
+            edges.left += usize::from(c.cx < EDGE_FRACTION * w);
+            edges.right += usize::from(c.cx > (1.0 - EDGE_FRACTION) * w);
+            edges.top += usize::from(c.cy < EDGE_FRACTION * h);
+            edges.bottom += usize::from(c.cy > (1.0 - EDGE_FRACTION) * h);
+        }
+        for (name, n) in [
+            ("left", edges.left),
+            ("top", edges.top),
+            ("right", edges.right),
+            ("bottom", edges.bottom),
+        ] {
+            if n == 0 {
+                warnings.push(format!(
+                    "no press near the {name} edge: depth there relies on the rest of the frame"
+                ));
+            }
+        }
+        Self {
+            presses_given: given,
+            presses_used: used,
+            contact_threshold: threshold,
+            flat_skin_noise: noise,
+            outline_threshold,
+            regions,
+            max_slope,
+            edge_presses: edges,
+            warnings,
+        }
+    }
+}
+
+fn region_name(col: usize, row: usize) -> String {
+    let v = ["top", "middle", "bottom"][row.min(2)];
+    let h = ["left", "centre", "right"][col.min(2)];
+    if row == 1 && col == 1 {
+        "centre".to_string()
+    } else {
+        format!("{v}-{h}")
+    }
+}
+
+/// The dx image with the fitted circle drawn on it (green when the press was used,
+/// magenta when set aside) and a cross at its centre, to check fits by eye.
+pub fn overlay(dx: &RgbImage, circle: Option<&Circle>, used: bool) -> RgbImage {
+    let mut out = dx.clone();
+    let Some(c) = circle else { return out };
+    if !(c.cx.is_finite() && c.cy.is_finite() && c.r.is_finite()) {
+        return out;
+    }
+    let colour = if used {
+        image::Rgb([0, 255, 0])
+    } else {
+        image::Rgb([255, 0, 255])
+    };
+    let (w, h) = (out.width() as i64, out.height() as i64);
+    let mut put = |x: f64, y: f64| {
+        let (x, y) = (x.round() as i64, y.round() as i64);
+        if (0..w).contains(&x) && (0..h).contains(&y) {
+            out.put_pixel(x as u32, y as u32, colour);
+        }
+    };
+    let steps = ((c.r * 8.0).ceil() as usize).clamp(16, 20_000);
+    for k in 0..steps {
+        let a = std::f64::consts::TAU * k as f64 / steps as f64;
+        put(c.cx + c.r * a.cos(), c.cy + c.r * a.sin());
+    }
+    for d in -4..=4 {
+        put(c.cx + d as f64, c.cy);
+        put(c.cx, c.cy + d as f64);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overlays_draw_inside_the_frame_only() {
+        let img = RgbImage::new(40, 30);
+        let c = Circle {
+            cx: 35.0,
+            cy: 15.0,
+            r: 10.0,
+        };
+        let o = overlay(&img, Some(&c), true);
+        assert_eq!(o.get_pixel(25, 15).0, [0, 255, 0]);
+        assert_eq!(o.get_pixel(35, 15).0, [0, 255, 0], "centre cross");
+        assert_eq!(o.get_pixel(5, 5).0, [0, 0, 0]);
+        let r = overlay(&img, Some(&c), false);
+        assert_eq!(r.get_pixel(25, 15).0, [255, 0, 255]);
+        let nan = Circle { r: f64::NAN, ..c };
+        assert_eq!(overlay(&img, Some(&nan), true), img);
+        assert_eq!(overlay(&img, None, true), img);
+        assert_eq!(region_name(0, 0), "top-left");
+        assert_eq!(region_name(1, 1), "centre");
+    }
+}

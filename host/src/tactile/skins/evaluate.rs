@@ -1,0 +1,519 @@
+//! The tactile goal table, measured on one skin of a family: calibrate from ball presses
+//! rendered on that skin, then read 1 mm disks with gentle and steep walls at random
+//! places, balls centred on each frame edge, the skin at rest, the depth beside contacts,
+//! the size of the region of interest and the time per pair.
+//!
+//! Nothing here feeds back into the pipeline: evaluation families are only measured.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::families::{Family, Skin};
+use super::{AmbientScale, SkinFrames};
+use crate::grid::Grid;
+use crate::rng::Rng;
+use crate::tactile::bench::errors;
+use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate};
+use crate::tactile::contact::dilate;
+use crate::tactile::model::ModelKind;
+use crate::tactile::poisson::SolverKind;
+use crate::tactile::reconstruct::Reconstructor;
+use crate::tactile::render::{Scene, Shape};
+use crate::timing::median;
+
+/// What to measure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalConfig {
+    /// Frame width (15 px/mm at 640).
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
+    /// Which skin of the family (seed).
+    pub skin_seed: u64,
+    /// Ball presses to calibrate from.
+    pub presses: usize,
+    /// Placements of each disk.
+    pub placements: usize,
+    /// Frames of the skin at rest.
+    pub rest_frames: usize,
+    /// Diameter of the disks' flat bottom (mm); the is 13.
+    pub disk_diameter_mm: f64,
+    /// Gradient model.
+    pub model: ModelKind,
+    /// Solver.
+    pub solver: SolverKind,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            skin_seed: 1,
+            presses: 30,
+            placements: 30,
+            rest_frames: 10,
+            disk_diameter_mm: 13.0,
+            model: ModelKind::Lut,
+            solver: SolverKind::Dct,
+        }
+    }
+}
+
+/// Mean, spread and range of a set of readings (mm).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Readings {
+    /// Count.
+    pub n: usize,
+    /// Mean.
+    pub mean: f64,
+    /// Sample standard deviation.
+    pub std: f64,
+    /// Smallest.
+    pub min: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Readings {
+    fn of(v: &[f64]) -> Option<Self> {
+        if v.is_empty() {
+            return None;
+        }
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+        Some(Self {
+            n: v.len(),
+            mean,
+            std: var.sqrt(),
+            min: v.iter().copied().fold(f64::INFINITY, f64::min),
+            max: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        })
+    }
+}
+
+/// How calibration went.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CalibrationOutcome {
+    /// Presses rendered.
+    pub given: usize,
+    /// Presses used (0 when calibration failed).
+    pub used: usize,
+    /// `name: reason` of each press set aside.
+    pub rejected: Vec<String>,
+    /// The error when calibration did not complete.
+    pub error: Option<String>,
+    /// Contact threshold in the model.
+    pub threshold: f32,
+    /// LUT slope RMS on training / held-out presses.
+    pub lut_rms: [f32; 2],
+    /// The report's warnings.
+    pub warnings: Vec<String>,
+}
+
+/// The goal table of one skin.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FamilyReport {
+    /// Family name.
+    pub family: String,
+    /// Tuning or evaluation.
+    pub role: String,
+    /// Skin seed.
+    pub skin_seed: u64,
+    /// Calibration.
+    pub calibration: CalibrationOutcome,
+    /// 1 mm disk, wall slope 0.79: plateau readings.
+    pub disk: Option<Readings>,
+    /// 1 mm disk, wall slope 1.31.
+    pub steep_disk: Option<Readings>,
+    /// Ball centred on each frame edge: reconstructed / true peak (smallest of four).
+    pub edge_peak_ratio: Option<f64>,
+    /// Skin at rest: frames reported as contact.
+    pub rest_contacts: Option<usize>,
+    /// Skin at rest: largest |depth| (mm).
+    pub rest_max_mm: Option<f64>,
+    /// Largest |depth| more than 3 mm from any imprint (mm), over the gentle disks.
+    pub beside_max_mm: Option<f64>,
+    /// Largest ratio of the regions' area to the imprint's, over the gentle disks.
+    pub roi_ratio: Option<f64>,
+    /// Median time of a contact pair (gentle disk) and of a pair at rest (ms).
+    pub pair_ms: Option<[f64; 2]>,
+}
+
+/// Slopes of the gentle and steep disk walls in the goal table.
+pub const WALL_SLOPES: [f64; 2] = [0.79, 1.31];
+
+/// Measures the goal table on the skin `config.skin_seed` of `family`.
+pub fn evaluate(
+    family: &Family,
+    config: &EvalConfig,
+    progress: &mut dyn FnMut(&str),
+) -> FamilyReport {
+    let skin = family.skin(config.width, config.height, config.skin_seed);
+    let mut report = evaluate_skin(&skin, family.ball_diameter_mm, config, progress);
+    report.family = family.name.to_string();
+    report.role = family.role.to_string();
+    report
+}
+
+/// Measures the goal table on `skin`, calibrated with a ball of `ball_diameter_mm`
+/// (family and role left empty).
+pub fn evaluate_skin(
+    skin: &Skin,
+    ball_diameter_mm: f64,
+    config: &EvalConfig,
+    progress: &mut dyn FnMut(&str),
+) -> FamilyReport {
+    let ppm = skin.px_per_mm();
+    let (w, h) = skin.size();
+    let mut report = FamilyReport {
+        family: String::new(),
+        role: String::new(),
+        skin_seed: config.skin_seed,
+        calibration: CalibrationOutcome {
+            given: config.presses,
+            used: 0,
+            rejected: Vec::new(),
+            error: None,
+            threshold: 0.0,
+            lut_rms: [0.0; 2],
+            warnings: Vec::new(),
+        },
+        disk: None,
+        steep_disk: None,
+        edge_peak_ratio: None,
+        rest_contacts: None,
+        rest_max_mm: None,
+        beside_max_mm: None,
+        roi_ratio: None,
+        pair_ms: None,
+    };
+    progress("rendering references and presses");
+    let refs = skin.references(8);
+    let presses = ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed);
+    progress("calibrating");
+    let settings = CalibrationSettings {
+        ball_diameter_mm,
+        px_per_mm: ppm,
+        ..Default::default()
+    };
+    let cal = match calibrate(&presses, Some((&refs.dx, &refs.dy)), &settings, |_| {}) {
+        Ok(cal) => cal,
+        Err(e) => {
+            report.calibration.error = Some(e.to_string());
+            return report;
+        }
+    };
+    let c = &mut report.calibration;
+    c.used = cal.presses.len();
+    c.rejected = cal
+        .rejected
+        .iter()
+        .map(|r| format!("{}: {}", r.name, r.reason))
+        .collect();
+    c.threshold = cal.model.contact.threshold;
+    c.lut_rms = [
+        cal.model.fit.lut_train_rms,
+        cal.model.fit.lut_validation_rms,
+    ];
+    c.warnings = cal.report.warnings.clone();
+    let mut rec = match Reconstructor::new(
+        cal.model,
+        config.model,
+        config.solver,
+        Some((&refs.dx, &refs.dy)),
+    ) {
+        Ok(r) => r,
+        Err(e) => {
+            report.calibration.error = Some(e.to_string());
+            return report;
+        }
+    };
+    let mut read = |frames: &SkinFrames| rec.reconstruct(&frames.dx, &frames.dy);
+
+    // Disks at random places.
+    let mut rng = Rng::new(config.skin_seed ^ 0xD15C);
+    let (wmm, hmm) = (w as f64 / ppm, h as f64 / ppm);
+    let mut contact_ms = Vec::new();
+    let mut beside_max = 0.0f64;
+    let mut roi_ratio = 0.0f64;
+    for (k, slope) in WALL_SLOPES.into_iter().enumerate() {
+        progress(&format!("disks with wall slope {slope}"));
+        let wall = 1.0 / slope;
+        let margin = config.disk_diameter_mm / 2.0 + wall + 1.0;
+        if 2.0 * margin >= wmm.min(hmm) {
+            continue;
+        }
+        let scenes: Vec<Scene> = (0..config.placements)
+            .map(|_| Scene {
+                shapes: vec![Shape::Disk {
+                    cx: rng.range(margin, wmm - margin),
+                    cy: rng.range(margin, hmm - margin),
+                    diameter: config.disk_diameter_mm,
+                    depth: 1.0,
+                    wall,
+                    linear: true,
+                }],
+            })
+            .collect();
+        let frames = render_all(skin, &scenes, 2000 + 100 * k as u64);
+        let mut readings = Vec::new();
+        for (scene, f) in scenes.iter().zip(&frames) {
+            let truth = scene.truth(w, h, ppm).depth;
+            let Ok(r) = read(f) else { continue };
+            readings.push(errors(&r.depth_mm, &truth).reading_mm);
+            if k == 0 {
+                contact_ms.push(r.timings.total_ms);
+                beside_max =
+                    beside_max.max(beside(&r.depth_mm, &truth, (3.0 * ppm).round() as usize));
+                let imprint = truth.as_slice().iter().filter(|&&d| d > 0.0).count().max(1);
+                let area: usize = r.regions.iter().map(|r| r.area()).sum();
+                roi_ratio = roi_ratio.max(area as f64 / imprint as f64);
+            }
+        }
+        let stats = Readings::of(&readings);
+        if k == 0 {
+            report.disk = stats;
+            report.beside_max_mm = Some(beside_max);
+            report.roi_ratio = Some(roi_ratio);
+        } else {
+            report.steep_disk = stats;
+        }
+    }
+
+    // Balls centred on each edge.
+    progress("balls on the edges");
+    let d = ball_diameter_mm;
+    let depth = 1.0f64.min(0.5 * d / 2.0);
+    let edge_scenes: Vec<Scene> = [
+        (0.0, hmm / 2.0),
+        (wmm, hmm / 2.0),
+        (wmm / 2.0, 0.0),
+        (wmm / 2.0, hmm),
+    ]
+    .into_iter()
+    .map(|(cx, cy)| Scene {
+        shapes: vec![Shape::Ball {
+            cx,
+            cy,
+            diameter: d,
+            depth,
+        }],
+    })
+    .collect();
+    let frames = render_all(skin, &edge_scenes, 3000);
+    let mut ratio = f64::INFINITY;
+    for (scene, f) in edge_scenes.iter().zip(&frames) {
+        let truth = scene.truth(w, h, ppm).depth;
+        let true_peak = truth.as_slice().iter().copied().fold(0.0f32, f32::max) as f64;
+        let peak = match read(f) {
+            Ok(r) => r.depth_mm.as_slice().iter().copied().fold(0.0f32, f32::max) as f64,
+            Err(_) => 0.0,
+        };
+        if true_peak > 0.0 {
+            ratio = ratio.min(peak / true_peak);
+        }
+    }
+    report.edge_peak_ratio = ratio.is_finite().then_some(ratio);
+
+    // The skin at rest.
+    progress("skin at rest");
+    let rest: Vec<Scene> = vec![Scene::default(); config.rest_frames];
+    let frames = render_all(skin, &rest, 4000);
+    let (mut contacts, mut max_abs, mut rest_ms) = (0, 0.0f64, Vec::new());
+    for f in &frames {
+        if let Ok(r) = read(f) {
+            contacts += usize::from(!r.no_contact());
+            max_abs = max_abs.max(
+                r.depth_mm
+                    .as_slice()
+                    .iter()
+                    .fold(0.0f32, |m, d| m.max(d.abs())) as f64,
+            );
+            rest_ms.push(r.timings.total_ms);
+        }
+    }
+    report.rest_contacts = Some(contacts);
+    report.rest_max_mm = Some(max_abs);
+    if !contact_ms.is_empty() && !rest_ms.is_empty() {
+        report.pair_ms = Some([median(contact_ms), median(rest_ms)]);
+    }
+    report
+}
+
+/// Renders every scene (in parallel), frame numbers from `first_frame`.
+fn render_all(skin: &Skin, scenes: &[Scene], first_frame: u64) -> Vec<SkinFrames> {
+    scenes
+        .par_iter()
+        .enumerate()
+        .map(|(i, s)| skin.render(s, first_frame + i as u64, AmbientScale::STEADY))
+        .collect()
+}
+
+/// `count` presses of a ball of `diameter` mm, 0.8–1.2 mm deep (at most half its radius):
+/// a quarter of them centred on a frame edge, the rest anywhere inside.
+pub fn ball_presses(skin: &Skin, diameter: f64, count: usize, seed: u64) -> Vec<CalibrationPair> {
+    let mut rng = Rng::new(seed ^ 0xBA11);
+    let ppm = skin.px_per_mm();
+    let (w, h) = skin.size();
+    let (wmm, hmm) = (w as f64 / ppm, h as f64 / ppm);
+    let scenes: Vec<Scene> = (0..count)
+        .map(|k| {
+            let depth = rng.range(0.8, 1.2).min(diameter / 4.0);
+            let r = diameter / 2.0;
+            let contact = (2.0 * r * depth - depth * depth).sqrt();
+            let (cx, cy) = if k % 4 == 3 {
+                match rng.next_u64() % 4 {
+                    0 => (0.0, rng.range(contact, hmm - contact)),
+                    1 => (wmm, rng.range(contact, hmm - contact)),
+                    2 => (rng.range(contact, wmm - contact), 0.0),
+                    _ => (rng.range(contact, wmm - contact), hmm),
+                }
+            } else {
+                (
+                    rng.range(contact, wmm - contact),
+                    rng.range(contact, hmm - contact),
+                )
+            };
+            Scene {
+                shapes: vec![Shape::Ball {
+                    cx,
+                    cy,
+                    diameter,
+                    depth,
+                }],
+            }
+        })
+        .collect();
+    render_all(skin, &scenes, 1000)
+        .into_iter()
+        .enumerate()
+        .map(|(k, f)| CalibrationPair {
+            name: format!("press{k:02}"),
+            dx: f.dx,
+            dy: f.dy,
+        })
+        .collect()
+}
+
+/// Largest |depth| at pixels more than `clearance` px (Chebyshev) from every pixel the
+/// truth marks as pressed.
+fn beside(depth: &Grid<f32>, truth: &Grid<f32>, clearance: usize) -> f64 {
+    let (w, h) = (truth.width(), truth.height());
+    let mut near: Vec<bool> = truth.as_slice().iter().map(|&d| d > 0.0).collect();
+    dilate(&mut near, w, h, clearance);
+    depth
+        .as_slice()
+        .iter()
+        .zip(&near)
+        .filter(|(_, n)| !**n)
+        .fold(0.0f64, |m, (d, _)| m.max(d.abs() as f64))
+}
+
+/// Goals of the table, as (row name, goal text, check).
+pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)> {
+    let mut rows = Vec::new();
+    let mm = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+    rows.push((
+        "calibration".to_string(),
+        "completes; bad presses skipped with reasons".to_string(),
+        match &r.calibration.error {
+            Some(e) => format!("FAILED: {}", e.lines().next().unwrap_or("")),
+            None => format!(
+                "{}/{} presses used, threshold {:.3}, slope RMS {:.3}/{:.3}",
+                r.calibration.used,
+                r.calibration.given,
+                r.calibration.threshold,
+                r.calibration.lut_rms[0],
+                r.calibration.lut_rms[1]
+            ),
+        },
+        Some(r.calibration.error.is_none()),
+    ));
+    let disk = |d: &Option<Readings>| {
+        d.map_or("-".to_string(), |d| {
+            format!(
+                "{:.3} ± {:.3} mm (min {:.3}, max {:.3}, n {})",
+                d.mean, d.std, d.min, d.max, d.n
+            )
+        })
+    };
+    rows.push((
+        "1 mm disk, wall 0.79".to_string(),
+        "mean 1.00 ± 0.02, std ≤ 0.02".to_string(),
+        disk(&r.disk),
+        r.disk
+            .map(|d| (d.mean - 1.0).abs() <= 0.02 && d.std <= 0.02),
+    ));
+    rows.push((
+        "1 mm disk, wall 1.31".to_string(),
+        "mean ≥ 0.90".to_string(),
+        disk(&r.steep_disk),
+        r.steep_disk.map(|d| d.mean >= 0.90),
+    ));
+    rows.push((
+        "ball centred on the edge".to_string(),
+        "≥ 0.95 of the true peak".to_string(),
+        r.edge_peak_ratio
+            .map_or("-".to_string(), |v| format!("{v:.3} (worst of 4 edges)")),
+        r.edge_peak_ratio.map(|v| v >= 0.95),
+    ));
+    rows.push((
+        "skin at rest".to_string(),
+        "no contact, depth ≤ 0.02".to_string(),
+        match (r.rest_contacts, r.rest_max_mm) {
+            (Some(c), Some(m)) => format!("{c} contact frames, max {m:.3} mm"),
+            _ => "-".to_string(),
+        },
+        r.rest_contacts
+            .zip(r.rest_max_mm)
+            .map(|(c, m)| c == 0 && m <= 0.02),
+    ));
+    rows.push((
+        "beside a contact (> 3 mm)".to_string(),
+        "within ±0.02".to_string(),
+        mm(r.beside_max_mm),
+        r.beside_max_mm.map(|v| v <= 0.02),
+    ));
+    rows.push((
+        "region of interest".to_string(),
+        "≤ 3× the imprint".to_string(),
+        r.roi_ratio.map_or("-".to_string(), |v| format!("{v:.2}×")),
+        r.roi_ratio.map(|v| v <= 3.0),
+    ));
+    rows.push((
+        "time per pair".to_string(),
+        "contact ≤ 3 ms; rest ≥ 20× cheaper".to_string(),
+        r.pair_ms.map_or("-".to_string(), |[c, n]| {
+            format!(
+                "contact {c:.2} ms, rest {n:.3} ms ({:.0}×)",
+                c / n.max(1e-6)
+            )
+        }),
+        r.pair_ms.map(|[c, n]| c <= 3.0 && c >= 20.0 * n),
+    ));
+    rows
+}
+
+/// The report as a table.
+pub fn format_report(r: &FamilyReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "{} ({}, skin {}):", r.family, r.role, r.skin_seed);
+    for (name, goal, got, ok) in goal_rows(r) {
+        let mark = match ok {
+            Some(true) => "met",
+            Some(false) => "MISSED",
+            None => "n/a",
+        };
+        let _ = writeln!(s, "  {name:<26} {goal:<44} {got}  [{mark}]");
+    }
+    for rej in &r.calibration.rejected {
+        let _ = writeln!(s, "    set aside: {rej}");
+    }
+    for warn in &r.calibration.warnings {
+        let _ = writeln!(s, "    warning: {warn}");
+    }
+    s
+}

@@ -1,0 +1,185 @@
+//! Named skin families, split into the ones we tune the pipeline on and the ones we only
+//! judge it on.
+//!
+//! A family is a generator of skins: the seed draws one skin's physics. Tuning families
+//! come from our renderer; evaluation families include held-out draws of our renderer and
+//! two families of the independent renderer ([`super::physical`]), which nothing in the
+//! pipeline was tuned on.
+
+use std::fmt;
+
+use super::physical::{PhysicalParams, PhysicalSkin};
+use super::{AmbientScale, SkinFrames};
+use crate::tactile::render::{Optics, Scene, render_truth};
+
+/// What a family may be used for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Thresholds and defaults may be chosen looking at it.
+    Tuning,
+    /// Only ever measured.
+    Evaluation,
+}
+
+impl fmt::Display for Role {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Role::Tuning => "tuning",
+            Role::Evaluation => "evaluation",
+        })
+    }
+}
+
+/// One simulated skin, whichever renderer draws it.
+#[derive(Debug, Clone)]
+pub enum Skin {
+    /// Our renderer.
+    Ours(Box<Optics>),
+    /// The independent renderer.
+    Physical(Box<PhysicalSkin>),
+}
+
+impl Skin {
+    /// Frame size `(width, height)`.
+    pub fn size(&self) -> (usize, usize) {
+        match self {
+            Skin::Ours(o) => (o.width, o.height),
+            Skin::Physical(p) => (p.params().width, p.params().height),
+        }
+    }
+
+    /// Scale (px per mm).
+    pub fn px_per_mm(&self) -> f64 {
+        match self {
+            Skin::Ours(o) => o.px_per_mm,
+            Skin::Physical(p) => p.params().px_per_mm,
+        }
+    }
+
+    /// The dx, dy and dark frames of `scene`; `frame` varies the noise.
+    pub fn render(&self, scene: &Scene, frame: u64, ambient: AmbientScale) -> SkinFrames {
+        let (w, h) = self.size();
+        let truth = scene.truth(w, h, self.px_per_mm());
+        match self {
+            Skin::Ours(o) => {
+                let (dx, dy, dark) =
+                    render_truth(o, &truth, frame, [ambient.dx, ambient.dy, ambient.dark]);
+                SkinFrames { dx, dy, dark }
+            }
+            Skin::Physical(p) => p.render(&truth.depth, frame, ambient),
+        }
+    }
+
+    /// No-contact frames averaged over `count` exposures, as a careful user would capture
+    /// the references.
+    pub fn references(&self, count: usize) -> SkinFrames {
+        let count = count.max(1);
+        let (w, h) = self.size();
+        let mut sums = [
+            vec![0u32; w * h * 3],
+            vec![0u32; w * h * 3],
+            vec![0u32; w * h * 3],
+        ];
+        for k in 0..count {
+            let f = self.render(&Scene::default(), 500_000 + k as u64, AmbientScale::STEADY);
+            for (sum, img) in sums.iter_mut().zip([&f.dx, &f.dy, &f.dark]) {
+                for (s, v) in sum.iter_mut().zip(img.as_raw()) {
+                    *s += u32::from(*v);
+                }
+            }
+        }
+        let [dx, dy, dark] = sums.map(|sum| {
+            let raw = sum
+                .iter()
+                .map(|s| ((*s as f64 / count as f64).round()) as u8)
+                .collect();
+            image::RgbImage::from_raw(w as u32, h as u32, raw).expect("w*h*3 values")
+        });
+        SkinFrames { dx, dy, dark }
+    }
+}
+
+/// A named generator of skins.
+#[derive(Debug, Clone, Copy)]
+pub struct Family {
+    /// Name used on the command line and in reports.
+    pub name: &'static str,
+    /// Tuning or evaluation.
+    pub role: Role,
+    /// Diameter of the calibration ball pressed into it (mm).
+    pub ball_diameter_mm: f64,
+    /// One line on what it models.
+    pub about: &'static str,
+    build: fn(usize, usize, u64) -> Skin,
+}
+
+impl Family {
+    /// The skin of this family drawn by `seed`, at `width × height` (15 px/mm at 640
+    /// wide, scaling with the width).
+    pub fn skin(&self, width: usize, height: usize, seed: u64) -> Skin {
+        (self.build)(width, height, seed)
+    }
+}
+
+/// Seeds of our renderer's evaluation draws start here; tuning draws stay below.
+const HELD_OUT_SEEDS: u64 = 1 << 32;
+
+/// Every family, tuning ones first.
+pub fn families() -> Vec<Family> {
+    vec![
+        Family {
+            name: "ours-nominal",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "our renderer, nominal optics (the demo's skin)",
+            build: |w, h, _| Skin::Ours(Box::new(Optics::resolution(w, h))),
+        },
+        Family {
+            name: "ours-random",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "our renderer, physics drawn at random (tuning draws)",
+            build: |w, h, seed| Skin::Ours(Box::new(Optics::random(w, h, seed % HELD_OUT_SEEDS))),
+        },
+        Family {
+            name: "ours-held-out",
+            role: Role::Evaluation,
+            ball_diameter_mm: 8.0,
+            about: "our renderer, physics drawn at random (held-out draws, 8 mm ball)",
+            build: |w, h, seed| Skin::Ours(Box::new(Optics::random(w, h, HELD_OUT_SEEDS + seed))),
+        },
+        Family {
+            name: "phys-matte",
+            role: Role::Evaluation,
+            ball_diameter_mm: 8.0,
+            about: "independent renderer: point LEDs, Oren-Nayar + weak GGX, crosstalk, ceiling spot, MJPG",
+            build: |w, h, seed| {
+                Skin::Physical(Box::new(PhysicalSkin::new(PhysicalParams::matte(
+                    w,
+                    h,
+                    15.0 * w as f64 / 640.0,
+                    seed,
+                ))))
+            },
+        },
+        Family {
+            name: "phys-glossy",
+            role: Role::Evaluation,
+            ball_diameter_mm: 6.0,
+            about: "independent renderer: display gamma, glossy skin, low LED light, vignetting, MJPG",
+            build: |w, h, seed| {
+                Skin::Physical(Box::new(PhysicalSkin::new(PhysicalParams::glossy(
+                    w,
+                    h,
+                    15.0 * w as f64 / 640.0,
+                    seed,
+                ))))
+            },
+        },
+    ]
+}
+
+/// The family called `name`.
+pub fn family(name: &str) -> Option<Family> {
+    families().into_iter().find(|f| f.name == name)
+}

@@ -1,0 +1,166 @@
+//! Local means of the phase images. A single pixel's colour is too noisy to say whether
+//! the skin is touched (a cheap camera's shot noise and MJPG chroma noise reach several
+//! percent per channel); the mean over a small neighbourhood is not. Detection works on
+//! the means of `step × step` blocks ([`BlockMeans`], one read of each pixel, integer
+//! sums); calibration finds press outlines on box means around every pixel
+//! ([`box_means`]).
+
+use image::RgbImage;
+
+/// Mean RGB of each `step × step` block of an image (partial blocks at the right and
+/// bottom edges average the pixels they have).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockMeans {
+    /// Block size (px).
+    pub step: usize,
+    /// Blocks across.
+    pub width: usize,
+    /// Blocks down.
+    pub height: usize,
+    /// Mean `[R, G, B]` per block, row by row.
+    pub means: Vec<[f32; 3]>,
+}
+
+impl BlockMeans {
+    /// Block means of `image`.
+    pub fn of(image: &RgbImage, step: usize) -> Self {
+        let step = step.max(1);
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
+        let mut sums = vec![[0u32; 3]; bw * bh];
+        let raw = image.as_raw();
+        for y in 0..h {
+            let row = &raw[y * w * 3..(y + 1) * w * 3];
+            let out = &mut sums[(y / step) * bw..(y / step + 1) * bw];
+            for (bx, chunk) in row.chunks(step * 3).enumerate() {
+                let s = &mut out[bx];
+                for px in chunk.chunks_exact(3) {
+                    s[0] += u32::from(px[0]);
+                    s[1] += u32::from(px[1]);
+                    s[2] += u32::from(px[2]);
+                }
+            }
+        }
+        let means = sums
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let (bx, by) = (i % bw, i / bw);
+                let cw = (w - bx * step).min(step);
+                let ch = (h - by * step).min(step);
+                let n = (cw * ch) as f32;
+                s.map(|v| v as f32 / n)
+            })
+            .collect();
+        Self {
+            step,
+            width: bw,
+            height: bh,
+            means,
+        }
+    }
+}
+
+/// Mean RGB over the `(2r + 1)²` box around every pixel (clipped at the frame's edges),
+/// row by row.
+pub fn box_means(image: &RgbImage, r: usize) -> Vec<[f32; 3]> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    // Horizontal running sums, then vertical.
+    let mut horizontal = vec![[0u32; 3]; w * h];
+    for y in 0..h {
+        let mut acc = [0u32; 3];
+        let px = |x: usize| image.get_pixel(x as u32, y as u32).0;
+        for x in 0..(w + r) {
+            if x < w {
+                let p = px(x);
+                for c in 0..3 {
+                    acc[c] += u32::from(p[c]);
+                }
+            }
+            if x > 2 * r {
+                let p = px(x - 2 * r - 1);
+                for c in 0..3 {
+                    acc[c] -= u32::from(p[c]);
+                }
+            }
+            if x >= r {
+                horizontal[y * w + x - r] = acc;
+            }
+        }
+    }
+    let mut out = vec![[0f32; 3]; w * h];
+    for x in 0..w {
+        let cols = (x + r + 1).min(w) - x.saturating_sub(r);
+        let mut acc = [0u32; 3];
+        for y in 0..(h + r) {
+            if y < h {
+                for c in 0..3 {
+                    acc[c] += horizontal[y * w + x][c];
+                }
+            }
+            if y > 2 * r {
+                for c in 0..3 {
+                    acc[c] -= horizontal[(y - 2 * r - 1) * w + x][c];
+                }
+            }
+            if y >= r {
+                let yy = y - r;
+                let rows = (yy + r + 1).min(h) - yy.saturating_sub(r);
+                let n = (rows * cols) as f32;
+                out[yy * w + x] = acc.map(|v| v as f32 / n);
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(w: u32, h: u32) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| image::Rgb([x as u8, y as u8, (x + y) as u8]))
+    }
+
+    #[test]
+    fn block_means_average_whole_and_partial_blocks() {
+        let img = ramp(10, 6);
+        let b = BlockMeans::of(&img, 4);
+        assert_eq!((b.width, b.height), (3, 2));
+        assert_eq!(b.means[0], [1.5, 1.5, 3.0]);
+        // The last column of blocks holds x = 8, 9; the last row y = 4, 5.
+        assert_eq!(b.means[5], [8.5, 4.5, 13.0]);
+        assert_eq!(BlockMeans::of(&img, 0).means.len(), 60);
+    }
+
+    #[test]
+    fn box_means_match_a_direct_sum() {
+        let img = ramp(9, 7);
+        let r = 2;
+        let fast = box_means(&img, r);
+        for y in 0..7usize {
+            for x in 0..9usize {
+                let mut s = [0f32; 3];
+                let mut n = 0.0;
+                for yy in y.saturating_sub(r)..(y + r + 1).min(7) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(9) {
+                        let p = img.get_pixel(xx as u32, yy as u32).0;
+                        for c in 0..3 {
+                            s[c] += p[c] as f32;
+                        }
+                        n += 1.0;
+                    }
+                }
+                let want = s.map(|v| v / n);
+                let got = fast[y * 9 + x];
+                for c in 0..3 {
+                    assert!(
+                        (got[c] - want[c]).abs() < 1e-4,
+                        "({x},{y}) {got:?} {want:?}"
+                    );
+                }
+            }
+        }
+        assert!(box_means(&RgbImage::new(0, 0), 2).is_empty());
+    }
+}

@@ -1,0 +1,113 @@
+//! Skin families: every family follows the sensor's conventions, and the whole tactile
+//! chain (calibration from the family's own presses, reconstruction) holds on a small
+//! frame of a tuning family and of the independent renderer.
+
+use stereotac::tactile::render::{Scene, Shape};
+use stereotac::tactile::skins::AmbientScale;
+use stereotac::tactile::skins::evaluate::{EvalConfig, evaluate, format_report};
+use stereotac::tactile::skins::families::{Role, families, family};
+
+#[test]
+fn every_family_lights_a_ball_by_the_conventions() {
+    let fams = families();
+    assert!(fams.iter().any(|f| f.role == Role::Tuning));
+    assert!(fams.iter().filter(|f| f.role == Role::Evaluation).count() >= 2);
+    for f in fams {
+        for seed in 1..=2 {
+            let skin = f.skin(320, 240, seed);
+            let ppm = skin.px_per_mm();
+            let (cx, cy) = (160.0 / ppm, 120.0 / ppm);
+            // 1.5 mm from the centre, inside the 2.65 mm contact radius.
+            let off = (1.5 * ppm).round() as u32;
+            let scene = Scene {
+                shapes: vec![Shape::Ball {
+                    cx,
+                    cy,
+                    diameter: 8.0,
+                    depth: 1.0,
+                }],
+            };
+            let frames = skin.render(&scene, 1, AmbientScale::STEADY);
+            let rb = |img: &image::RgbImage, x: u32, y: u32| {
+                let p = img.get_pixel(x, y).0;
+                p[0] as i32 - p[2] as i32
+            };
+            let flat = skin.render(&Scene::default(), 1, AmbientScale::STEADY);
+            // Left of the centre faces the red strip in dx, right of it the blue one;
+            // below the centre faces the blue strip in dy (relative to flat skin).
+            let name = format!("{} skin {seed}", f.name);
+            assert!(
+                rb(&frames.dx, 160 - off, 120) - rb(&flat.dx, 160 - off, 120) > 10,
+                "{name}: left not redder"
+            );
+            assert!(
+                rb(&frames.dx, 160 + off, 120) - rb(&flat.dx, 160 + off, 120) < -10,
+                "{name}: right not bluer"
+            );
+            assert!(
+                rb(&frames.dy, 160, 120 + off) - rb(&flat.dy, 160, 120 + off) < -10,
+                "{name}: below not bluer"
+            );
+            let lum = |img: &image::RgbImage| {
+                img.pixels()
+                    .map(|p| p.0.iter().map(|&c| c as u64).sum::<u64>())
+                    .sum::<u64>()
+            };
+            assert!(
+                lum(&flat.dark) * 2 < lum(&flat.dx),
+                "{name}: dark frame not dark"
+            );
+        }
+    }
+}
+
+fn small() -> EvalConfig {
+    EvalConfig {
+        width: 320,
+        height: 240,
+        presses: 12,
+        placements: 4,
+        rest_frames: 3,
+        disk_diameter_mm: 5.0,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn the_chain_holds_on_a_tuning_and_an_independent_family() {
+    for (name, disk_tolerance) in [("ours-nominal", 0.05), ("phys-matte", 0.25)] {
+        let f = family(name).unwrap();
+        let r = evaluate(&f, &small(), &mut |_| {});
+        let table = format_report(&r);
+        assert!(r.calibration.error.is_none(), "{table}");
+        assert!(r.calibration.used >= 6, "{table}");
+        assert_eq!(r.rest_contacts, Some(0), "{table}");
+        assert!(r.rest_max_mm.unwrap() <= 0.02, "{table}");
+        assert!(r.beside_max_mm.unwrap() <= 0.02, "{table}");
+        assert!(r.roi_ratio.unwrap() < 4.0, "{table}");
+        assert!(r.edge_peak_ratio.unwrap() > 0.9, "{table}");
+        let disk = r.disk.expect("disks fit the frame");
+        assert!((disk.mean - 1.0).abs() < disk_tolerance, "{table}");
+    }
+}
+
+/// The issue's depth goal on the independent renderer, not met yet: a 1 mm disk reads
+/// 0.83-0.87 mm there (steep walls 0.63). Run with `--ignored` to see the table.
+#[test]
+#[ignore = "issue 19 open: the independent renderer reads a 1 mm disk 0.83-0.87 mm"]
+fn independent_renderer_reads_a_disk_within_the_goal() {
+    let f = family("phys-matte").unwrap();
+    let config = EvalConfig {
+        placements: 10,
+        rest_frames: 2,
+        ..Default::default()
+    };
+    let r = evaluate(&f, &config, &mut |_| {});
+    let table = format_report(&r);
+    let disk = r.disk.expect("disks fit the frame");
+    assert!(
+        (disk.mean - 1.0).abs() <= 0.02 && disk.std <= 0.02,
+        "{table}"
+    );
+    assert!(r.steep_disk.unwrap().mean >= 0.9, "{table}");
+}
