@@ -368,6 +368,42 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         _ => panic!("{err}"),
     }
     assert!(err.to_string().contains("--ball-diameter-mm"), "{err}");
+    // References that are not this sensor's phases are refused before anything else.
+    let black = RgbImage::new(320, 240);
+    let err = calibrate(&presses, Some((&refs.0, &black)), &s, |_| {}).unwrap_err();
+    assert!(err.to_string().contains("reference frames dy"), "{err}");
+    let err = calibrate(&presses, Some((&refs.1, &refs.0)), &s, |_| {}).unwrap_err();
+    assert!(err.to_string().contains("swapped"), "{err}");
+    let (model, _) = calibrated(&optics);
+    for (dx, dy, want) in [
+        (&refs.1, &refs.0, "swapped"),
+        (&refs.0, &black, "LED light"),
+    ] {
+        let err = Reconstructor::new(
+            model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some((dx, dy)),
+        )
+        .err()
+        .expect("refused");
+        assert!(
+            matches!(err, ReconstructError::References(_)) && err.to_string().contains(want),
+            "{err}"
+        );
+    }
+    // Frames without LED light are flagged, not read as "no contact".
+    let mut rec = Reconstructor::new(
+        model,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some((&refs.0, &refs.1)),
+    )
+    .unwrap();
+    let r = rec.reconstruct(&black, &black).unwrap();
+    assert!(r.unlit() && r.no_contact(), "{}", r.unlit_fraction);
+    let lit = render(&optics, &Scene::default(), 2);
+    assert!(!rec.reconstruct(&lit.dx, &lit.dy).unwrap().unlit());
 }
 
 #[test]

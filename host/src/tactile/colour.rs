@@ -46,6 +46,7 @@ pub struct Reference {
     inv_red: Vec<f32>,
     inv_blue: Vec<f32>,
     green: Vec<f32>,
+    weights: Vec<(f32, f32)>,
 }
 
 /// Smallest LED light a reference pixel is assumed to have (keeps ratios bounded).
@@ -89,6 +90,7 @@ impl Reference {
             inv_red: Vec::with_capacity(width * height),
             inv_blue: Vec::with_capacity(width * height),
             green: Vec::with_capacity(width * height),
+            weights: Vec::with_capacity(width * height),
         };
         for [red, blue, green] in planes {
             r.push(red, blue, green);
@@ -98,9 +100,15 @@ impl Reference {
     }
 
     fn push(&mut self, red: f32, blue: f32, green: f32) {
-        self.inv_red.push(1.0 / red.max(REFERENCE_FLOOR));
-        self.inv_blue.push(1.0 / blue.max(REFERENCE_FLOOR));
+        let (ir, ib) = (
+            1.0 / red.max(REFERENCE_FLOOR),
+            1.0 / blue.max(REFERENCE_FLOOR),
+        );
+        self.inv_red.push(ir);
+        self.inv_blue.push(ib);
         self.green.push(green);
+        let s = 2.0 / (ir + ib);
+        self.weights.push((ib * s, ir * s));
     }
 
     /// Width in pixels.
@@ -119,9 +127,7 @@ impl Reference {
     /// is mostly noise.
     #[inline]
     pub fn weights(&self, i: usize) -> (f32, f32) {
-        let (ir, ib) = (self.inv_red[i], self.inv_blue[i]);
-        let s = 2.0 / (ir + ib);
-        (ib * s, ir * s)
+        self.weights[i]
     }
 
     /// Normalised LED colour `(red, blue)` of `pixel` at index `i`, or `None` when the

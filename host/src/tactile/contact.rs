@@ -162,6 +162,9 @@ pub struct Detection {
     pub blocks_across: usize,
     /// Per block: part of a contact large enough to count.
     pub touched: Vec<bool>,
+    /// Fraction of blocks where the colour filter accepted neither phase (no LED light,
+    /// saturated, white light): above a half, the frames are not lit phase images.
+    pub unlit_fraction: f32,
 }
 
 impl Detection {
@@ -188,15 +191,24 @@ pub fn find_regions(
     let step = params.coarse_step.max(1);
     let (mx, my) = (BlockMeans::of(dx, step), BlockMeans::of(dy, step));
     let (gw, gh) = (mx.width, mx.height);
-    let marked: Vec<bool> = block_deviations(&mx, &my, block_refs, filter)
-        .into_iter()
-        .map(|d| d > params.threshold)
+    let mut unlit = 0usize;
+    let marked: Vec<bool> = mx
+        .means
+        .iter()
+        .zip(&my.means)
+        .enumerate()
+        .map(|(i, (a, b))| {
+            let (colour, d) = colours_of(block_refs, filter, i, *a, *b);
+            unlit += usize::from(colour[0].is_nan() && colour[2].is_nan());
+            d > params.threshold
+        })
         .collect();
     let mut detection = Detection {
         regions: Vec::new(),
         step,
         blocks_across: gw,
         touched: vec![false; gw * gh],
+        unlit_fraction: unlit as f32 / (gw * gh).max(1) as f32,
     };
     if !marked.iter().any(|&m| m) {
         return detection;

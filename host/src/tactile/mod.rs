@@ -17,6 +17,7 @@ pub mod contact;
 pub mod images;
 pub mod model;
 pub mod output;
+pub mod phase_check;
 pub mod poisson;
 pub mod reconstruct;
 pub mod render;

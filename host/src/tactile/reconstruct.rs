@@ -17,6 +17,7 @@ use serde::Serialize;
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::model::{ModelKind, TactileModel, colour_features};
+use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
 use crate::grid::Grid;
@@ -45,6 +46,9 @@ pub enum ReconstructError {
     /// Integration failed (cannot happen after sanitising; kept typed, never a panic).
     #[error("integration failed: {0}")]
     Poisson(#[from] PoissonError),
+    /// The reference frames do not look like this sensor's dx and dy phases.
+    #[error(transparent)]
+    References(#[from] PhaseImageError),
 }
 
 /// Milliseconds spent in each stage.
@@ -75,6 +79,10 @@ pub struct Reconstruction {
     pub rejected_pixels: usize,
     /// Slopes replaced or clamped by the sanitiser.
     pub sanitized_slopes: usize,
+    /// Fraction of the frame where the colour filter accepted neither phase; above
+    /// [`phase_check::MIN_LIT_FRACTION`]'s complement the pair is not a lit dx/dy pair
+    /// and "no contact" means nothing ([`Self::unlit`]).
+    pub unlit_fraction: f32,
     /// Stage timings.
     pub timings: StageTimings,
 }
@@ -83,6 +91,12 @@ impl Reconstruction {
     /// `true` when nothing touched the skin.
     pub fn no_contact(&self) -> bool {
         self.regions.is_empty()
+    }
+
+    /// `true` when most of the frame shows no usable LED light (black, white, saturated
+    /// or unlit frames): the result says nothing about contact.
+    pub fn unlit(&self) -> bool {
+        self.unlit_fraction > 1.0 - phase_check::MIN_LIT_FRACTION
     }
 }
 
@@ -139,6 +153,7 @@ impl Reconstructor {
                         });
                     }
                 }
+                phase_check::check_pair(dx, dy, &model.filter, "reference frames")?;
                 (
                     References {
                         dx: Reference::from_image(dx),
@@ -207,6 +222,7 @@ impl Reconstructor {
             regions: Vec::new(),
             rejected_pixels: 0,
             sanitized_slopes: 0,
+            unlit_fraction: detection.unlit_fraction,
             timings: StageTimings {
                 detect_ms: ms(start, Instant::now()),
                 ..Default::default()

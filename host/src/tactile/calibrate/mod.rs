@@ -32,6 +32,7 @@ use super::model::{
     AxisModel, Background, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp,
     MlpTraining, ModelKind, Sample, TactileModel, colour_features,
 };
+use super::phase_check::{self, PhaseImageError};
 
 /// One ball press found in the calibration set.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -212,6 +213,10 @@ pub enum CalibrationError {
     /// Invalid settings.
     #[error("invalid setting: {0}")]
     Settings(String),
+    /// The references (given, or the median of the presses) do not look like this
+    /// sensor's dx and dy phases.
+    #[error(transparent)]
+    References(#[from] PhaseImageError),
 }
 
 fn rejected_list(rejected: &[RejectedPress]) -> String {
@@ -317,6 +322,16 @@ pub fn calibrate(
             )
         }
     };
+    phase_check::check_pair(
+        &ref_dx,
+        &ref_dy,
+        &settings.filter,
+        if references.is_some() {
+            "reference frames"
+        } else {
+            "median of the presses (the background without reference frames)"
+        },
+    )?;
     let refs = References {
         dx: Reference::from_image(&ref_dx),
         dy: Reference::from_image(&ref_dy),

@@ -54,6 +54,13 @@ pub fn run(a: Args) -> Result<()> {
         refs.as_ref().map(|(x, y)| (x, y)),
     )?;
     let r = rec.reconstruct(&dx, &dy)?;
+    anyhow::ensure!(
+        !r.unlit(),
+        "{} / {}: {:.0}% of the frame shows no usable LED light (black, white, overexposed, or taken with the LEDs off): not a lit dx/dy pair, nothing written",
+        a.dx.display(),
+        a.dy.display(),
+        r.unlit_fraction * 100.0
+    );
     let summary = output::write_all(&a.out_dir, &r, px_per_mm)?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);

@@ -1,0 +1,146 @@
+//! Do two images look like this sensor's dx and dy phases? Checked on the no-contact
+//! references before anything is calibrated or reconstructed against them, so a black,
+//! white or unlit frame, or dx and dy given the wrong way round, is refused with the
+//! reason instead of turning into plausible-looking depth.
+//!
+//! In the dx phase strip 1 (x−) is blue and strip 3 (x+) red, so red minus blue grows
+//! from the left of the frame to the right; in the dy phase it grows from top to bottom.
+//! Both phases show LED light (red or blue above green) over most of the frame.
+
+use image::RgbImage;
+
+use super::colour::ColourFilter;
+use super::smooth::BlockMeans;
+
+/// Least fraction of the frame that must show LED light.
+pub const MIN_LIT_FRACTION: f32 = 0.5;
+/// Least red-minus-blue change across the frame for its direction to count (DN).
+const MIN_BALANCE_DN: f32 = 8.0;
+
+/// What is wrong with a pair of phase images.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PhaseImageError {
+    /// Too little of the frame shows LED light (black, white, saturated or unlit).
+    #[error(
+        "{what} {phase}: only {:.0}% of the frame shows LED light (red or blue above green, unsaturated; at least {:.0}% expected): is it black, white, overexposed, or taken with the LEDs off?",
+        lit * 100.0,
+        MIN_LIT_FRACTION * 100.0
+    )]
+    Unlit {
+        /// Which images ("reference frames", "calibration press NAME").
+        what: String,
+        /// "dx" or "dy".
+        phase: &'static str,
+        /// Fraction of the frame lit.
+        lit: f32,
+    },
+    /// dx's red-blue balance runs top to bottom and dy's left to right.
+    #[error(
+        "{what}: the dx image's colour changes from top to bottom and the dy image's from left to right: dx and dy look swapped (dx has strips 1 and 3, on the left and right, lit)"
+    )]
+    Swapped {
+        /// Which images.
+        what: String,
+    },
+}
+
+/// Summary of one phase image: lit fraction and how red minus blue changes across it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhaseLook {
+    /// Fraction of 8×8 blocks with LED light.
+    pub lit: f32,
+    /// Mean red minus blue of the right third minus the left third (DN).
+    pub across: f32,
+    /// Mean red minus blue of the bottom third minus the top third (DN).
+    pub down: f32,
+}
+
+/// Looks at one phase image.
+pub fn look(image: &RgbImage, filter: &ColourFilter) -> PhaseLook {
+    let b = BlockMeans::of(image, 8);
+    let sat = f32::from(filter.saturation);
+    let mut lit = 0usize;
+    let (mut thirds_x, mut thirds_y) = ([(0.0f32, 0usize); 3], [(0.0f32, 0usize); 3]);
+    for (i, &[r, g, bl]) in b.means.iter().enumerate() {
+        let (x, y) = (i % b.width, i / b.width);
+        if (r - g).max(bl - g) >= filter.min_led && r.max(g).max(bl) < sat {
+            lit += 1;
+        }
+        let tx = (x * 3 / b.width.max(1)).min(2);
+        let ty = (y * 3 / b.height.max(1)).min(2);
+        thirds_x[tx].0 += r - bl;
+        thirds_x[tx].1 += 1;
+        thirds_y[ty].0 += r - bl;
+        thirds_y[ty].1 += 1;
+    }
+    let mean = |t: (f32, usize)| if t.1 > 0 { t.0 / t.1 as f32 } else { 0.0 };
+    PhaseLook {
+        lit: lit as f32 / b.means.len().max(1) as f32,
+        across: mean(thirds_x[2]) - mean(thirds_x[0]),
+        down: mean(thirds_y[2]) - mean(thirds_y[0]),
+    }
+}
+
+/// Checks that `dx` and `dy` look like the two phases; `what` names them in errors.
+pub fn check_pair(
+    dx: &RgbImage,
+    dy: &RgbImage,
+    filter: &ColourFilter,
+    what: &str,
+) -> Result<(), PhaseImageError> {
+    let (a, b) = (look(dx, filter), look(dy, filter));
+    for (phase, l) in [("dx", a), ("dy", b)] {
+        if l.lit < MIN_LIT_FRACTION {
+            return Err(PhaseImageError::Unlit {
+                what: what.to_string(),
+                phase,
+                lit: l.lit,
+            });
+        }
+    }
+    let strong = |l: PhaseLook| l.across.abs().max(l.down.abs()) >= MIN_BALANCE_DN;
+    let dx_vertical = strong(a) && a.down.abs() > a.across.abs();
+    let dy_horizontal = strong(b) && b.across.abs() > b.down.abs();
+    if dx_vertical && dy_horizontal {
+        return Err(PhaseImageError::Swapped {
+            what: what.to_string(),
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tactile::render::{Optics, Scene, render};
+
+    #[test]
+    fn real_phases_pass_and_bad_ones_are_named() {
+        let o = Optics::sized(160, 120);
+        let p = render(&o, &Scene::default(), 1);
+        let f = ColourFilter::default();
+        check_pair(&p.dx, &p.dy, &f, "refs").unwrap();
+        let l = look(&p.dx, &f);
+        assert!(l.across > 10.0 && l.down.abs() < 2.0 && l.lit > 0.9, "{l:?}");
+        assert!(matches!(
+            check_pair(&p.dy, &p.dx, &f, "refs"),
+            Err(PhaseImageError::Swapped { .. })
+        ));
+        let black = RgbImage::new(160, 120);
+        let white = RgbImage::from_pixel(160, 120, image::Rgb([255, 255, 255]));
+        let grey = RgbImage::from_pixel(160, 120, image::Rgb([90, 90, 90]));
+        for bad in [&black, &white, &grey] {
+            let e = check_pair(&p.dx, bad, &f, "refs").unwrap_err();
+            assert!(
+                matches!(e, PhaseImageError::Unlit { phase: "dy", .. }),
+                "{e}"
+            );
+        }
+        assert!(
+            check_pair(&black, &p.dy, &f, "refs")
+                .unwrap_err()
+                .to_string()
+                .contains("refs dx")
+        );
+    }
+}
