@@ -121,7 +121,10 @@ mod tests {
         let f = ColourFilter::default();
         check_pair(&p.dx, &p.dy, &f, "refs").unwrap();
         let l = look(&p.dx, &f);
-        assert!(l.across > 10.0 && l.down.abs() < 2.0 && l.lit > 0.9, "{l:?}");
+        assert!(
+            l.across > 10.0 && l.down.abs() < 2.0 && l.lit > 0.9,
+            "{l:?}"
+        );
         assert!(matches!(
             check_pair(&p.dy, &p.dx, &f, "refs"),
             Err(PhaseImageError::Swapped { .. })
