@@ -123,6 +123,7 @@ impl TactileStage {
             },
             exposure_end_us: [dx_end, dy_end],
             contact: !summary.no_contact,
+            unlit: r.unlit(),
             area_mm2: summary.contact_area_mm2,
             centroid_mm: summary.centroid_mm,
             max_depth_mm: summary.max_depth_mm,

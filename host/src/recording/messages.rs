@@ -225,6 +225,10 @@ pub struct TactileRecord {
     pub exposure_end_us: [f64; 2],
     /// Whether anything touches the skin.
     pub contact: bool,
+    /// Most of the pair shows no usable LED light (black, white, overexposed, LEDs off):
+    /// `contact: false` then means nothing.
+    #[serde(default)]
+    pub unlit: bool,
     /// Imprint area, mm².
     pub area_mm2: f64,
     /// Depth-weighted centroid, mm from the frame's top-left corner (none without
