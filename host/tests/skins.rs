@@ -111,3 +111,49 @@ fn independent_renderer_reads_a_disk_within_the_goal() {
     );
     assert!(r.steep_disk.unwrap().mean >= 0.9, "{table}");
 }
+
+/// Scene light twice as bright as at calibration: the LEDs-off frame of each cycle takes
+/// it out (interleaved mode), where raw frames show contact that is not there.
+#[test]
+fn leds_off_frames_remove_ambient_light_that_changed_since_calibration() {
+    let f = family("ours-random").unwrap();
+    let brighter = AmbientScale {
+        dx: 2.0,
+        dy: 2.0,
+        dark: 2.0,
+    };
+    let flicker = AmbientScale {
+        dx: 1.3,
+        dy: 0.8,
+        dark: 1.0,
+    };
+    for ambient in [brighter, flicker] {
+        let config = EvalConfig {
+            dark: true,
+            ambient,
+            ..small()
+        };
+        let r = evaluate(&f, &config, &mut |_| {});
+        let table = format_report(&r);
+        assert!(r.calibration.error.is_none(), "{table}");
+        assert_eq!(r.rest_contacts, Some(0), "{table}");
+        assert!(r.rest_max_mm.unwrap() <= 0.02, "{table}");
+        assert!(r.beside_max_mm.unwrap() <= 0.02, "{table}");
+        let disk = r.disk.expect("disks fit the frame");
+        assert!((disk.mean - 1.0).abs() < 0.05, "{table}");
+    }
+    // The same brighter room without them: the scene is hard enough to matter.
+    let raw = evaluate(
+        &f,
+        &EvalConfig {
+            ambient: brighter,
+            ..small()
+        },
+        &mut |_| {},
+    );
+    assert!(
+        raw.rest_contacts.unwrap() > 0 || raw.beside_max_mm.unwrap() > 0.02,
+        "raw frames coped with twice the ambient light: the test no longer shows what LEDs-off frames add\n{}",
+        format_report(&raw)
+    );
+}

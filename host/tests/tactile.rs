@@ -2,6 +2,7 @@
 //! presses, reconstruction accuracy, the skip paths, and hostile inputs.
 
 use image::RgbImage;
+use stereotac::tactile::ambient::{AmbientSource, PhaseFrames};
 use stereotac::tactile::bench::errors;
 use stereotac::tactile::calibrate::{
     CalibrationError, CalibrationPair, CalibrationSettings, Rejection, calibrate,
@@ -10,7 +11,7 @@ use stereotac::tactile::images::{ImageError, load_pairs};
 use stereotac::tactile::model::{ModelError, ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::{ReconstructError, Reconstructor};
-use stereotac::tactile::render::{Optics, Reflectance, Scene, Shape, Spot, render};
+use stereotac::tactile::render::{Optics, Reflectance, Scene, Shape, Spot, render, render_truth};
 use stereotac::tactile::synthetic::{ball_presses, reference_frames};
 
 /// A small sensor so calibration takes well under a second.
@@ -30,7 +31,13 @@ fn settings(optics: &Optics) -> CalibrationSettings {
 fn calibrated(optics: &Optics) -> (TactileModel, (RgbImage, RgbImage)) {
     let pairs = ball_presses(optics, 10, 6.0, 11);
     let refs = reference_frames(optics);
-    let cal = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings(optics), |_| {}).unwrap();
+    let cal = calibrate(
+        &pairs,
+        Some((&refs.0, &refs.1).into()),
+        &settings(optics),
+        |_| {},
+    )
+    .unwrap();
     (cal.model, refs)
 }
 
@@ -58,7 +65,7 @@ fn reading(
         .truth(optics.width, optics.height, optics.px_per_mm)
         .depth;
     let mut rec =
-        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1))).unwrap();
+        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into())).unwrap();
     let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
     assert!(r.depth_mm.as_slice().iter().all(|d| d.is_finite()));
     errors(&r.depth_mm, &truth).reading_mm
@@ -149,7 +156,7 @@ fn no_contact_stops_after_detection() {
             model.clone(),
             kind,
             SolverKind::Dct,
-            Some((&refs.0, &refs.1)),
+            Some((&refs.0, &refs.1).into()),
         )
         .unwrap();
         let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
@@ -181,7 +188,7 @@ fn a_ceiling_light_spot_makes_no_phantom_bump() {
         model.clone(),
         ModelKind::Lut,
         SolverKind::Dct,
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
     )
     .unwrap();
     let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
@@ -250,7 +257,7 @@ fn hostile_images_give_finite_output_or_typed_errors() {
         model.clone(),
         ModelKind::Mlp,
         SolverKind::Dct,
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
     )
     .unwrap();
     let black = RgbImage::new(320, 240);
@@ -284,7 +291,7 @@ fn hostile_images_give_finite_output_or_typed_errors() {
             model.clone(),
             ModelKind::Lut,
             SolverKind::Dct,
-            Some((&small, &small))
+            Some((&small, &small).into())
         ),
         Err(ReconstructError::ModelSize { .. })
     ));
@@ -320,10 +327,11 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         name: "flat".into(),
         dx: flat.dx.clone(),
         dy: flat.dy.clone(),
+        dark: None,
     };
     let err = calibrate(
         std::slice::from_ref(&pair),
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
         &s,
         |_| {},
     )
@@ -352,7 +360,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         ball_diameter_mm: 2.0,
         ..s.clone()
     };
-    let err = calibrate(&presses, Some((&refs.0, &refs.1)), &tiny, |_| {}).unwrap_err();
+    let err = calibrate(&presses, Some((&refs.0, &refs.1).into()), &tiny, |_| {}).unwrap_err();
     match &err {
         CalibrationError::TooFewPresses {
             good: 0,
@@ -370,9 +378,9 @@ fn calibration_rejects_bad_input_with_clear_errors() {
     assert!(err.to_string().contains("--ball-diameter-mm"), "{err}");
     // References that are not this sensor's phases are refused before anything else.
     let black = RgbImage::new(320, 240);
-    let err = calibrate(&presses, Some((&refs.0, &black)), &s, |_| {}).unwrap_err();
+    let err = calibrate(&presses, Some((&refs.0, &black).into()), &s, |_| {}).unwrap_err();
     assert!(err.to_string().contains("reference frames dy"), "{err}");
-    let err = calibrate(&presses, Some((&refs.1, &refs.0)), &s, |_| {}).unwrap_err();
+    let err = calibrate(&presses, Some((&refs.1, &refs.0).into()), &s, |_| {}).unwrap_err();
     assert!(err.to_string().contains("swapped"), "{err}");
     let (model, _) = calibrated(&optics);
     for (dx, dy, want) in [
@@ -383,7 +391,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
             model.clone(),
             ModelKind::Lut,
             SolverKind::Dct,
-            Some((dx, dy)),
+            Some((dx, dy).into()),
         )
         .err()
         .expect("refused");
@@ -397,7 +405,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         model,
         ModelKind::Lut,
         SolverKind::Dct,
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
     )
     .unwrap();
     let r = rec.reconstruct(&black, &black).unwrap();
@@ -453,5 +461,168 @@ fn pair_directories_report_unpaired_and_unreadable_files() {
     );
     img.save(dir.join("a_dy.png")).unwrap();
     assert_eq!(load_pairs(&dir).unwrap().len(), 1);
+    assert!(load_pairs(&dir).unwrap()[0].dark.is_none());
+    img.save(dir.join("a_dark.png")).unwrap();
+    assert!(
+        load_pairs(&dir).unwrap()[0].dark.is_some(),
+        "NAME_dark.png goes with its pair"
+    );
+    img.save(dir.join("b_dark.png")).unwrap();
+    let err = load_pairs(&dir).unwrap_err();
+    assert!(
+        matches!(err, ImageError::Unpaired { .. }) && err.to_string().contains("b_dark.png"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Presses with LEDs-off frames give a model on LED light: it keeps the calibration's
+/// ambient light (saved with it), removes each pair's own LEDs-off frame, and falls back
+/// to its estimate without one; a model on raw frames leaves the LEDs-off frame unused.
+#[test]
+fn leds_off_frames_make_a_model_on_led_light() {
+    let optics = Optics {
+        ambient: 20.0,
+        ..optics()
+    };
+    let scene = |shapes| Scene { shapes };
+    let frames = |scene: &Scene, frame, ambient: [f64; 3]| {
+        let truth = scene.truth(optics.width, optics.height, optics.px_per_mm);
+        render_truth(&optics, &truth, frame, ambient)
+    };
+    let presses: Vec<CalibrationPair> = (0..10)
+        .map(|k| {
+            let s = scene(vec![Shape::Ball {
+                cx: 4.0 + 1.3 * k as f64,
+                cy: 5.0 + (k % 3) as f64 * 2.5,
+                diameter: 6.0,
+                depth: 0.8 + 0.04 * k as f64,
+            }]);
+            let (dx, dy, dark) = frames(&s, 100 + k, [1.0; 3]);
+            CalibrationPair {
+                name: format!("p{k}"),
+                dx,
+                dy,
+                dark: Some(dark),
+            }
+        })
+        .collect();
+    let (rdx, rdy, rdark) = frames(&Scene::default(), 1, [1.0; 3]);
+    let references = PhaseFrames {
+        dx: &rdx,
+        dy: &rdy,
+        dark: Some(&rdark),
+    };
+    let cal = calibrate(&presses, Some(references), &settings(&optics), |_| {}).unwrap();
+    let ambient = cal.model.ambient.clone().expect("calibrated on LED light");
+    let mean_green = ambient.means.iter().map(|m| m[1]).sum::<f32>() / ambient.means.len() as f32;
+    assert!(
+        (mean_green - 20.0).abs() < 4.0,
+        "the estimate holds the ambient light: {mean_green}"
+    );
+    let back = TactileModel::from_json("m", &cal.model.to_json()).unwrap();
+    assert_eq!(back, cal.model, "the estimate is saved with the model");
+
+    let mut rec = Reconstructor::new(
+        cal.model.clone(),
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some(references),
+    )
+    .unwrap();
+    let ball = ball(10.0, 8.0, 1.0);
+    let truth = ball
+        .truth(optics.width, optics.height, optics.px_per_mm)
+        .depth;
+    // The room twice as bright as at calibration.
+    let (dx, dy, dark) = frames(&ball, 7, [2.0; 3]);
+    let with_dark = rec
+        .reconstruct_frames(PhaseFrames {
+            dx: &dx,
+            dy: &dy,
+            dark: Some(&dark),
+        })
+        .unwrap();
+    assert_eq!(with_dark.ambient, AmbientSource::DarkFrame);
+    let e = errors(&with_dark.depth_mm, &truth);
+    assert!((e.reading_mm - 1.0).abs() < 0.05, "{e:?}");
+    let (rest_dx, rest_dy, rest_dark) = frames(&Scene::default(), 8, [2.0; 3]);
+    let rest = rec
+        .reconstruct_frames(PhaseFrames {
+            dx: &rest_dx,
+            dy: &rest_dy,
+            dark: Some(&rest_dark),
+        })
+        .unwrap();
+    assert!(rest.no_contact(), "twice the ambient light is not contact");
+    // Without the LEDs-off frame: the calibration's ambient light is removed instead.
+    let (dx1, dy1, _) = frames(&ball, 9, [1.0; 3]);
+    let estimate = rec.reconstruct(&dx1, &dy1).unwrap();
+    assert_eq!(estimate.ambient, AmbientSource::Calibration);
+    let e = errors(&estimate.depth_mm, &truth);
+    assert!((e.reading_mm - 1.0).abs() < 0.05, "{e:?}");
+    // A LEDs-off frame brighter than the lit frames (another camera's view) is not used.
+    let elsewhere = RgbImage::from_fn(dx.width(), dx.height(), |x, y| {
+        image::Rgb([((x * 7 + y * 3) % 200) as u8 + 50; 3])
+    });
+    let refused = rec
+        .reconstruct_frames(PhaseFrames {
+            dx: &dx1,
+            dy: &dy1,
+            dark: Some(&elsewhere),
+        })
+        .unwrap();
+    assert_eq!(refused.ambient, AmbientSource::CalibrationDarkRefused);
+    assert_eq!(refused.depth_mm, estimate.depth_mm);
+    // A dark frame of another size is refused.
+    let small = RgbImage::new(8, 8);
+    assert!(matches!(
+        rec.reconstruct_frames(PhaseFrames {
+            dx: &dx,
+            dy: &dy,
+            dark: Some(&small),
+        }),
+        Err(ReconstructError::ModelSize {
+            what: "dark frame",
+            ..
+        })
+    ));
+    // A model on raw frames: the LEDs-off frame is not used.
+    let presses_copy = presses.clone();
+    let raw: Vec<CalibrationPair> = presses
+        .into_iter()
+        .map(|p| CalibrationPair { dark: None, ..p })
+        .collect();
+    let raw_model = calibrate(&raw, Some((&rdx, &rdy).into()), &settings(&optics), |_| {})
+        .unwrap()
+        .model;
+    assert!(raw_model.ambient.is_none());
+    // Presses whose LEDs-off frames show other light: calibrated on raw frames, with why.
+    let mut odd = presses_copy;
+    odd[3].dark = Some(elsewhere.clone());
+    let cal = calibrate(&odd, Some((&rdx, &rdy).into()), &settings(&optics), |_| {}).unwrap();
+    assert!(cal.model.ambient.is_none());
+    assert!(
+        cal.report
+            .warnings
+            .iter()
+            .any(|w| w.contains("p3") && w.contains("brighter")),
+        "{:?}",
+        cal.report.warnings
+    );
+    let mut rec = Reconstructor::new(
+        raw_model,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some((&rdx, &rdy).into()),
+    )
+    .unwrap();
+    let r = rec
+        .reconstruct_frames(PhaseFrames {
+            dx: &dx1,
+            dy: &dy1,
+            dark: Some(&dark),
+        })
+        .unwrap();
+    assert_eq!(r.ambient, AmbientSource::ColourFilter);
 }

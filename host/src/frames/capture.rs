@@ -51,6 +51,9 @@ pub struct GradientPair {
     pub dx: LabelledFrame,
     /// The frame lit by strips 2 and 4.
     pub dy: LabelledFrame,
+    /// The same camera's LEDs-off frame just before the dx frame (interleaved mode;
+    /// attached by the live router), the ambient light for the tactile stage.
+    pub dark: Option<LabelledFrame>,
 }
 
 /// Pairs labelled frames, in the order the matcher decides them, into dx/dy pairs: the
@@ -83,7 +86,11 @@ impl GradientPairer {
                 None
             }
             (Phase::Dy, Some((dx_index, dx))) if dx_index.wrapping_add(1) == index => {
-                Some(GradientPair { dx, dy: frame })
+                Some(GradientPair {
+                    dx,
+                    dy: frame,
+                    dark: None,
+                })
             }
             _ => None,
         }

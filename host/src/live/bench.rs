@@ -231,7 +231,7 @@ pub fn run(
         calibration.model,
         ModelKind::Lut,
         SolverKind::Dct,
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
     )?;
     let stereo_rig = SimStereo::new(w, h);
     let stereo = || StereoPipeline::new(&stereo_rig.calibration(), StereoConfig::default());
@@ -247,6 +247,7 @@ pub fn run(
     let pair = GradientPair {
         dx: labelled(scenes[0].of(stereotac_protocol::Phase::Dx).clone()),
         dy: labelled(scenes[0].of(stereotac_protocol::Phase::Dy).clone()),
+        dark: None,
     };
     let tactile_rate = rate(stage_time, || {
         tactile.process(&pair, || None, 0).map(|_| ())

@@ -210,6 +210,9 @@ pub struct Router {
     gradients: GradientPairer,
     /// The latest dark frame of each stereo camera, by phase index.
     dark: [Option<LabelledFrame>; 2],
+    /// Camera 0's latest dark frame and its phase index: the ambient light of the
+    /// tactile pair that follows it.
+    ambient: Option<(u32, LabelledFrame)>,
 }
 
 impl Router {
@@ -225,11 +228,22 @@ impl Router {
             _ => None,
         };
         match (camera, dark_index) {
-            (0, None) => self.gradients.push(frame).map(Job::Tactile),
+            (0, None) => {
+                let mut pair = self.gradients.push(frame)?;
+                // Interleaved: dark n, dx n+1, dy n+2.
+                if let (Label::Phase { index, .. }, Some((dark_index, dark))) =
+                    (&pair.dx.label, &self.ambient)
+                    && dark_index.wrapping_add(1) == *index
+                {
+                    pair.dark = Some(dark.clone());
+                }
+                Some(Job::Tactile(pair))
+            }
             (0 | 1, Some(index)) => {
                 if camera == 0 {
                     // A dark frame between dx and dy would break a pair: tell the pairer.
                     let _ = self.gradients.push(frame.clone());
+                    self.ambient = Some((index, frame.clone()));
                 }
                 let other = 1 - camera;
                 let matches = |f: &Option<LabelledFrame>| matches!(f, Some(LabelledFrame { label: Label::Phase { index: i, .. }, .. }) if *i == index);
@@ -288,10 +302,14 @@ mod tests {
             r.push(1, lit(Phase::Dx, 1)).is_none(),
             "camera 1's gradients are only recorded"
         );
-        assert!(matches!(
-            r.push(0, lit(Phase::Dy, 2)),
-            Some(Job::Tactile(_))
-        ));
+        let Some(Job::Tactile(pair)) = r.push(0, lit(Phase::Dy, 2)) else {
+            panic!("dx 1, dy 2 pair")
+        };
+        assert_eq!(
+            pair.dark.map(|d| d.frame.stamp.sequence),
+            Some(0),
+            "camera 0's dark 0 is the ambient light of the pair after it"
+        );
         // Camera 1 lost dark 3: camera 0's dark 3 waits, then camera 1's dark 6 does
         // not pair with it; camera 0's dark 6 pairs (camera 1 first this time).
         assert!(r.push(0, lit(Phase::Dark, 3)).is_none());
@@ -303,6 +321,11 @@ mod tests {
             (p.left.frame.stamp.sequence, p.right.frame.stamp.sequence),
             (6, 6)
         );
+        assert!(r.push(0, lit(Phase::Dx, 7)).is_none());
+        let Some(Job::Tactile(pair)) = r.push(0, lit(Phase::Dy, 8)) else {
+            panic!("dx 7, dy 8 pair")
+        };
+        assert_eq!(pair.dark.map(|d| d.frame.stamp.sequence), Some(6));
         // A dark frame between dx and dy breaks the tactile pair.
         assert!(r.push(0, lit(Phase::Dx, 10)).is_none());
         assert!(r.push(0, lit(Phase::Dark, 11)).is_none());
@@ -311,5 +334,11 @@ mod tests {
             r.push(2, lit(Phase::Dark, 11)).is_none(),
             "a third camera is not routed"
         );
+        // A pair whose LEDs-off frame was lost (dark 12 never came) has none.
+        assert!(r.push(0, lit(Phase::Dx, 13)).is_none());
+        let Some(Job::Tactile(pair)) = r.push(0, lit(Phase::Dy, 14)) else {
+            panic!("dx 13, dy 14 pair")
+        };
+        assert!(pair.dark.is_none(), "dark 11 belongs to another cycle");
     }
 }

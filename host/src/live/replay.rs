@@ -23,6 +23,8 @@ pub enum RecordedPair {
         dx: RgbImage,
         /// The dy frame.
         dy: RgbImage,
+        /// The LEDs-off frame before them (interleaved mode).
+        dark: Option<RgbImage>,
     },
     /// Dark frames of one phase from cameras 0 and 1.
     Stereo {
@@ -60,6 +62,7 @@ pub fn pairs<E: From<RecordingError>>(
                 name: name(&p.dx.label),
                 dx: p.dx.frame.image,
                 dy: p.dy.frame.image,
+                dark: p.dark.map(|d| d.frame.image),
             })?,
             Some(Job::Stereo(p)) => each(RecordedPair::Stereo {
                 name: name(&p.left.label),

@@ -5,11 +5,21 @@
 use crate::frames::capture::GradientPair;
 use crate::matcher::{Label, StampRef};
 pub use crate::recording::messages::TactileRecord;
+use crate::tactile::ambient::PhaseFrames;
 use crate::tactile::output::Summary;
 use crate::tactile::reconstruct::{ReconstructError, Reconstruction, Reconstructor};
 
 /// A reconstruction and when it was ready (none offline).
 type Timed = Result<(Reconstruction, Option<f64>), ReconstructError>;
+
+/// The images of `pair`.
+fn frames(pair: &GradientPair) -> PhaseFrames<'_> {
+    PhaseFrames {
+        dx: &pair.dx.frame.image,
+        dy: &pair.dy.frame.image,
+        dark: pair.dark.as_ref().map(|d| &d.frame.image),
+    }
+}
 
 /// The tactile stage (see the module documentation).
 pub struct TactileStage {
@@ -56,9 +66,7 @@ impl TactileStage {
         now_us: impl FnOnce() -> Option<f64>,
         frames_dropped: u64,
     ) -> Result<(Reconstruction, TactileRecord), ReconstructError> {
-        let r = self
-            .reconstructor
-            .reconstruct(&pair.dx.frame.image, &pair.dy.frame.image)?;
+        let r = self.reconstructor.reconstruct_frames(frames(pair))?;
         let record = self.record(pair, &r, now_us(), frames_dropped);
         Ok((r, record))
     }
@@ -84,7 +92,7 @@ impl TactileStage {
                 chunk
                     .iter()
                     .map(|p| {
-                        let r = rec.reconstruct(&p.dx.frame.image, &p.dy.frame.image)?;
+                        let r = rec.reconstruct_frames(frames(p))?;
                         Ok((r, now_us()))
                     })
                     .collect()
@@ -124,6 +132,7 @@ impl TactileStage {
             exposure_end_us: [dx_end, dy_end],
             contact: !summary.no_contact,
             unlit: r.unlit(),
+            ambient: r.ambient,
             area_mm2: summary.contact_area_mm2,
             centroid_mm: summary.centroid_mm,
             max_depth_mm: summary.max_depth_mm,

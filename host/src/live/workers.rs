@@ -234,6 +234,7 @@ mod tests {
         Job::Tactile(GradientPair {
             dx: frame.clone(),
             dy: frame,
+            dark: None,
         })
     }
 

@@ -15,7 +15,13 @@ use crate::grid::Grid;
 use crate::matcher::{FrameStamp, Label, phase_str};
 use crate::stereo::pipeline::StereoTimings;
 use crate::stereo::reproject::PointCloud;
+use crate::tactile::ambient::AmbientSource;
 use crate::tactile::reconstruct::StageTimings;
+
+/// What records written before the field existed removed: nothing but the colour filter.
+fn colour_filter() -> AmbientSource {
+    AmbientSource::ColourFilter
+}
 
 /// One camera frame's timing and label (`/stereotac/camN/frame`). The image with the
 /// same camera and `timestamp_us` is on `/stereotac/camN/image`.
@@ -229,6 +235,11 @@ pub struct TactileRecord {
     /// `contact: false` then means nothing.
     #[serde(default)]
     pub unlit: bool,
+    /// Which ambient light was removed: `dark-frame` (the pair's LEDs-off frame),
+    /// `calibration` (the model's estimate: no LEDs-off frame came with the pair) or
+    /// `colour-filter` (a model calibrated on raw frames).
+    #[serde(default = "colour_filter")]
+    pub ambient: AmbientSource,
     /// Imprint area, mm².
     pub area_mm2: f64,
     /// Depth-weighted centroid, mm from the frame's top-left corner (none without

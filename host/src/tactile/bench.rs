@@ -157,9 +157,13 @@ pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
             let truth = scene.truth(w, h, optics.px_per_mm).depth;
             for kind in ModelKind::ALL {
                 for solver in SolverKind::ALL {
-                    let mut rec =
-                        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1)))
-                            .expect("sizes match by construction");
+                    let mut rec = Reconstructor::new(
+                        model.clone(),
+                        kind,
+                        solver,
+                        Some((&refs.0, &refs.1).into()),
+                    )
+                    .expect("sizes match by construction");
                     let mut runs = Vec::with_capacity(config.repeats);
                     let mut last = None;
                     for _ in 0..config.repeats.max(1) {
@@ -234,8 +238,9 @@ fn disk_statistics(
     let mut done = 0;
     for kind in ModelKind::ALL {
         for solver in SolverKind::ALL {
-            let mut rec = Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1)))
-                .expect("sizes match by construction");
+            let mut rec =
+                Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into()))
+                    .expect("sizes match by construction");
             let mut readings = Vec::with_capacity(placements);
             for (i, (scene, truth)) in scenes.iter().enumerate() {
                 let pair = render(optics, scene, 100 + i as u64);

@@ -135,7 +135,8 @@ pub fn pixel_colours(
     colours_of(refs, filter, i, at(dx), at(dy))
 }
 
-/// The deviation from flat skin of every block of a pair's block means.
+/// The deviation from flat skin of every block of a pair's block means; NaN (unknown)
+/// where a block has clipped pixels.
 pub fn block_deviations(
     dx: &BlockMeans,
     dy: &BlockMeans,
@@ -146,7 +147,13 @@ pub fn block_deviations(
         .iter()
         .zip(&dy.means)
         .enumerate()
-        .map(|(i, (a, b))| colours_of(block_refs, filter, i, *a, *b).1)
+        .map(|(i, (a, b))| {
+            if dx.clipped[i] > 0 || dy.clipped[i] > 0 {
+                f32::NAN
+            } else {
+                colours_of(block_refs, filter, i, *a, *b).1
+            }
+        })
         .collect()
 }
 
@@ -200,7 +207,9 @@ pub fn find_regions(
         .map(|(i, (a, b))| {
             let (colour, d) = colours_of(block_refs, filter, i, *a, *b);
             unlit += usize::from(colour[0].is_nan() && colour[2].is_nan());
-            d > params.threshold
+            // A block with clipped pixels has a mean that says nothing about the light
+            // (a bright spot or overexposure there): it cannot show contact.
+            d > params.threshold && mx.clipped[i] == 0 && my.clipped[i] == 0
         })
         .collect();
     let mut detection = Detection {

@@ -69,14 +69,14 @@ pub fn load_references(
     }
 }
 
-/// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored),
-/// sorted by name.
+/// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored), with
+/// its LEDs-off frame `NAME_dark.png` when there is one, sorted by name.
 pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
     let dir_error = |source| ImageError::Dir {
         path: dir.to_path_buf(),
         source,
     };
-    let mut found: BTreeMap<String, [Option<PathBuf>; 2]> = BTreeMap::new();
+    let mut found: BTreeMap<String, [Option<PathBuf>; 3]> = BTreeMap::new();
     for e in std::fs::read_dir(dir).map_err(dir_error)? {
         let path = e.map_err(dir_error)?.path();
         let file = path
@@ -84,7 +84,7 @@ pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
             .map(|f| f.to_string_lossy().into_owned())
             .unwrap_or_default();
         let lower = file.to_ascii_lowercase();
-        for (slot, suffix) in ["_dx.png", "_dy.png"].into_iter().enumerate() {
+        for (slot, suffix) in ["_dx.png", "_dy.png", "_dark.png"].into_iter().enumerate() {
             if lower.ends_with(suffix) {
                 let name = file[..file.len() - suffix.len()].to_string();
                 found.entry(name).or_default()[slot] = Some(path.clone());
@@ -98,21 +98,25 @@ pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
     }
     found
         .into_iter()
-        .map(|(name, paths)| match paths {
-            [Some(dx), Some(dy)] => Ok(CalibrationPair {
+        .map(|(name, [dx, dy, dark])| match (dx, dy) {
+            (Some(dx), Some(dy)) => Ok(CalibrationPair {
                 dx: load_rgb(&dx)?,
                 dy: load_rgb(&dy)?,
+                dark: dark.as_deref().map(load_rgb).transpose()?,
                 name,
             }),
-            [Some(path), None] => Err(ImageError::Unpaired {
+            (Some(path), None) => Err(ImageError::Unpaired {
                 path,
                 partner: format!("{name}_dy.png"),
             }),
-            [None, Some(path)] => Err(ImageError::Unpaired {
+            (None, Some(path)) => Err(ImageError::Unpaired {
                 path,
                 partner: format!("{name}_dx.png"),
             }),
-            [None, None] => unreachable!("an entry is made with one path"),
+            (None, None) => Err(ImageError::Unpaired {
+                path: dark.unwrap_or_default(),
+                partner: format!("{name}_dx.png and {name}_dy.png"),
+            }),
         })
         .collect()
 }

@@ -10,6 +10,7 @@
 //! with randomised physics from it and from an independent renderer, to judge the
 //! pipeline on skins it was not tuned on.
 
+pub mod ambient;
 pub mod bench;
 pub mod calibrate;
 pub mod colour;

@@ -10,6 +10,7 @@ use serde::Serialize;
 pub use crate::output::{OutputError, colour_map, write_npy};
 use crate::output::{io, write_false_colour_png, write_png16};
 
+use super::ambient::AmbientSource;
 use super::contact::Roi;
 use super::reconstruct::{Reconstruction, StageTimings};
 use crate::grid::Grid;
@@ -67,6 +68,8 @@ pub struct Summary {
     pub rejected_pixels: usize,
     /// Slopes the sanitiser replaced or clamped.
     pub sanitized_slopes: usize,
+    /// Which ambient light was removed (see [`crate::tactile::ambient`]).
+    pub ambient: AmbientSource,
     /// Stage timings (ms).
     pub timings: StageTimings,
 }
@@ -106,6 +109,7 @@ impl Summary {
             regions: r.regions.clone(),
             rejected_pixels: r.rejected_pixels,
             sanitized_slopes: r.sanitized_slopes,
+            ambient: r.ambient,
             timings: r.timings,
         }
     }

@@ -14,6 +14,9 @@ use std::time::Instant;
 use image::RgbImage;
 use serde::Serialize;
 
+use super::ambient::{
+    AmbientSource, MAX_BRIGHTER_FRACTION, PhaseFrames, brighter_fraction, subtract_into, subtracted,
+};
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::model::{ModelKind, TactileModel, colour_features};
@@ -49,6 +52,31 @@ pub enum ReconstructError {
     /// The reference frames do not look like this sensor's dx and dy phases.
     #[error(transparent)]
     References(#[from] PhaseImageError),
+    /// A LEDs-off frame brighter than the lit frames it goes with.
+    #[error(
+        "the {what} frame is brighter than the lit frames in {percent:.0}% of the frame: \
+         the LEDs only add light, so it shows other light (another exposure or another \
+         camera's view); give the LEDs-off frame taken with them"
+    )]
+    DarkFrame {
+        /// Which frame.
+        what: &'static str,
+        /// Share of the frame where it is brighter (%).
+        percent: f64,
+    },
+    /// The model's stored ambient light does not cover its own frame size.
+    #[error(
+        "the model's ambient estimate ({blocks:?} blocks) does not cover its {width}x{height} \
+         frames: the model file was edited or damaged; recalibrate"
+    )]
+    AmbientEstimate {
+        /// Blocks across and down.
+        blocks: (usize, usize),
+        /// Model frame width.
+        width: usize,
+        /// Model frame height.
+        height: usize,
+    },
 }
 
 /// Milliseconds spent in each stage.
@@ -83,6 +111,8 @@ pub struct Reconstruction {
     /// [`phase_check::MIN_LIT_FRACTION`]'s complement the pair is not a lit dx/dy pair
     /// and "no contact" means nothing ([`Self::unlit`]).
     pub unlit_fraction: f32,
+    /// Which ambient light was removed.
+    pub ambient: AmbientSource,
     /// Stage timings.
     pub timings: StageTimings,
 }
@@ -109,9 +139,13 @@ pub struct Reconstructor {
     block_refs: References,
     solver: PoissonSolver<f32>,
     max_slope: f32,
+    /// The model's ambient estimate at full resolution (models calibrated on LED light).
+    ambient: Option<RgbImage>,
     features: Vec<[f32; 4]>,
     targets: Vec<usize>,
     slopes: Vec<f32>,
+    /// LED light of the current pair (models calibrated on LED light).
+    led: [RgbImage; 2],
 }
 
 impl Reconstructor {
@@ -126,26 +160,44 @@ impl Reconstructor {
             block_refs: self.block_refs.clone(),
             solver: PoissonSolver::new(),
             max_slope: self.max_slope,
+            ambient: self.ambient.clone(),
             features: Vec::new(),
             targets: Vec::new(),
             slopes: Vec::new(),
+            led: Default::default(),
         }
     }
 
     /// A reconstructor for `model` with the chosen gradient model and solver. With
     /// `references` (no-contact dx and dy frames), colours are normalised per pixel by
-    /// them; without, by the model's calibrated background.
+    /// them; without, by the model's calibrated background. A model calibrated on LED
+    /// light removes the references' LEDs-off frame, or its own ambient estimate.
     pub fn new(
         model: TactileModel,
         kind: ModelKind,
         solver_kind: SolverKind,
-        references: Option<(&RgbImage, &RgbImage)>,
+        references: Option<PhaseFrames<'_>>,
     ) -> Result<Self, ReconstructError> {
         let want = (model.width as u32, model.height as u32);
+        let ambient = match &model.ambient {
+            Some(e) if !e.fits(model.width, model.height) => {
+                return Err(ReconstructError::AmbientEstimate {
+                    blocks: (e.width, e.height),
+                    width: model.width,
+                    height: model.height,
+                });
+            }
+            Some(e) => Some(e.image(want.0, want.1)),
+            None => None,
+        };
         let (refs, block_refs) = match references {
-            Some((dx, dy)) => {
-                for (what, img) in [("reference dx", dx), ("reference dy", dy)] {
-                    if img.dimensions() != want {
+            Some(r) => {
+                for (what, img) in [
+                    ("reference dx", Some(r.dx)),
+                    ("reference dy", Some(r.dy)),
+                    ("reference dark", r.dark),
+                ] {
+                    if let Some(img) = img.filter(|i| i.dimensions() != want) {
                         return Err(ReconstructError::ModelSize {
                             what,
                             got: img.dimensions(),
@@ -153,6 +205,23 @@ impl Reconstructor {
                         });
                     }
                 }
+                if let Some(dark) = r.dark.filter(|_| ambient.is_some()) {
+                    let fraction = brighter_fraction(r.dx, dark).max(brighter_fraction(r.dy, dark));
+                    if fraction > MAX_BRIGHTER_FRACTION {
+                        return Err(ReconstructError::DarkFrame {
+                            what: "reference dark",
+                            percent: fraction * 100.0,
+                        });
+                    }
+                }
+                let led;
+                let (dx, dy) = match (&ambient, r.dark.or(ambient.as_ref())) {
+                    (Some(_), Some(dark)) => {
+                        led = [subtracted(r.dx, dark), subtracted(r.dy, dark)];
+                        (&led[0], &led[1])
+                    }
+                    _ => (r.dx, r.dy),
+                };
                 phase_check::check_pair(dx, dy, &model.filter, "reference frames")?;
                 (
                     References {
@@ -179,9 +248,11 @@ impl Reconstructor {
             block_refs,
             solver: PoissonSolver::new(),
             max_slope: DEFAULT_MAX_SLOPE,
+            ambient,
             features: Vec::new(),
             targets: Vec::new(),
             slopes: Vec::new(),
+            led: Default::default(),
         })
     }
 
@@ -190,13 +261,24 @@ impl Reconstructor {
         &self.model
     }
 
-    /// Reconstructs one frame pair.
+    /// Reconstructs one frame pair (no LEDs-off frame).
     pub fn reconstruct(
         &mut self,
         dx: &RgbImage,
         dy: &RgbImage,
     ) -> Result<Reconstruction, ReconstructError> {
+        self.reconstruct_frames((dx, dy).into())
+    }
+
+    /// Reconstructs one frame pair, removing the ambient light its LEDs-off frame shows
+    /// when the model was calibrated on LED light (otherwise the dark frame is unused:
+    /// [`Reconstruction::ambient`] says which light was removed).
+    pub fn reconstruct_frames(
+        &mut self,
+        frames: PhaseFrames<'_>,
+    ) -> Result<Reconstruction, ReconstructError> {
         let start = Instant::now();
+        let (dx, dy) = (frames.dx, frames.dy);
         if dx.dimensions() != dy.dimensions() {
             return Err(ReconstructError::PairSize {
                 dx: dx.dimensions(),
@@ -204,13 +286,52 @@ impl Reconstructor {
             });
         }
         let want = (self.model.width as u32, self.model.height as u32);
-        if dx.dimensions() != want {
-            return Err(ReconstructError::ModelSize {
-                what: "frame",
-                got: dx.dimensions(),
-                want,
-            });
+        for (what, img) in [("frame", Some(dx)), ("dark frame", frames.dark)] {
+            if let Some(img) = img.filter(|i| i.dimensions() != want) {
+                return Err(ReconstructError::ModelSize {
+                    what,
+                    got: img.dimensions(),
+                    want,
+                });
+            }
         }
+        // Taken out for the call and put back: the reconstructor stays reusable.
+        let mut led = std::mem::take(&mut self.led);
+        let estimate = self.ambient.take();
+        let result = match (&estimate, frames.dark) {
+            (None, _) => self.reconstruct_light(dx, dy, AmbientSource::ColourFilter, start),
+            (Some(estimate), dark) => {
+                let [led_dx, led_dy] = &mut led;
+                let mut source = AmbientSource::Calibration;
+                if let Some(dark) = dark {
+                    let brighter =
+                        subtract_into(dx, dark, led_dx).max(subtract_into(dy, dark, led_dy));
+                    source = if brighter > MAX_BRIGHTER_FRACTION {
+                        AmbientSource::CalibrationDarkRefused
+                    } else {
+                        AmbientSource::DarkFrame
+                    };
+                }
+                if source != AmbientSource::DarkFrame {
+                    subtract_into(dx, estimate, led_dx);
+                    subtract_into(dy, estimate, led_dy);
+                }
+                self.reconstruct_light(led_dx, led_dy, source, start)
+            }
+        };
+        self.led = led;
+        self.ambient = estimate;
+        result
+    }
+
+    /// Reconstructs a pair of the light the model works on.
+    fn reconstruct_light(
+        &mut self,
+        dx: &RgbImage,
+        dy: &RgbImage,
+        ambient: AmbientSource,
+        start: Instant,
+    ) -> Result<Reconstruction, ReconstructError> {
         let (w, h) = (self.model.width, self.model.height);
         let filter = self.model.filter;
         let params = self.model.contact;
@@ -223,6 +344,7 @@ impl Reconstructor {
             rejected_pixels: 0,
             sanitized_slopes: 0,
             unlit_fraction: detection.unlit_fraction,
+            ambient,
             timings: StageTimings {
                 detect_ms: ms(start, Instant::now()),
                 ..Default::default()

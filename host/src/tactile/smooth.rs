@@ -19,6 +19,8 @@ pub struct BlockMeans {
     pub height: usize,
     /// Mean `[R, G, B]` per block, row by row.
     pub means: Vec<[f32; 3]>,
+    /// Channel values at 255 (clipped: the light there is unknown) per block.
+    pub clipped: Vec<u32>,
 }
 
 impl BlockMeans {
@@ -31,16 +33,24 @@ impl BlockMeans {
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let raw = image.as_raw();
         let mut rows = vec![0u16; w * 3];
+        let mut clipped_rows = vec![0u16; w * 3];
         let mut means = Vec::with_capacity(bw * bh);
+        let mut clipped = Vec::with_capacity(bw * bh);
         for by in 0..bh {
             let y0 = by * step;
             let n_rows = step.min(h - y0);
             rows.fill(0);
+            clipped_rows.fill(0);
             for y in y0..y0 + n_rows {
                 // Cannot overflow (at most 256 rows of 255); wrapping keeps the loop free
                 // of overflow checks so it vectorises in every profile.
-                for (a, &v) in rows.iter_mut().zip(&raw[y * w * 3..(y + 1) * w * 3]) {
+                for ((a, c), &v) in rows
+                    .iter_mut()
+                    .zip(clipped_rows.iter_mut())
+                    .zip(&raw[y * w * 3..(y + 1) * w * 3])
+                {
                     *a = a.wrapping_add(u16::from(v));
+                    *c = c.wrapping_add(u16::from(v == u8::MAX));
                 }
             }
             for bx in 0..bw {
@@ -54,6 +64,12 @@ impl BlockMeans {
                 }
                 let inv = 1.0 / (n_rows * n_cols) as f32;
                 means.push(s.map(|v| v as f32 * inv));
+                clipped.push(
+                    clipped_rows[x0 * 3..(x0 + n_cols) * 3]
+                        .iter()
+                        .map(|&c| u32::from(c))
+                        .sum(),
+                );
             }
         }
         Self {
@@ -61,8 +77,39 @@ impl BlockMeans {
             width: bw,
             height: bh,
             means,
+            clipped,
         }
     }
+}
+
+/// Bilinear interpolation of per-block values (`width × height` blocks of `step` px, row
+/// by row) at pixel position `(x, y)` (pixel centres at `+0.5`); beyond the outer block
+/// centres the nearest block's value holds.
+pub fn bilinear(
+    blocks: &[[f32; 3]],
+    width: usize,
+    height: usize,
+    step: usize,
+    x: f32,
+    y: f32,
+) -> [f32; 3] {
+    let f = step.max(1) as f32;
+    let u = (x / f - 0.5).clamp(0.0, width.saturating_sub(1) as f32);
+    let v = (y / f - 0.5).clamp(0.0, height.saturating_sub(1) as f32);
+    let (i, j) = (u as usize, v as usize);
+    let (i1, j1) = (
+        (i + 1).min(width.saturating_sub(1)),
+        (j + 1).min(height.saturating_sub(1)),
+    );
+    let (fu, fv) = (u - i as f32, v - j as f32);
+    let at = |i: usize, j: usize| blocks[j * width + i];
+    let mut out = [0.0; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        let top = at(i, j)[c] * (1.0 - fu) + at(i1, j)[c] * fu;
+        let bottom = at(i, j1)[c] * (1.0 - fu) + at(i1, j1)[c] * fu;
+        *o = top * (1.0 - fv) + bottom * fv;
+    }
+    out
 }
 
 /// Mean RGB over the `(2r + 1)²` box around every pixel (clipped at the frame's edges),
@@ -132,6 +179,10 @@ mod tests {
         let b = BlockMeans::of(&img, 4);
         assert_eq!((b.width, b.height), (3, 2));
         assert_eq!(b.means[0], [1.5, 1.5, 3.0]);
+        assert!(b.clipped.iter().all(|&c| c == 0));
+        let mut bright = img.clone();
+        bright.put_pixel(9, 5, image::Rgb([255, 255, 7]));
+        assert_eq!(BlockMeans::of(&bright, 4).clipped, [0, 0, 0, 0, 0, 2]);
         // The last column of blocks holds x = 8, 9; the last row y = 4, 5.
         assert_eq!(b.means[5], [8.5, 4.5, 13.0]);
         assert_eq!(BlockMeans::of(&img, 0).means.len(), 60);

@@ -42,6 +42,7 @@ pub fn ball_presses(
                 name: format!("press{k:02}"),
                 dx: pair.dx,
                 dy: pair.dy,
+                dark: None,
             }
         })
         .collect()
@@ -76,6 +77,6 @@ pub fn builtin_calibration(
         px_per_mm: optics.px_per_mm,
         ..Default::default()
     };
-    let calibration = calibrate(&pairs, Some((&refs.0, &refs.1)), &settings, progress)?;
+    let calibration = calibrate(&pairs, Some((&refs.0, &refs.1).into()), &settings, progress)?;
     Ok((calibration, refs))
 }

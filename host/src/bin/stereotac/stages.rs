@@ -65,7 +65,7 @@ impl TactileSetup {
             self.model.clone(),
             self.kind,
             SolverKind::Dct,
-            self.references.as_ref().map(|(x, y)| (x, y)),
+            self.references.as_ref().map(|(dx, dy)| (dx, dy).into()),
         )?;
         Ok(TactileStage::new(
             reconstructor,

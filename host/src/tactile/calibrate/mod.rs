@@ -26,6 +26,7 @@ use serde::Serialize;
 pub use circle::{Circle, OutlineFit, fit_circle};
 pub use report::{CalibrationReport, overlay};
 
+use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
 use super::model::{
@@ -173,6 +174,8 @@ pub struct CalibrationPair {
     pub dx: RgbImage,
     /// dy image.
     pub dy: RgbImage,
+    /// The LEDs-off frame exposed with them, if any (see [`crate::tactile::ambient`]).
+    pub dark: Option<RgbImage>,
 }
 
 /// Why calibration failed.
@@ -271,9 +274,13 @@ const MAX_DEPTH_OF_RADIUS: f64 = 0.6;
 
 /// Calibrates from ball presses. `references` are no-contact dx/dy frames; without them
 /// the per-pixel median of the pairs is the background.
+///
+/// When every press comes with its LEDs-off frame, the model is calibrated on LED light
+/// alone (each press minus its own LEDs-off frame; the references minus theirs, or minus
+/// the presses' mean ambient light) and keeps that mean for frames without one.
 pub fn calibrate(
     pairs: &[CalibrationPair],
-    references: Option<(&RgbImage, &RgbImage)>,
+    references: Option<PhaseFrames<'_>>,
     settings: &CalibrationSettings,
     mut progress: impl FnMut(CalibrationProgress),
 ) -> Result<Calibration, CalibrationError> {
@@ -303,14 +310,84 @@ pub fn calibrate(
     for p in pairs {
         check(&format!("{}_dx", p.name), &p.dx)?;
         check(&format!("{}_dy", p.name), &p.dy)?;
-    }
-    let (ref_dx, ref_dy) = match references {
-        Some((dx, dy)) => {
-            check("reference dx", dx)?;
-            check("reference dy", dy)?;
-            (dx.clone(), dy.clone())
+        if let Some(d) = &p.dark {
+            check(&format!("{}_dark", p.name), d)?;
         }
-        None => {
+    }
+    if let Some(r) = &references {
+        check("reference dx", r.dx)?;
+        check("reference dy", r.dy)?;
+        if let Some(d) = r.dark {
+            check("reference dark", d)?;
+        }
+    }
+    // LED light alone when every press has its LEDs-off frame.
+    let with_dark = pairs.iter().filter(|p| p.dark.is_some()).count();
+    let mut ambient_warning = None;
+    // LEDs only add light: a LEDs-off frame brighter than its lit frames does not show
+    // their scene light.
+    let refused = pairs
+        .iter()
+        .filter_map(|p| Some((p.name.as_str(), p.dark.as_ref()?, [&p.dx, &p.dy])))
+        .chain(references.and_then(|r| Some(("reference", r.dark?, [r.dx, r.dy]))))
+        .map(|(name, dark, lit)| {
+            let worst = lit
+                .iter()
+                .map(|l| ambient::brighter_fraction(l, dark))
+                .fold(0.0, f64::max);
+            (name, worst)
+        })
+        .find(|(_, f)| *f > ambient::MAX_BRIGHTER_FRACTION);
+    let ambient = if let Some((name, fraction)) = refused {
+        ambient_warning = Some(format!(
+            "LEDs-off frames ignored: {name}'s is brighter than its lit frames in {:.0}% of \
+             the frame (the LEDs only add light: it shows other light, such as another \
+             exposure or another camera's view); the model works on raw frames",
+            fraction * 100.0
+        ));
+        None
+    } else if with_dark == pairs.len() {
+        let mut darks: Vec<&RgbImage> = pairs.iter().filter_map(|p| p.dark.as_ref()).collect();
+        darks.extend(references.and_then(|r| r.dark));
+        AmbientEstimate::of(&darks)
+    } else {
+        if with_dark > 0 || references.is_some_and(|r| r.dark.is_some()) {
+            ambient_warning = Some(format!(
+                "LEDs-off frames ignored: {with_dark} of {} presses have one (all or none); \
+                 the model works on raw frames",
+                pairs.len()
+            ));
+        }
+        None
+    };
+    let led_only: Vec<CalibrationPair>;
+    let pairs: &[CalibrationPair] = if ambient.is_some() {
+        led_only = pairs
+            .iter()
+            .map(|p| {
+                let dark = p.dark.as_ref().expect("every press has one");
+                CalibrationPair {
+                    name: p.name.clone(),
+                    dx: subtracted(&p.dx, dark),
+                    dy: subtracted(&p.dy, dark),
+                    dark: None,
+                }
+            })
+            .collect();
+        &led_only
+    } else {
+        pairs
+    };
+    let (ref_dx, ref_dy) = match (references, &ambient) {
+        (Some(r), Some(estimate)) => {
+            let dark = match r.dark {
+                Some(d) => d.clone(),
+                None => estimate.image(want.0, want.1),
+            };
+            (subtracted(r.dx, &dark), subtracted(r.dy, &dark))
+        }
+        (Some(r), None) => (r.dx.clone(), r.dy.clone()),
+        (None, _) => {
             if pairs.len() < 3 {
                 return Err(CalibrationError::TooFewForMedian(pairs.len()));
             }
@@ -583,11 +660,12 @@ pub fn calibrate(
         filter: settings.filter,
         contact: contact_params,
         background: Background::from_images(&ref_dx, &ref_dy, settings.background_factor.max(1)),
+        ambient,
         dx,
         dy,
         fit: fit_report,
     };
-    let report = CalibrationReport::new(
+    let mut report = CalibrationReport::new(
         &model,
         &presses,
         &rejected,
@@ -596,6 +674,7 @@ pub fn calibrate(
         (outline_threshold, noise),
         &all_samples,
     );
+    report.warnings.extend(ambient_warning);
     Ok(Calibration {
         model,
         presses,

@@ -20,8 +20,10 @@ use serde::{Deserialize, Serialize};
 pub use lut::Lut;
 pub use mlp::{Mlp, MlpTraining};
 
+use super::ambient::AmbientEstimate;
 use super::colour::{ColourFilter, Reference};
 use super::contact::{ContactParams, References};
+use super::smooth::bilinear;
 
 /// Colour range covered by the lookup table (cross-normalised units, flat skin = 1).
 pub const LUT_MAX_COLOUR: f32 = 4.0;
@@ -167,20 +169,7 @@ impl Background {
     /// Planes `[red − green, blue − green, green]` at pixel position `(x, y)` (pixel
     /// centres at `+0.5`), bilinear between block centres.
     fn sample(&self, blocks: &[[f32; 3]], x: f32, y: f32) -> [f32; 3] {
-        let f = self.factor as f32;
-        let u = (x / f - 0.5).clamp(0.0, (self.width - 1) as f32);
-        let v = (y / f - 0.5).clamp(0.0, (self.height - 1) as f32);
-        let (i, j) = (u as usize, v as usize);
-        let (i1, j1) = ((i + 1).min(self.width - 1), (j + 1).min(self.height - 1));
-        let (fu, fv) = (u - i as f32, v - j as f32);
-        let at = |i: usize, j: usize| blocks[j * self.width + i];
-        let mut out = [0.0; 3];
-        for (c, o) in out.iter_mut().enumerate() {
-            let top = at(i, j)[c] * (1.0 - fu) + at(i1, j)[c] * fu;
-            let bottom = at(i, j1)[c] * (1.0 - fu) + at(i1, j1)[c] * fu;
-            *o = top * (1.0 - fv) + bottom * fv;
-        }
-        out
+        bilinear(blocks, self.width, self.height, self.factor, x, y)
     }
 
     /// References at `cell`-pixel resolution over a `width × height` frame: full
@@ -259,6 +248,11 @@ pub struct TactileModel {
     pub contact: ContactParams,
     /// No-contact background (used when no reference frames are given).
     pub background: Background,
+    /// Calibrated on LED light alone (LEDs-off frames subtracted): the calibration's mean
+    /// ambient light, subtracted from frames that come without a LEDs-off frame. `None`:
+    /// the model works on raw frames (see [`super::ambient`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ambient: Option<AmbientEstimate>,
     /// dx phase: slope along x.
     pub dx: AxisModel,
     /// dy phase: slope along y.

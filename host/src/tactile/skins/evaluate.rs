@@ -12,6 +12,7 @@ use super::families::{Family, Skin};
 use super::{AmbientScale, SkinFrames};
 use crate::grid::Grid;
 use crate::rng::Rng;
+use crate::tactile::ambient::PhaseFrames;
 use crate::tactile::bench::errors;
 use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate};
 use crate::tactile::contact::dilate;
@@ -42,6 +43,13 @@ pub struct EvalConfig {
     pub model: ModelKind,
     /// Solver.
     pub solver: SolverKind,
+    /// Use the LEDs-off frames: calibrate on LED light and remove each pair's ambient
+    /// light (interleaved mode); `false`: raw frames and the colour filter (gradient
+    /// mode).
+    pub dark: bool,
+    /// Ambient light of the measured frames relative to the calibration's (the scene's
+    /// light changing after calibration, and between the exposures of one cycle).
+    pub ambient: AmbientScale,
 }
 
 impl Default for EvalConfig {
@@ -56,6 +64,8 @@ impl Default for EvalConfig {
             disk_diameter_mm: 13.0,
             model: ModelKind::Lut,
             solver: SolverKind::Dct,
+            dark: false,
+            ambient: AmbientScale::STEADY,
         }
     }
 }
@@ -121,6 +131,10 @@ pub struct FamilyReport {
     pub role: String,
     /// Skin seed.
     pub skin_seed: u64,
+    /// LEDs-off frames used ([`EvalConfig::dark`]).
+    pub dark: bool,
+    /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
+    pub ambient: [f64; 3],
     /// Calibration.
     pub calibration: CalibrationOutcome,
     /// 1 mm disk, wall slope 0.79: plateau readings.
@@ -171,6 +185,8 @@ pub fn evaluate_skin(
         family: String::new(),
         role: String::new(),
         skin_seed: config.skin_seed,
+        dark: config.dark,
+        ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         calibration: CalibrationOutcome {
             given: config.presses,
             used: 0,
@@ -191,14 +207,24 @@ pub fn evaluate_skin(
     };
     progress("rendering references and presses");
     let refs = skin.references(8);
-    let presses = ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed);
+    let mut presses = ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed);
+    if !config.dark {
+        for p in &mut presses {
+            p.dark = None;
+        }
+    }
+    let references = PhaseFrames {
+        dx: &refs.dx,
+        dy: &refs.dy,
+        dark: config.dark.then_some(&refs.dark),
+    };
     progress("calibrating");
     let settings = CalibrationSettings {
         ball_diameter_mm,
         px_per_mm: ppm,
         ..Default::default()
     };
-    let cal = match calibrate(&presses, Some((&refs.dx, &refs.dy)), &settings, |_| {}) {
+    let cal = match calibrate(&presses, Some(references), &settings, |_| {}) {
         Ok(cal) => cal,
         Err(e) => {
             report.calibration.error = Some(e.to_string());
@@ -218,19 +244,23 @@ pub fn evaluate_skin(
         cal.model.fit.lut_validation_rms,
     ];
     c.warnings = cal.report.warnings.clone();
-    let mut rec = match Reconstructor::new(
-        cal.model,
-        config.model,
-        config.solver,
-        Some((&refs.dx, &refs.dy)),
-    ) {
+    let mut rec = match Reconstructor::new(cal.model, config.model, config.solver, Some(references))
+    {
         Ok(r) => r,
         Err(e) => {
             report.calibration.error = Some(e.to_string());
             return report;
         }
     };
-    let mut read = |frames: &SkinFrames| rec.reconstruct(&frames.dx, &frames.dy);
+    let mut read = |frames: &SkinFrames| {
+        rec.reconstruct_frames(PhaseFrames {
+            dx: &frames.dx,
+            dy: &frames.dy,
+            dark: config.dark.then_some(&frames.dark),
+        })
+    };
+    let render_all =
+        |scenes: &[Scene], first_frame: u64| render_all(skin, scenes, first_frame, config.ambient);
 
     // Disks at random places.
     let mut rng = Rng::new(config.skin_seed ^ 0xD15C);
@@ -257,7 +287,7 @@ pub fn evaluate_skin(
                 }],
             })
             .collect();
-        let frames = render_all(skin, &scenes, 2000 + 100 * k as u64);
+        let frames = render_all(&scenes, 2000 + 100 * k as u64);
         let mut readings = Vec::new();
         for (scene, f) in scenes.iter().zip(&frames) {
             let truth = scene.truth(w, h, ppm).depth;
@@ -302,7 +332,7 @@ pub fn evaluate_skin(
         }],
     })
     .collect();
-    let frames = render_all(skin, &edge_scenes, 3000);
+    let frames = render_all(&edge_scenes, 3000);
     let mut ratio = f64::INFINITY;
     for (scene, f) in edge_scenes.iter().zip(&frames) {
         let truth = scene.truth(w, h, ppm).depth;
@@ -320,7 +350,7 @@ pub fn evaluate_skin(
     // The skin at rest.
     progress("skin at rest");
     let rest: Vec<Scene> = vec![Scene::default(); config.rest_frames];
-    let frames = render_all(skin, &rest, 4000);
+    let frames = render_all(&rest, 4000);
     let (mut contacts, mut max_abs, mut rest_ms) = (0, 0.0f64, Vec::new());
     for f in &frames {
         if let Ok(r) = read(f) {
@@ -343,11 +373,16 @@ pub fn evaluate_skin(
 }
 
 /// Renders every scene (in parallel), frame numbers from `first_frame`.
-fn render_all(skin: &Skin, scenes: &[Scene], first_frame: u64) -> Vec<SkinFrames> {
+fn render_all(
+    skin: &Skin,
+    scenes: &[Scene],
+    first_frame: u64,
+    ambient: AmbientScale,
+) -> Vec<SkinFrames> {
     scenes
         .par_iter()
         .enumerate()
-        .map(|(i, s)| skin.render(s, first_frame + i as u64, AmbientScale::STEADY))
+        .map(|(i, s)| skin.render(s, first_frame + i as u64, ambient))
         .collect()
 }
 
@@ -386,13 +421,14 @@ pub fn ball_presses(skin: &Skin, diameter: f64, count: usize, seed: u64) -> Vec<
             }
         })
         .collect();
-    render_all(skin, &scenes, 1000)
+    render_all(skin, &scenes, 1000, AmbientScale::STEADY)
         .into_iter()
         .enumerate()
         .map(|(k, f)| CalibrationPair {
             name: format!("press{k:02}"),
             dx: f.dx,
             dy: f.dy,
+            dark: Some(f.dark),
         })
         .collect()
 }
@@ -500,7 +536,21 @@ pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)
 pub fn format_report(r: &FamilyReport) -> String {
     use std::fmt::Write;
     let mut s = String::new();
-    let _ = writeln!(s, "{} ({}, skin {}):", r.family, r.role, r.skin_seed);
+    let _ = writeln!(
+        s,
+        "{} ({}, skin {}; {}, ambient x{}/{}/{}):",
+        r.family,
+        r.role,
+        r.skin_seed,
+        if r.dark {
+            "LEDs-off frames subtracted"
+        } else {
+            "raw frames"
+        },
+        r.ambient[0],
+        r.ambient[1],
+        r.ambient[2]
+    );
     for (name, goal, got, ok) in goal_rows(r) {
         let mark = match ok {
             Some(true) => "met",

@@ -11,6 +11,7 @@ use stereotac::live::bench::{self as live_bench, LiveBenchOptions, LiveBenchProg
 use stereotac::stereo::bench::{self as stereo_bench, BenchOptions};
 use stereotac::tactile::bench::{self as tactile_bench, BenchConfig};
 use stereotac::tactile::model::ModelKind;
+use stereotac::tactile::skins::AmbientScale;
 use stereotac::tactile::skins::evaluate::{EvalConfig, evaluate, format_report};
 use stereotac::tactile::skins::families::{families, family};
 
@@ -68,6 +69,15 @@ pub struct SkinsArgs {
     /// Gradient model.
     #[arg(long, default_value = "lut")]
     pub model: ModelKind,
+    /// Interleaved mode: calibrate on LED light (LEDs-off frames subtracted) and remove
+    /// each pair's ambient light with its LEDs-off frame.
+    #[arg(long)]
+    pub dark: bool,
+    /// Ambient light of the measured frames relative to the calibration's, in the dx,
+    /// dy and LEDs-off exposures: e.g. 2,2,2 (the room twice as bright), 1.3,0.8,1
+    /// (light flickering between exposures).
+    #[arg(long, value_parser = parse_ambient, default_value = "1,1,1")]
+    pub ambient: AmbientScale,
     /// Print JSON instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -190,6 +200,8 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 presses: a.presses,
                 placements: a.placements,
                 model: a.model,
+                dark: a.dark,
+                ambient: a.ambient,
                 ..Default::default()
             };
             let report = evaluate(f, &config, &mut |step| {
@@ -208,6 +220,22 @@ fn skins(a: SkinsArgs) -> Result<()> {
         println!("{json}");
     }
     Ok(())
+}
+
+/// `DX,DY,DARK` ambient scales, each finite and non-negative.
+fn parse_ambient(s: &str) -> Result<AmbientScale, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [dx, dy, dark] if v.iter().all(|x| x.is_finite() && *x >= 0.0) => {
+            Ok(AmbientScale { dx, dy, dark })
+        }
+        _ => Err(format!(
+            "expected three non-negative numbers DX,DY,DARK (e.g. 1.3,0.8,1), got {s:?}"
+        )),
+    }
 }
 
 fn live(a: LiveArgs) -> Result<()> {

@@ -1,25 +1,29 @@
 //! `stereotac calibrate`: the tactile model from ball presses (a directory of
-//! `NAME_dx.png` / `NAME_dy.png` pairs, or a recording's dx/dy pairs), with the fitted
-//! circle of each press, the presses set aside and why, and the calibration report.
+//! `NAME_dx.png` / `NAME_dy.png` pairs, each with an optional LEDs-off `NAME_dark.png`,
+//! or a recording's dx/dy pairs), with the fitted circle of each press, the presses set
+//! aside and why, and the calibration report. When every press has its LEDs-off frame
+//! the model works on LED light alone (see `stereotac::tactile::ambient`).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
+use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::calibrate::{
     Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
     overlay,
 };
-use stereotac::tactile::images::{load_pairs, load_references};
+use stereotac::tactile::images::{load_pairs, load_references, load_rgb};
 
 use crate::progress::bar;
 
 /// `stereotac calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Directory of NAME_dx.png / NAME_dy.png pairs, or a recording (MCAP file from
-    /// `record` or `run`): camera 0's dx/dy pairs.
+    /// Directory of NAME_dx.png / NAME_dy.png pairs (with NAME_dark.png, LEDs off, if
+    /// taken), or a recording (MCAP file from `record` or `run`): camera 0's dx/dy pairs
+    /// and, in interleaved mode, the LEDs-off frame before each.
     pub dir: PathBuf,
     /// Diameter of the calibration ball.
     #[arg(long)]
@@ -33,6 +37,9 @@ pub struct Args {
     /// No-contact dy frame.
     #[arg(long, requires = "ref_dx")]
     pub ref_dy: Option<PathBuf>,
+    /// LEDs-off frame taken with the no-contact frames (used when every press has one).
+    #[arg(long, requires = "ref_dx")]
+    pub ref_dark: Option<PathBuf>,
     /// JSON file of contact circles to use instead of fitted ones:
     /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
     #[arg(long)]
@@ -65,6 +72,7 @@ pub fn run(a: Args) -> Result<()> {
         load_pairs(&a.dir)?
     };
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
+    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let overrides: HashMap<String, Circle> = match &a.overrides {
         Some(path) => serde_json::from_slice(
             &std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
@@ -99,7 +107,11 @@ pub fn run(a: Args) -> Result<()> {
     );
     let result = calibrate(
         &pairs,
-        refs.as_ref().map(|(x, y)| (x, y)),
+        refs.as_ref().map(|(dx, dy)| PhaseFrames {
+            dx,
+            dy,
+            dark: ref_dark.as_ref(),
+        }),
         &settings,
         |p| match p {
             CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
@@ -209,8 +221,8 @@ fn write_overlays(dir: &Path, pairs: &[CalibrationPair], cal: &Calibration) -> R
 fn recorded_pairs(path: &std::path::Path) -> Result<Vec<CalibrationPair>> {
     let mut pairs = Vec::new();
     let truncated = replay::pairs(path, |pair| -> Result<()> {
-        if let replay::RecordedPair::Gradient { name, dx, dy } = pair {
-            pairs.push(CalibrationPair { name, dx, dy });
+        if let replay::RecordedPair::Gradient { name, dx, dy, dark } = pair {
+            pairs.push(CalibrationPair { name, dx, dy, dark });
         }
         Ok(())
     })

@@ -288,7 +288,7 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
         calibration.model,
         ModelKind::Lut,
         SolverKind::Dct,
-        Some((&refs.0, &refs.1)),
+        Some((&refs.0, &refs.1).into()),
     )?;
 
     println!(

@@ -28,9 +28,12 @@ pub fn run(a: Args) -> Result<()> {
     let (mut gradient, mut stereo) = (0u64, 0u64);
     let truncated = pairs(&a.recording, |pair| -> Result<()> {
         match pair {
-            RecordedPair::Gradient { name, dx, dy } => {
+            RecordedPair::Gradient { name, dx, dy, dark } => {
                 write_new(&a.pairs.join(format!("{name}_dx.png")), &dx)?;
                 write_new(&a.pairs.join(format!("{name}_dy.png")), &dy)?;
+                if let Some(dark) = dark {
+                    write_new(&a.pairs.join(format!("{name}_dark.png")), &dark)?;
+                }
                 gradient += 1;
             }
             RecordedPair::Stereo { name, left, right } => {

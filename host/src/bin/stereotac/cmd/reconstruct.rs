@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::images::{load_references, load_rgb};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::output;
@@ -22,12 +23,19 @@ pub struct Args {
     /// dy image (strips 2 and 4 lit).
     #[arg(long)]
     pub dy: PathBuf,
+    /// LEDs-off image taken with them: its ambient light is removed when the model was
+    /// calibrated with LEDs-off frames (otherwise the model's own estimate is).
+    #[arg(long)]
+    pub dark: Option<PathBuf>,
     /// No-contact dx frame (otherwise the model's background).
     #[arg(long, requires = "ref_dy")]
     pub ref_dx: Option<PathBuf>,
     /// No-contact dy frame.
     #[arg(long, requires = "ref_dx")]
     pub ref_dy: Option<PathBuf>,
+    /// LEDs-off frame taken with the no-contact frames.
+    #[arg(long, requires = "ref_dx")]
+    pub ref_dark: Option<PathBuf>,
     /// Output directory.
     #[arg(long)]
     pub out_dir: PathBuf,
@@ -46,14 +54,30 @@ pub fn run(a: Args) -> Result<()> {
     let model = TactileModel::load(&a.model)?;
     let px_per_mm = model.px_per_mm;
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
+    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let (dx, dy) = (load_rgb(&a.dx)?, load_rgb(&a.dy)?);
+    let dark = a.dark.as_deref().map(load_rgb).transpose()?;
+    if let (Some(path), None) = (&a.dark, &model.ambient) {
+        eprintln!(
+            "warning: {} not used: the model was calibrated without LEDs-off frames (calibrate with NAME_dark.png files to use them)",
+            path.display()
+        );
+    }
     let mut rec = Reconstructor::new(
         model,
         a.model_kind,
         a.solver,
-        refs.as_ref().map(|(x, y)| (x, y)),
+        refs.as_ref().map(|(dx, dy)| PhaseFrames {
+            dx,
+            dy,
+            dark: ref_dark.as_ref(),
+        }),
     )?;
-    let r = rec.reconstruct(&dx, &dy)?;
+    let r = rec.reconstruct_frames(PhaseFrames {
+        dx: &dx,
+        dy: &dy,
+        dark: dark.as_ref(),
+    })?;
     anyhow::ensure!(
         !r.unlit(),
         "{} / {}: {:.0}% of the frame shows no usable LED light (black, white, overexposed, or taken with the LEDs off): not a lit dx/dy pair, nothing written",
