@@ -103,7 +103,8 @@ pub struct Reconstruction {
     pub contact_mask: Grid<bool>,
     /// Regions integrated.
     pub regions: Vec<Roi>,
-    /// Pixels rejected by the colour filter inside the regions.
+    /// Phase values of touched pixels the colour filter rejected (a pixel counts once
+    /// per phase).
     pub rejected_pixels: usize,
     /// Slopes replaced or clamped by the sanitiser.
     pub sanitized_slopes: usize,
@@ -141,8 +142,9 @@ pub struct Reconstructor {
     max_slope: f32,
     /// The model's ambient estimate at full resolution (models calibrated on LED light).
     ambient: Option<RgbImage>,
-    features: Vec<[f32; 4]>,
-    targets: Vec<usize>,
+    /// Model features and their pixel in the region, per axis.
+    features: [Vec<[f32; 4]>; 2],
+    targets: [Vec<usize>; 2],
     slopes: Vec<f32>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
@@ -161,8 +163,8 @@ impl Reconstructor {
             solver: PoissonSolver::new(),
             max_slope: self.max_slope,
             ambient: self.ambient.clone(),
-            features: Vec::new(),
-            targets: Vec::new(),
+            features: Default::default(),
+            targets: Default::default(),
             slopes: Vec::new(),
             led: Default::default(),
         }
@@ -249,8 +251,8 @@ impl Reconstructor {
             solver: PoissonSolver::new(),
             max_slope: DEFAULT_MAX_SLOPE,
             ambient,
-            features: Vec::new(),
-            targets: Vec::new(),
+            features: Default::default(),
+            targets: Default::default(),
             slopes: Vec::new(),
             led: Default::default(),
         })
@@ -371,52 +373,65 @@ impl Reconstructor {
         let filter = self.model.filter;
         let params = self.model.contact;
         let n = roi.area();
-        // Normalised colours of both phases; NaN marks rejected pixels.
-        let mut colour = vec![[f32::NAN; 4]; n];
+        // Touched pixels: the touched blocks, grown to take in the faint outer slopes.
         let mut mask = vec![false; n];
-        for ry in 0..roi.height {
-            let y = roi.y + ry;
-            for rx in 0..roi.width {
-                let x = roi.x + rx;
-                let (c, _) = contact::pixel_colours(&self.refs, &filter, dx, dy, x, y);
-                out.rejected_pixels += c.iter().step_by(2).filter(|v| v.is_nan()).count();
-                colour[ry * roi.width + rx] = c;
-                mask[ry * roi.width + rx] = detection.touched_at(x, y);
+        let step = detection.step.max(1);
+        let block_of_column: Vec<usize> = (roi.x..roi.x + roi.width).map(|x| x / step).collect();
+        for (ry, row) in mask.chunks_exact_mut(roi.width).enumerate() {
+            let start = (roi.y + ry) / step * detection.blocks_across;
+            let touched = &detection.touched[start..start + detection.blocks_across];
+            for (m, &bx) in row.iter_mut().zip(&block_of_column) {
+                *m = touched[bx];
             }
         }
         contact::dilate(&mut mask, roi.width, roi.height, params.dilate_px);
+
+        // Normalised colours of the touched pixels, as each axis' model features, in one
+        // pass; pixels the colour filter rejects in a phase get no slope on its axis.
+        let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
+        for axis in 0..2 {
+            self.features[axis].clear();
+            self.targets[axis].clear();
+        }
+        let (raw_dx, raw_dy) = (dx.as_raw(), dy.as_raw());
+        for (ry, row) in mask.chunks_exact(roi.width).enumerate() {
+            let y = roi.y + ry;
+            let yn = y as f32 * inv_h;
+            for (rx, _) in row.iter().enumerate().filter(|(_, m)| **m) {
+                let x = roi.x + rx;
+                let i = y * w + x;
+                let at = |raw: &[u8]| {
+                    let px = &raw[3 * i..3 * i + 3];
+                    [f32::from(px[0]), f32::from(px[1]), f32::from(px[2])]
+                };
+                let (c, _) = contact::colours_of(&self.refs, &filter, i, at(raw_dx), at(raw_dy));
+                out.rejected_pixels += usize::from(c[0].is_nan()) + usize::from(c[2].is_nan());
+                let xn = x as f32 * inv_w;
+                for (axis, f) in colour_features(c).into_iter().enumerate() {
+                    if let Some([r, b]) = f {
+                        self.features[axis].push([r, b, xn, yn]);
+                        self.targets[axis].push(ry * roi.width + rx);
+                    }
+                }
+            }
+        }
         let t1 = Instant::now();
         out.timings.colour_ms += ms(t0, t1);
 
         // Slopes from the model on touched, accepted pixels; zero elsewhere.
         let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
         let mut q = Grid::filled(roi.width, roi.height, 0.0f32);
-        let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
         for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
-            self.features.clear();
-            self.targets.clear();
-            for (k, c) in colour.iter().enumerate() {
-                if !mask[k] {
-                    continue;
-                }
-                if let Some([r, b]) = colour_features(*c)[axis] {
-                    let (rx, ry) = (k % roi.width, k / roi.width);
-                    let xn = (roi.x + rx) as f32 * inv_w;
-                    let yn = (roi.y + ry) as f32 * inv_h;
-                    self.features.push([r, b, xn, yn]);
-                    self.targets.push(k);
-                }
-            }
             self.slopes.clear();
-            self.slopes.resize(self.features.len(), 0.0);
+            self.slopes.resize(self.features[axis].len(), 0.0);
             let model = if axis == 0 {
                 &self.model.dx
             } else {
                 &self.model.dy
             };
-            model.eval(self.kind, &self.features, &mut self.slopes);
+            model.eval(self.kind, &self.features[axis], &mut self.slopes);
             let values = grid.as_mut_slice();
-            for (&k, &s) in self.targets.iter().zip(&self.slopes) {
+            for (&k, &s) in self.targets[axis].iter().zip(&self.slopes) {
                 values[k] = s;
             }
         }

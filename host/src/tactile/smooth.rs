@@ -44,32 +44,37 @@ impl BlockMeans {
             for y in y0..y0 + n_rows {
                 // Cannot overflow (at most 256 rows of 255); wrapping keeps the loop free
                 // of overflow checks so it vectorises in every profile.
-                for ((a, c), &v) in rows
-                    .iter_mut()
-                    .zip(clipped_rows.iter_mut())
-                    .zip(&raw[y * w * 3..(y + 1) * w * 3])
-                {
-                    *a = a.wrapping_add(u16::from(v));
-                    *c = c.wrapping_add(u16::from(v == u8::MAX));
+                let row = &raw[y * w * 3..(y + 1) * w * 3];
+                let (sums, clips) = (&mut rows[..row.len()], &mut clipped_rows[..row.len()]);
+                for i in 0..row.len() {
+                    sums[i] = sums[i].wrapping_add(u16::from(row[i]));
+                    clips[i] = clips[i].wrapping_add(u16::from(row[i] == u8::MAX));
                 }
             }
+            // Sums of at most 256 × 256 values of 255 fit a u32: wrapping adds keep the
+            // loops free of overflow checks.
+            let full = 1.0 / (n_rows * step) as f32;
             for bx in 0..bw {
                 let x0 = bx * step;
                 let n_cols = step.min(w - x0);
+                let inv = if n_cols == step {
+                    full
+                } else {
+                    1.0 / (n_rows * n_cols) as f32
+                };
+                let span = x0 * 3..(x0 + n_cols) * 3;
                 let mut s = [0u32; 3];
-                for px in rows[x0 * 3..(x0 + n_cols) * 3].chunks_exact(3) {
-                    s[0] += u32::from(px[0]);
-                    s[1] += u32::from(px[1]);
-                    s[2] += u32::from(px[2]);
+                for px in rows[span.clone()].chunks_exact(3) {
+                    for c in 0..3 {
+                        s[c] = s[c].wrapping_add(u32::from(px[c]));
+                    }
                 }
-                let inv = 1.0 / (n_rows * n_cols) as f32;
+                let mut clips = 0u32;
+                for &c in &clipped_rows[span] {
+                    clips = clips.wrapping_add(u32::from(c));
+                }
                 means.push(s.map(|v| v as f32 * inv));
-                clipped.push(
-                    clipped_rows[x0 * 3..(x0 + n_cols) * 3]
-                        .iter()
-                        .map(|&c| u32::from(c))
-                        .sum(),
-                );
+                clipped.push(clips);
             }
         }
         Self {

@@ -150,6 +150,48 @@ impl Lut {
 
 /// Mean per entry where samples fell; elsewhere the mean of already-filled neighbours,
 /// spreading outwards until the table is full. An empty table is all zero.
+impl Lut {
+    /// [`Self::eval`] over feature rows `[r, b, x, y]`, with the table's constants
+    /// hoisted out of the loop (the hot path of reconstruction).
+    pub fn eval_batch(&self, features: &[[f32; 4]], out: &mut [f32]) {
+        let bins = self.bins.max(2);
+        if self.table.len() < bins * bins || self.gain.len() < self.cells_x * self.cells_y {
+            // A table that does not match its size (a damaged model file): slope 0.
+            out.iter_mut().for_each(|o| *o = 0.0);
+            return;
+        }
+        let table = &self.table[..bins * bins];
+        let top = (bins - 1) as f32;
+        let scale = top / self.max_value;
+        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
+        let single_gain = (cells_x * cells_y == 1).then(|| self.gain[0]);
+        // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
+        let split = |v: f32, top: f32| {
+            let v = v.max(0.0).min(top);
+            let i = (v as usize).min((top as usize).saturating_sub(1));
+            (i, v - i as f32)
+        };
+        for (f, o) in features.iter().zip(out.iter_mut()) {
+            let (ir, fr) = split(f[0] * scale, top);
+            let (ib, fb) = split(f[1] * scale, top);
+            let row = ir * bins + ib;
+            let a = table[row] * (1.0 - fb) + table[row + 1] * fb;
+            let c = table[row + bins] * (1.0 - fb) + table[row + bins + 1] * fb;
+            let colour = a * (1.0 - fr) + c * fr;
+            *o = match single_gain {
+                Some(g) => colour * g,
+                None => {
+                    let gain: f32 = cell_weights(f[2], f[3], cells_x, cells_y)
+                        .iter()
+                        .map(|&(cell, w)| self.gain[cell] * w)
+                        .sum();
+                    colour * gain
+                }
+            };
+        }
+    }
+}
+
 fn fill_gaps(sum: &[f32], weight: &[f32], bins: usize) -> Vec<f32> {
     const SEEN: f32 = 1e-3;
     let mut value: Vec<f32> = sum
@@ -195,6 +237,41 @@ fn fill_gaps(sum: &[f32], weight: &[f32], bins: usize) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn batch_evaluation_equals_one_by_one_including_nan_and_out_of_range() {
+        let samples: Vec<Sample> = (0..4000)
+            .map(|i| {
+                let (a, b) = ((i as f32 * 0.618).fract(), (i as f32 * 0.377).fract());
+                Sample {
+                    features: [0.3 + 1.4 * a, 0.3 + 1.4 * b, a, b],
+                    target: (a - b) * (1.0 + a),
+                }
+            })
+            .collect();
+        for cells in [(1, 1), (4, 3)] {
+            let lut = Lut::fit(&samples, 24, 2.5, cells.0, cells.1);
+            let mut features: Vec<[f32; 4]> = samples.iter().map(|s| s.features).collect();
+            features.extend([
+                [f32::NAN, 1.0, 0.5, 0.5],
+                [1.0, f32::NAN, f32::NAN, 0.5],
+                [-3.0, 9.0, 1.5, -0.2],
+                [f32::INFINITY, f32::NEG_INFINITY, 0.0, 1.0],
+            ]);
+            let mut batch = vec![0.0; features.len()];
+            lut.eval_batch(&features, &mut batch);
+            for (f, got) in features.iter().zip(&batch) {
+                let want = lut.eval(f[0], f[1], f[2], f[3]);
+                assert_eq!(got.to_bits(), want.to_bits(), "{f:?}: {got} vs {want}");
+            }
+        }
+        // A damaged table gives slope 0, never an index out of bounds.
+        let mut broken = Lut::fit(&samples, 24, 2.5, 4, 3);
+        broken.table.truncate(10);
+        let mut out = vec![1.0; 3];
+        broken.eval_batch(&[[1.0, 1.0, 0.5, 0.5]; 3], &mut out);
+        assert_eq!(out, [0.0; 3]);
+    }
 
     #[test]
     fn learns_a_smooth_function_and_saturates_outside_the_data() {

@@ -112,11 +112,7 @@ impl AxisModel {
     /// Slopes for feature rows with the chosen model.
     pub fn eval(&self, kind: ModelKind, features: &[[f32; 4]], out: &mut [f32]) {
         match kind {
-            ModelKind::Lut => {
-                for (f, o) in features.iter().zip(out.iter_mut()) {
-                    *o = self.lut.eval(f[0], f[1], f[2], f[3]);
-                }
-            }
+            ModelKind::Lut => self.lut.eval_batch(features, out),
             ModelKind::Mlp => self.mlp.eval_batch(features, out),
         }
     }
