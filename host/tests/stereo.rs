@@ -9,6 +9,7 @@ use std::path::Path;
 
 use serde_json::Value;
 use stereotac::output::read_npy;
+use stereotac::stereo::ros_info::camera_info_pair;
 use stereotac::stereo::synthetic::StereoRig;
 
 fn npy_f32(path: &Path) -> Vec<f32> {
@@ -61,6 +62,58 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
         .filter(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
         .count();
     assert_eq!(same, da.len());
+
+    // The rig as a ROS camera_info pair (metres) and as an OpenCV file in metres with
+    // --units m: the same depth. Without --units the metres file is refused, with why.
+    let median_depth = |d: &Path| {
+        let mut v: Vec<f32> = npy_f32(&d.join("depth.npy"))
+            .into_iter()
+            .filter(|v| v.is_finite())
+            .collect();
+        v.sort_by(f32::total_cmp);
+        v[v.len() / 2] as f64
+    };
+    let want = median_depth(&b);
+    let rig = StereoRig::sensor().calibration();
+    let (ros_left, ros_right) = camera_info_pair(&rig).unwrap();
+    let (l, r) = (dir.join("left.yaml"), dir.join("right.yaml"));
+    std::fs::write(&l, ros_left).unwrap();
+    std::fs::write(&r, ros_right).unwrap();
+    let ros = dir.join("ros");
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--calib",
+        l.to_str().unwrap(),
+        "--calib",
+        r.to_str().unwrap(),
+        "--left",
+        a.join("input_left.png").to_str().unwrap(),
+        "--right",
+        a.join("input_right.png").to_str().unwrap(),
+        "--out-dir",
+        ros.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let got = median_depth(&ros);
+    assert!(
+        (got / want - 1.0).abs() < 0.005,
+        "ROS pair: {got} vs {want} mm"
+    );
+    let mut in_m = rig;
+    in_m.t /= 1000.0;
+    let yaml_m = dir.join("rig_m.yaml");
+    std::fs::write(&yaml_m, in_m.to_opencv_yaml()).unwrap();
+    let (left_png, right_png) = (a.join("input_left.png"), a.join("input_right.png"));
+    let m = dir.join("m");
+    let (ok, _, err) = stereo_from_files(&yaml_m, &left_png, &right_png, &m, &[]);
+    assert!(!ok && err.contains("--units m"), "{err}");
+    let (ok, _, err) = stereo_from_files(&yaml_m, &left_png, &right_png, &m, &["--units", "m"]);
+    assert!(ok, "{err}");
+    let got = median_depth(&m);
+    assert!(
+        (got / want - 1.0).abs() < 1e-6,
+        "--units m: {got} vs {want} mm"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -3,9 +3,13 @@
 //! [`StereoCalibration`] and written back in the OpenCV form.
 //!
 //! Conventions: `R`, `T` take a point from the left camera's frame to the right one's,
-//! `X_right = R·X_left + T`, in the file's length unit (OpenCV calibrations in mm when
-//! the squares were given in mm). A ROS pair carries the same extrinsics inside its
-//! rectification: `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))` with `Tx = P2[0,3] / P2[0,0]`.
+//! `X_right = R·X_left + T`, in millimetres once read. OpenCV files carry no unit: `T` is
+//! in the unit the board's squares were given in, millimetres unless told otherwise
+//! ([`LengthUnit`], `--units m`). A ROS pair carries the same extrinsics inside its
+//! rectification, `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))` with `Tx = P2[0,3] / P2[0,0]`,
+//! in metres as everywhere in ROS. A rig that is not plausible for this sensor (a
+//! baseline under 1 mm or over 1 m, a focal length outside 0.1–10× the image width) is
+//! refused with the number and its likely cause.
 
 use std::collections::BTreeMap;
 
@@ -59,6 +63,42 @@ pub enum CalibError {
     Files(String),
 }
 
+/// The length unit of an OpenCV calibration file's `T` (ROS files are always metres).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum LengthUnit {
+    /// Millimetres (the board's squares given in mm; our own files).
+    #[default]
+    Mm,
+    /// Metres.
+    M,
+}
+
+impl std::str::FromStr for LengthUnit {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "mm" => Ok(LengthUnit::Mm),
+            "m" => Ok(LengthUnit::M),
+            _ => Err(format!("unknown unit {s:?} (expected mm or m)")),
+        }
+    }
+}
+
+impl LengthUnit {
+    /// Millimetres per unit.
+    pub fn mm(self) -> f64 {
+        match self {
+            LengthUnit::Mm => 1.0,
+            LengthUnit::M => 1000.0,
+        }
+    }
+}
+
+/// Smallest and largest plausible baselines (mm).
+pub const BASELINE_RANGE_MM: (f64, f64) = (1.0, 1000.0);
+/// Plausible focal lengths, as multiples of the image width.
+pub const FOCAL_RANGE_OF_WIDTH: (f64, f64) = (0.1, 10.0);
+
 /// A calibrated stereo pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StereoCalibration {
@@ -68,7 +108,7 @@ pub struct StereoCalibration {
     pub right: Camera,
     /// Rotation from the left camera's frame to the right one's.
     pub r: Matrix3<f64>,
-    /// Translation from the left camera's frame to the right one's (file unit, e.g. mm).
+    /// Translation from the left camera's frame to the right one's (mm).
     pub t: Vector3<f64>,
 }
 
@@ -345,8 +385,14 @@ fn extrinsics_from_rectification(
 }
 
 impl StereoCalibration {
-    /// Reads one OpenCV stereo YAML file, or a ROS `camera_info` pair (left, then right).
+    /// Reads one OpenCV stereo YAML file (`T` in mm), or a ROS `camera_info` pair (left,
+    /// then right).
     pub fn load(files: &[std::path::PathBuf]) -> Result<Self, CalibError> {
+        Self::load_in(files, LengthUnit::Mm)
+    }
+
+    /// [`Self::load`] with an OpenCV file's `T` in `unit`.
+    pub fn load_in(files: &[std::path::PathBuf], unit: LengthUnit) -> Result<Self, CalibError> {
         let read = |path: &std::path::Path| {
             let file = path.display().to_string();
             match std::fs::read_to_string(path) {
@@ -360,7 +406,7 @@ impl StereoCalibration {
         match files {
             [one] => {
                 let (name, text) = read(one)?;
-                Self::from_opencv_yaml(&name, &text)
+                Self::from_opencv_yaml_in(&name, &text, unit)
             }
             [left, right] => {
                 let (l, r) = (read(left)?, read(right)?);
@@ -376,9 +422,19 @@ impl StereoCalibration {
         }
     }
 
-    /// Read an OpenCV stereo YAML: `K1 D1 K2 D2` and `R T` (or `R1 R2 P1 P2`), the image
-    /// size, and optionally `distortion_model` (default `plumb_bob`).
+    /// Read an OpenCV stereo YAML with `T` in mm (see [`Self::from_opencv_yaml_in`]).
     pub fn from_opencv_yaml(file: &str, text: &str) -> Result<Self, CalibError> {
+        Self::from_opencv_yaml_in(file, text, LengthUnit::Mm)
+    }
+
+    /// Read an OpenCV stereo YAML: `K1 D1 K2 D2` (or OpenCV's sample names `M1 D1 M2
+    /// D2`) and `R T` (or `R1 R2 P1 P2`), the image size, and optionally
+    /// `distortion_model` (default `plumb_bob`); `T` (or `P2`'s baseline) in `unit`.
+    pub fn from_opencv_yaml_in(
+        file: &str,
+        text: &str,
+        unit: LengthUnit,
+    ) -> Result<Self, CalibError> {
         let f = Fields::parse(file, text)?;
         let (width, height) = f.image_size()?;
         let model = f.model()?;
@@ -390,7 +446,11 @@ impl StereoCalibration {
                 distortion: f.distortion(d, &model)?,
             })
         };
-        let (left, right) = (camera("K1", "D1")?, camera("K2", "D2")?);
+        let name = |k: &'static str, m: &'static str| if f.has(k) || !f.has(m) { k } else { m };
+        let (left, right) = (
+            camera(name("K1", "M1"), "D1")?,
+            camera(name("K2", "M2"), "D2")?,
+        );
         let (r, t) = if f.has("R") || f.has("T") || !f.has("R1") {
             let r = f.matrix3("R")?;
             check_rotation(&f, "R", &r)?;
@@ -402,7 +462,11 @@ impl StereoCalibration {
             let p2 = f.matrix3x4("P2")?;
             extrinsics_from_rectification(&r1, &r2, &p2)
         };
-        Self::checked(left, right, r, t)
+        let hint = match unit {
+            LengthUnit::Mm => "pass --units m if the file is in metres",
+            LengthUnit::M => "pass --units mm if the file is in millimetres",
+        };
+        Self::checked(left, right, r, t * unit.mm(), &format!("{file}: {hint}"))
     }
 
     /// Read a left and a right ROS `camera_info` YAML.
@@ -439,14 +503,25 @@ impl StereoCalibration {
             )));
         }
         let (r, t) = extrinsics_from_rectification(&r1, &r2, &p2);
-        Self::checked(left, right, r, t)
+        Self::checked(
+            left,
+            right,
+            r,
+            t * LengthUnit::M.mm(),
+            &format!(
+                "{right_file}: ROS camera_info is in metres (projection_matrix[0][3] = -fx·baseline)"
+            ),
+        )
     }
 
+    /// The calibration if it is a plausible rig; `hint` says where the numbers came from
+    /// and how to read them otherwise.
     fn checked(
         left: Camera,
         right: Camera,
         r: Matrix3<f64>,
         t: Vector3<f64>,
+        hint: &str,
     ) -> Result<Self, CalibError> {
         if (left.width, left.height) != (right.width, right.height) {
             return Err(CalibError::Inconsistent(format!(
@@ -464,6 +539,33 @@ impl StereoCalibration {
                 "the baseline must be finite and non-zero, found T = {:?}",
                 t.as_slice()
             )));
+        }
+        let baseline = t.norm();
+        let (lo, hi) = BASELINE_RANGE_MM;
+        if baseline < lo || baseline > hi {
+            let likely = if baseline < lo {
+                "T looks like metres read as millimetres"
+            } else {
+                "T looks like millimetres read as metres, or another unit"
+            };
+            return Err(CalibError::Inconsistent(format!(
+                "implausible baseline {baseline:.6} mm (a stereo rig is {lo}–{hi} mm): {likely}; {hint}"
+            )));
+        }
+        let (flo, fhi) = FOCAL_RANGE_OF_WIDTH;
+        for (side, cam) in [("left", &left), ("right", &right)] {
+            let w = f64::from(cam.width);
+            for (axis, f) in [("fx", cam.k[(0, 0)]), ("fy", cam.k[(1, 1)])] {
+                if !(f >= flo * w && f <= fhi * w) {
+                    return Err(CalibError::Inconsistent(format!(
+                        "implausible {side} focal length {axis} = {f} px for an image {w} px wide \
+                         (expected {}–{} px): the camera matrix may belong to another image size \
+                         or be scaled",
+                        flo * w,
+                        fhi * w
+                    )));
+                }
+            }
         }
         Ok(Self { left, right, r, t })
     }
@@ -575,16 +677,72 @@ pub(crate) mod tests {
                 yaml::list(p.transpose().as_slice()),
             )
         };
+        // ROS writes Tx = -fx·B with B in metres.
+        let mut p2_m = rect.p2;
+        p2_m[(0, 3)] /= 1000.0;
         let left = info(&c.left, &rect.r1, &rect.p1);
-        let right = info(&c.right, &rect.r2, &rect.p2);
+        let right = info(&c.right, &rect.r2, &p2_m);
         let read = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &right)).unwrap();
         assert_eq!((read.left, read.right), (c.left, c.right));
         assert!((read.r - c.r).abs().max() < 1e-12);
-        assert!((read.t - c.t).abs().max() < 1e-9);
+        assert!((read.t - c.t).abs().max() < 1e-9, "{:?} mm", read.t);
+        assert!((read.baseline() - 14.0).abs() < 0.5, "{}", read.baseline());
+        // A pair written in millimetres (not ROS's unit) is refused with the cause.
+        let in_mm = info(&c.right, &rect.r2, &rect.p2);
+        let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &in_mm))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("implausible baseline") && e.contains("metres"),
+            "{e}"
+        );
         // Swapped files are refused.
         let e =
             StereoCalibration::from_ros_pair(("r.yaml", &right), ("l.yaml", &left)).unwrap_err();
         assert!(e.to_string().contains("not the left camera"), "{e}");
+    }
+
+    #[test]
+    fn opencv_files_in_metres_and_with_the_sample_names_read_in_millimetres() {
+        let c = sensor_pair(Distortion::NONE);
+        let mm = c.to_opencv_yaml();
+        // The same rig with T in metres.
+        let mut in_m = c;
+        in_m.t /= 1000.0;
+        let m_text = in_m.to_opencv_yaml();
+        let e = StereoCalibration::from_opencv_yaml("m.yaml", &m_text)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("implausible baseline 0.014") && e.contains("--units m"),
+            "{e}"
+        );
+        let read =
+            StereoCalibration::from_opencv_yaml_in("m.yaml", &m_text, LengthUnit::M).unwrap();
+        assert!((read.t - c.t).abs().max() < 1e-9);
+        // Millimetres read as metres: 14 m.
+        let e = StereoCalibration::from_opencv_yaml_in("mm.yaml", &mm, LengthUnit::M)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("implausible baseline") && e.contains("--units mm"),
+            "{e}"
+        );
+        // OpenCV's sample names.
+        let sample = mm.replace("K1:", "M1:").replace("K2:", "M2:");
+        assert_eq!(
+            StereoCalibration::from_opencv_yaml("s.yaml", &sample).unwrap(),
+            StereoCalibration::from_opencv_yaml("mm.yaml", &mm).unwrap()
+        );
+        // A focal length for another image size.
+        let mut wide = c;
+        wide.left.k[(0, 0)] *= 40.0;
+        let e = StereoCalibration::from_opencv_yaml("f.yaml", &wide.to_opencv_yaml())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("implausible left focal length fx"), "{e}");
+        assert_eq!("M".parse::<LengthUnit>(), Ok(LengthUnit::M));
+        assert!("km".parse::<LengthUnit>().is_err());
     }
 
     #[test]

@@ -37,13 +37,14 @@ pub mod postfilter;
 pub mod prefilter;
 pub mod rectify;
 pub mod reproject;
+pub mod ros_info;
 pub mod scene;
 pub mod speckle;
 pub mod synthetic;
 pub mod yaml;
 
 pub use block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
-pub use calibration::{CalibError, StereoCalibration};
+pub use calibration::{CalibError, LengthUnit, StereoCalibration};
 pub use camera::{Camera, Distortion};
 pub use pipeline::{StereoConfig, StereoError, StereoFrame, StereoPipeline};
 pub use rectify::{Rectification, RectifyError, RemapTable};

@@ -11,7 +11,7 @@ use stereotac::live::{StereoStage, TactileStage};
 use stereotac::matcher::StampRef;
 use stereotac::recording::topics;
 use stereotac::recording::writer::{Item, Recorder};
-use stereotac::stereo::{StereoCalibration, StereoConfig, StereoPipeline};
+use stereotac::stereo::{LengthUnit, StereoCalibration, StereoConfig, StereoPipeline};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
@@ -38,6 +38,10 @@ pub struct StageArgs {
     /// YAML, or two ROS camera_info YAMLs (left, then right).
     #[arg(long = "calib")]
     pub calib: Vec<PathBuf>,
+    /// Length unit of an OpenCV calibration's `T` (ROS camera_info files are always
+    /// metres): mm (default) or m.
+    #[arg(long, default_value = "mm")]
+    pub units: LengthUnit,
 }
 
 /// A tactile model with the no-contact frames it normalises by, if any.

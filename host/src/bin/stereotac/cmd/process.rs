@@ -264,7 +264,7 @@ fn setups(
     let settings =
         stereo_settings(header.metadata.get(META_STEREO)).with_context(|| format!("{file}"))?;
     let calib = if !a.stages.calib.is_empty() {
-        Some(StereoCalibration::load(&a.stages.calib)?)
+        Some(StereoCalibration::load_in(&a.stages.calib, a.stages.units)?)
     } else {
         header
             .attachments

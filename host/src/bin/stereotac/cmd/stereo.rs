@@ -5,12 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use stereotac::output::{read_grey, write_grey_png};
-use stereotac::stereo::StereoCalibration;
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::output::{StereoSummary, write_outputs};
 use stereotac::stereo::pipeline::{StereoConfig, StereoPipeline};
 use stereotac::stereo::postfilter::HoleFill;
 use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+use stereotac::stereo::{LengthUnit, StereoCalibration};
 
 use crate::args::PipelineArgs;
 
@@ -21,6 +21,10 @@ pub struct Args {
     /// right). Not needed with --synthetic.
     #[arg(long, num_args = 1, action = clap::ArgAction::Append)]
     pub calib: Vec<PathBuf>,
+    /// Length unit of an OpenCV calibration's `T` (ROS camera_info files are always
+    /// metres): mm (default) or m.
+    #[arg(long, default_value = "mm")]
+    pub units: LengthUnit,
     /// Left image (8-bit; colour is converted to grey).
     #[arg(long, required_unless_present = "synthetic")]
     pub left: Option<PathBuf>,
@@ -72,7 +76,7 @@ pub fn run(a: Args) -> Result<()> {
             (rig.calibration(), l, r)
         }
         None => {
-            let calib = StereoCalibration::load(&a.calib)?;
+            let calib = StereoCalibration::load_in(&a.calib, a.units)?;
             let left = read_grey(a.left.as_deref().context("--left is required")?)?;
             let right = read_grey(a.right.as_deref().context("--right is required")?)?;
             (calib, left, right)
