@@ -31,6 +31,11 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
     assert!(ok, "{err}");
     let s: Value = serde_json::from_str(&out).expect("JSON summary");
     assert!(s["fill_rate"].as_f64().unwrap() > 0.7, "{s}");
+    assert_eq!(
+        s["warnings"],
+        serde_json::json!([]),
+        "a clean capture warns of nothing"
+    );
     // The plane is at 150 mm on the axis, tilted: the median depth is near it.
     let median = s["depth_mm"][1].as_f64().unwrap();
     assert!((140.0..170.0).contains(&median), "{median}");
@@ -162,6 +167,29 @@ fn bad_inputs_are_refused_with_a_reason() {
         "disparity range",
     );
     refused(&["stereo-eval", "--frames", "0"], "frame");
+    // A working range that cuts the scene: a warning, and failure under --strict.
+    let cut = dir.join("cut");
+    let cut_args = [
+        "stereo",
+        "--synthetic",
+        "150",
+        "--far-mm",
+        "140",
+        "--out-dir",
+        cut.to_str().unwrap(),
+    ];
+    let (ok, _, err) = stereotac(&cut_args);
+    assert!(
+        ok && err.contains("warning:") && err.contains("--far-mm"),
+        "{err}"
+    );
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(cut.join("summary.json")).unwrap()).unwrap();
+    assert!(
+        !summary["warnings"].as_array().unwrap().is_empty(),
+        "{summary}"
+    );
+    refused(&[&cut_args[..], &["--strict"]].concat(), "--strict");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

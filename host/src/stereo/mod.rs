@@ -41,6 +41,7 @@ pub mod ros_info;
 pub mod scene;
 pub mod speckle;
 pub mod synthetic;
+pub mod warnings;
 pub mod yaml;
 
 pub use block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};

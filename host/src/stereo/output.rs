@@ -57,6 +57,8 @@ pub struct StereoSummary {
     pub timings: StereoTimings,
     /// The files written, in `dir`.
     pub files: Vec<&'static str>,
+    /// What to look at twice (see [`super::warnings`]); empty when nothing.
+    pub warnings: Vec<String>,
 }
 
 /// Writes `frame` (processed by `pipeline` with `config`) into `dir`, which must exist,
@@ -122,6 +124,7 @@ pub fn write_outputs(
         }),
         timings: frame.timings,
         files: FILES.to_vec(),
+        warnings: super::warnings::of(&frame.stats, &depths, w * h, config.near_mm, config.far_mm),
     };
     let path = dir.join("summary.json");
     let json = serde_json::to_vec_pretty(&summary).expect("the summary serialises");

@@ -25,6 +25,10 @@ pub struct Args {
     /// metres): mm (default) or m.
     #[arg(long, default_value = "mm")]
     pub units: LengthUnit,
+    /// Fail (exit non-zero) when the result has warnings: almost nothing matched, the
+    /// scene outside --near-mm/--far-mm (they are printed and in summary.json either way).
+    #[arg(long)]
+    pub strict: bool,
     /// Left image (8-bit; colour is converted to grey).
     #[arg(long, required_unless_present = "synthetic")]
     pub left: Option<PathBuf>,
@@ -102,6 +106,15 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         print_summary(&a.out_dir, &summary);
     }
+    for w in &summary.warnings {
+        eprintln!("warning: {w}");
+    }
+    anyhow::ensure!(
+        !a.strict || summary.warnings.is_empty(),
+        "{} warning(s) under --strict (outputs and summary.json written to {})",
+        summary.warnings.len(),
+        a.out_dir.display()
+    );
     Ok(())
 }
 
