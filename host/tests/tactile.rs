@@ -8,7 +8,7 @@ use stereotac::tactile::calibrate::{
     CalibrationError, CalibrationPair, CalibrationSettings, Rejection, calibrate,
 };
 use stereotac::tactile::images::{ImageError, load_pairs};
-use stereotac::tactile::model::{ModelError, ModelKind, TactileModel};
+use stereotac::tactile::model::{Background, ModelError, ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::{ReconstructError, Reconstructor};
 use stereotac::tactile::render::{Optics, Reflectance, Scene, Shape, Spot, render, render_truth};
@@ -295,16 +295,24 @@ fn hostile_images_give_finite_output_or_typed_errors() {
         ),
         Err(ReconstructError::ModelSize { .. })
     ));
-    // Degenerate frame sizes run through the same code (model resized, background
-    // interpolated): 1×N and N×1 frames of noise.
+    // A model whose arrays do not match its sizes is refused, not indexed out of bounds.
+    let mut short = model.clone();
+    short.dx.lut.table.truncate(7);
+    assert!(matches!(
+        Reconstructor::new(short, ModelKind::Lut, SolverKind::Dct, None),
+        Err(ReconstructError::InvalidModel { field, .. }) if field == "dx.lut.table"
+    ));
+    // Degenerate frame sizes run through the same code (model resized with a background
+    // of that size): 1×N and N×1 frames of noise.
     for (w, h) in [(1usize, 57usize), (57, 1), (3, 3)] {
-        let mut m = model.clone();
-        m.width = w;
-        m.height = h;
-        let mut rec = Reconstructor::new(m, ModelKind::Lut, SolverKind::Dct, None).unwrap();
         let img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
             image::Rgb([(x * 37 % 256) as u8, 9, (y * 53 % 256) as u8])
         });
+        let mut m = model.clone();
+        m.width = w;
+        m.height = h;
+        m.background = Background::from_images(&img, &img, m.background.factor);
+        let mut rec = Reconstructor::new(m, ModelKind::Lut, SolverKind::Dct, None).unwrap();
         let r = rec.reconstruct(&img, &img).unwrap();
         assert!(
             r.depth_mm.as_slice().iter().all(|d| d.is_finite()),
@@ -441,6 +449,48 @@ fn model_files_round_trip_and_refuse_other_versions() {
         TactileModel::load(&dir.join("missing.json")),
         Err(ModelError::Io { .. })
     ));
+    // Damaged or hostile fields are refused by name, never a panic later.
+    let good: serde_json::Value = serde_json::from_slice(&model.to_json()).unwrap();
+    type Damage = fn(&mut serde_json::Value);
+    let cases: [(&str, Damage); 10] = [
+        ("background.dx", |m| {
+            m["background"]["dx"].as_array_mut().unwrap().truncate(3)
+        }),
+        ("dx.lut.table", |m| {
+            m["dx"]["lut"]["table"].as_array_mut().unwrap().pop();
+        }),
+        ("dy.lut.gain", |m| {
+            m["dy"]["lut"]["gain"].as_array_mut().unwrap().clear()
+        }),
+        ("dx.mlp.layers[1].weights", |m| {
+            m["dx"]["mlp"]["layers"][1]["weights"]
+                .as_array_mut()
+                .unwrap()
+                .truncate(5)
+        }),
+        ("width", |m| m["width"] = 100_000.into()),
+        ("px_per_mm", |m| m["px_per_mm"] = 0.into()),
+        ("background.factor", |m| {
+            m["background"]["factor"] = 0.into()
+        }),
+        ("contact.threshold", |m| {
+            m["contact"]["threshold"] = (-1.0).into()
+        }),
+        ("dy.mlp.layers", |m| {
+            m["dy"]["mlp"]["layers"] = serde_json::json!([])
+        }),
+        ("background.width/height", |m| m["height"] = 100.into()),
+    ];
+    for (field, damage) in cases {
+        let mut m = good.clone();
+        damage(&mut m);
+        let err = TactileModel::from_json("m.json", &serde_json::to_vec(&m).unwrap()).unwrap_err();
+        assert!(
+            matches!(&err, ModelError::Invalid { field: f, .. } if f == field),
+            "{field}: {err}"
+        );
+        assert!(err.to_string().contains("recalibrate"), "{err}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -19,7 +19,7 @@ use super::ambient::{
 };
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
-use super::model::{ModelKind, TactileModel, colour_features};
+use super::model::{ModelKind, TactileModel, colour_features, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -52,6 +52,14 @@ pub enum ReconstructError {
     /// The reference frames do not look like this sensor's dx and dy phases.
     #[error(transparent)]
     References(#[from] PhaseImageError),
+    /// The model has a field that cannot be right (see [`super::model::validate`]).
+    #[error("the model's `{field}`: {why}")]
+    InvalidModel {
+        /// The field.
+        field: String,
+        /// What is wrong with it.
+        why: String,
+    },
     /// A LEDs-off frame brighter than the lit frames it goes with.
     #[error(
         "the {what} frame is brighter than the lit frames in {percent:.0}% of the frame: \
@@ -180,6 +188,8 @@ impl Reconstructor {
         solver_kind: SolverKind,
         references: Option<PhaseFrames<'_>>,
     ) -> Result<Self, ReconstructError> {
+        validate::check(&model)
+            .map_err(|(field, why)| ReconstructError::InvalidModel { field, why })?;
         let want = (model.width as u32, model.height as u32);
         let ambient = match &model.ambient {
             Some(e) if !e.fits(model.width, model.height) => {

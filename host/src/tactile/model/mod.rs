@@ -10,6 +10,7 @@
 
 pub mod lut;
 pub mod mlp;
+pub mod validate;
 
 use std::fmt;
 use std::path::Path;
@@ -288,6 +289,16 @@ pub enum ModelError {
         /// Version found.
         version: u32,
     },
+    /// A field that cannot be right (see [`validate`]).
+    #[error("{path}: `{field}`: {why}; the file was edited or damaged: recalibrate, or restore it")]
+    Invalid {
+        /// File.
+        path: String,
+        /// The field.
+        field: String,
+        /// What is wrong with it.
+        why: String,
+    },
 }
 
 impl TactileModel {
@@ -333,9 +344,15 @@ impl TactileModel {
                 version: header.version,
             });
         }
-        serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
+        let model: Self = serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
             path: name.to_string(),
             source,
-        })
+        })?;
+        validate::check(&model).map_err(|(field, why)| ModelError::Invalid {
+            path: name.to_string(),
+            field,
+            why,
+        })?;
+        Ok(model)
     }
 }

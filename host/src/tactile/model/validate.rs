@@ -1,0 +1,206 @@
+//! Checks a model read from a file before anything uses it: every array has the length
+//! its declared sizes say, sizes are bounded by what a sensor's camera can produce, and
+//! every scale is finite and positive. A model file is input written by someone else;
+//! without this a short array panics deep in reconstruction and a zero scale makes
+//! infinite depth.
+
+use super::TactileModel;
+use super::lut::Lut;
+use super::mlp::Mlp;
+
+/// Largest frame side a model may declare (px): no sensor camera we support gives more,
+/// and it bounds what a model file can make us allocate.
+pub const MAX_FRAME_SIDE: usize = 8192;
+/// Largest LUT side (bins) and MLP layer width a model may declare.
+const MAX_TABLE: usize = 1024;
+
+/// The first problem found, as (field, what is wrong).
+pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
+    let fail = |field: &str, why: String| Err((field.to_string(), why));
+    for (field, v) in [("width", m.width), ("height", m.height)] {
+        if !(1..=MAX_FRAME_SIDE).contains(&v) {
+            return fail(field, format!("{v} px is outside 1..={MAX_FRAME_SIDE}"));
+        }
+    }
+    for (field, v, max) in [
+        ("px_per_mm", m.px_per_mm, 1000.0),
+        ("ball_diameter_mm", m.ball_diameter_mm, 1000.0),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v <= max) {
+            return fail(
+                field,
+                format!("{v} must be finite, positive and at most {max}"),
+            );
+        }
+    }
+    let f = &m.filter;
+    for (field, v) in [
+        ("filter.min_led", f.min_led),
+        ("filter.max_white_ratio", f.max_white_ratio),
+        ("filter.max_green_rise", f.max_green_rise),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return fail(field, format!("{v} must be finite and not negative"));
+        }
+    }
+    let c = &m.contact;
+    if !(c.threshold.is_finite() && c.threshold > 0.0) {
+        return fail(
+            "contact.threshold",
+            format!("{} must be finite and positive", c.threshold),
+        );
+    }
+    for (field, v, range) in [
+        ("contact.coarse_step", c.coarse_step, 1..=256),
+        ("contact.min_cells", c.min_cells, 1..=1_000_000),
+        ("contact.pad_px", c.pad_px, 0..=MAX_FRAME_SIDE),
+        ("contact.dilate_px", c.dilate_px, 0..=256),
+    ] {
+        if !range.contains(&v) {
+            return fail(field, format!("{v} is outside {range:?}"));
+        }
+    }
+    let b = &m.background;
+    if !(1..=256).contains(&b.factor) {
+        return fail(
+            "background.factor",
+            format!("{} is outside 1..=256", b.factor),
+        );
+    }
+    let blocks = (m.width.div_ceil(b.factor), m.height.div_ceil(b.factor));
+    if (b.width, b.height) != blocks {
+        return fail(
+            "background.width/height",
+            format!(
+                "{}×{} blocks, but a {}×{} frame in blocks of {} px has {}×{}",
+                b.width, b.height, m.width, m.height, b.factor, blocks.0, blocks.1
+            ),
+        );
+    }
+    for (field, planes) in [("background.dx", &b.dx), ("background.dy", &b.dy)] {
+        if planes.len() != blocks.0 * blocks.1 {
+            return fail(
+                field,
+                format!("{} blocks, {} declared", planes.len(), blocks.0 * blocks.1),
+            );
+        }
+        if planes.iter().flatten().any(|v| !v.is_finite()) {
+            return fail(field, "holds a value that is not finite".into());
+        }
+    }
+    if let Some(a) = &m.ambient {
+        if !a.fits(m.width, m.height) {
+            return fail(
+                "ambient",
+                format!(
+                    "{}×{} blocks of {} px ({} values) do not cover a {}×{} frame",
+                    a.width,
+                    a.height,
+                    a.step,
+                    a.means.len(),
+                    m.width,
+                    m.height
+                ),
+            );
+        }
+        if a.means.iter().flatten().any(|v| !v.is_finite()) {
+            return fail("ambient.means", "holds a value that is not finite".into());
+        }
+    }
+    for (axis, model) in [("dx", &m.dx), ("dy", &m.dy)] {
+        check_lut(&model.lut).map_err(|(f, why)| (format!("{axis}.lut.{f}"), why))?;
+        check_mlp(&model.mlp).map_err(|(f, why)| (format!("{axis}.mlp.{f}"), why))?;
+    }
+    Ok(())
+}
+
+fn check_lut(l: &Lut) -> Result<(), (String, String)> {
+    let fail = |field: &str, why: String| Err((field.to_string(), why));
+    if !(2..=MAX_TABLE).contains(&l.bins) {
+        return fail("bins", format!("{} is outside 2..={MAX_TABLE}", l.bins));
+    }
+    if !(l.max_value.is_finite() && l.max_value > 0.0) {
+        return fail(
+            "max_value",
+            format!("{} must be finite and positive", l.max_value),
+        );
+    }
+    for (field, v) in [("cells_x", l.cells_x), ("cells_y", l.cells_y)] {
+        if !(1..=64).contains(&v) {
+            return fail(field, format!("{v} is outside 1..=64"));
+        }
+    }
+    for (field, values, want) in [
+        ("table", &l.table, l.bins * l.bins),
+        ("gain", &l.gain, l.cells_x * l.cells_y),
+    ] {
+        if values.len() != want {
+            return fail(field, format!("{} values, {want} declared", values.len()));
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return fail(field, "holds a value that is not finite".into());
+        }
+    }
+    Ok(())
+}
+
+fn check_mlp(m: &Mlp) -> Result<(), (String, String)> {
+    let fail = |field: String, why: String| Err((field, why));
+    if m.input_offset
+        .iter()
+        .chain(&m.input_scale)
+        .any(|v| !v.is_finite())
+    {
+        return fail(
+            "input_offset/input_scale".into(),
+            "holds a value that is not finite".into(),
+        );
+    }
+    let Some(last) = m.layers.last() else {
+        return fail("layers".into(), "no layers".into());
+    };
+    let mut inputs = 4;
+    for (i, l) in m.layers.iter().enumerate() {
+        let field = |f: &str| format!("layers[{i}].{f}");
+        if l.inputs != inputs {
+            return fail(
+                field("inputs"),
+                format!("{}, but the layer before gives {inputs}", l.inputs),
+            );
+        }
+        if !(1..=MAX_TABLE).contains(&l.outputs) {
+            return fail(
+                field("outputs"),
+                format!("{} is outside 1..={MAX_TABLE}", l.outputs),
+            );
+        }
+        if l.weights.len() != l.inputs * l.outputs {
+            return fail(
+                field("weights"),
+                format!(
+                    "{} values, {}×{} declared",
+                    l.weights.len(),
+                    l.outputs,
+                    l.inputs
+                ),
+            );
+        }
+        if l.bias.len() != l.outputs {
+            return fail(
+                field("bias"),
+                format!("{} values, {} declared", l.bias.len(), l.outputs),
+            );
+        }
+        if l.weights.iter().chain(&l.bias).any(|v| !v.is_finite()) {
+            return fail(field("weights"), "holds a value that is not finite".into());
+        }
+        inputs = l.outputs;
+    }
+    if last.outputs != 1 {
+        return fail(
+            "layers".into(),
+            format!("the last layer gives {} outputs, not 1", last.outputs),
+        );
+    }
+    Ok(())
+}
