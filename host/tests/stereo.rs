@@ -273,3 +273,29 @@ fn the_stereo_bench_reports_every_stage() {
         assert!(r["median_ms"].as_f64().is_some_and(|t| t >= 0.0), "{r}");
     }
 }
+
+/// `stereotac … | head -1`: the reader goes away, the command still finishes its work
+/// and exits cleanly (it used to panic on the closed pipe, before writing its outputs).
+#[test]
+fn a_closed_stdout_is_not_a_crash() {
+    let dir = temp_dir("stereo-pipe");
+    let out = dir.join("out");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args([
+            "stereo",
+            "--synthetic",
+            "150",
+            "--out-dir",
+            out.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let done = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    assert!(done.status.success() && !err.contains("panicked"), "{err}");
+    assert!(out.join("summary.json").is_file(), "outputs written");
+    let _ = std::fs::remove_dir_all(&dir);
+}

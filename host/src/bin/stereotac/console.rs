@@ -14,6 +14,13 @@ pub fn emit(line: std::fmt::Arguments<'_>) -> bool {
     writeln!(std::io::stdout().lock(), "{line}").is_ok()
 }
 
+/// Print without a newline; `false` once stdout is gone.
+pub fn emit_raw(text: std::fmt::Arguments<'_>) -> bool {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    write!(out, "{text}").and_then(|()| out.flush()).is_ok()
+}
+
 /// Stop on Ctrl-C, SIGTERM or SIGHUP: the flag turns true.
 pub fn interrupt_flag() -> Result<Arc<AtomicBool>> {
     let flag = Arc::new(AtomicBool::new(false));

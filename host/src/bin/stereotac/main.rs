@@ -6,6 +6,26 @@ use std::process::ExitCode;
 use anyhow::Result;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
+/// `println!` for this binary: a closed stdout (`stereotac calibrate … | head -1`) drops
+/// the rest of the output instead of panicking, so the command still finishes its work (a
+/// model is still saved, outputs still written). Commands that stream use
+/// [`console::emit`] directly and stop when it fails.
+macro_rules! println {
+    () => {{
+        let _ = $crate::console::emit(format_args!(""));
+    }};
+    ($($arg:tt)*) => {{
+        let _ = $crate::console::emit(format_args!($($arg)*));
+    }};
+}
+
+/// `print!` with the same rule as [`println!`].
+macro_rules! print {
+    ($($arg:tt)*) => {{
+        let _ = $crate::console::emit_raw(format_args!($($arg)*));
+    }};
+}
+
 mod args;
 mod cameras;
 mod cmd;
