@@ -337,6 +337,20 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         dy: flat.dy.clone(),
         dark: None,
     };
+    for (ppm, ball) in [(1e9, 6.0), (15.0, f64::INFINITY), (0.0, 6.0)] {
+        let bad = CalibrationSettings {
+            px_per_mm: ppm,
+            ball_diameter_mm: ball,
+            ..s.clone()
+        };
+        assert!(
+            matches!(
+                calibrate(std::slice::from_ref(&pair), None, &bad, |_| {}),
+                Err(CalibrationError::Settings(_))
+            ),
+            "px/mm {ppm}, ball {ball} mm"
+        );
+    }
     let err = calibrate(
         std::slice::from_ref(&pair),
         Some((&refs.0, &refs.1).into()),

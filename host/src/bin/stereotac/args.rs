@@ -46,7 +46,7 @@ pub struct SequenceArgs {
     #[arg(long, default_value_t = 250)]
     pub period_ms: u32,
     /// Stop after this many seconds (default: until Ctrl-C).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_duration_s)]
     pub duration_s: Option<f64>,
 }
 
@@ -64,10 +64,34 @@ impl SequenceArgs {
     /// When to stop, on the sensor's host clock (`None`: until Ctrl-C).
     pub fn deadline(&self, sensor: &Sensor) -> Result<Option<HostMicros>> {
         match self.duration_s {
-            Some(s) if !(s.is_finite() && s > 0.0) => bail!("--duration-s must be positive"),
-            Some(s) => Ok(Some(sensor.clock().now_us() + (s * 1e6) as u64)),
+            Some(s) => {
+                parse_duration_s(&s.to_string())
+                    .map_err(|e| anyhow::anyhow!("--duration-s: {e}"))?;
+                Ok(Some(
+                    sensor.clock().now_us().saturating_add((s * 1e6) as u64),
+                ))
+            }
             None => Ok(None),
         }
+    }
+}
+
+/// Longest run a duration may ask for (s): 115 days, far beyond any recording, and far
+/// from the host clock's µs range.
+pub const MAX_DURATION_S: f64 = 1e7;
+
+/// Parses a duration in seconds: finite, above 0, at most [`MAX_DURATION_S`].
+pub fn parse_duration_s(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= MAX_DURATION_S {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{s} s: a duration must be above 0 and at most {MAX_DURATION_S} s (115 days)"
+        ))
     }
 }
 
@@ -126,5 +150,20 @@ impl PipelineArgs {
             block_size: self.block_size,
             ..StereoConfig::default()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_are_bounded_and_sizes_parsed() {
+        assert_eq!(parse_duration_s("1.5"), Ok(1.5));
+        for bad in ["0", "-1", "1e15", "inf", "NaN", "soon"] {
+            assert!(parse_duration_s(bad).is_err(), "{bad}");
+        }
+        assert_eq!(parse_size("640x480"), Ok((640, 480)));
+        assert!(parse_size("100000x100000").is_err());
     }
 }

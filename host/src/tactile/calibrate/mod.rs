@@ -285,13 +285,14 @@ pub fn calibrate(
     mut progress: impl FnMut(CalibrationProgress),
 ) -> Result<Calibration, CalibrationError> {
     let first = pairs.first().ok_or(CalibrationError::NoPairs)?;
+    // The same bounds a model file is held to (model::validate).
     for (what, v) in [
-        ("ball diameter", settings.ball_diameter_mm),
+        ("ball diameter (mm)", settings.ball_diameter_mm),
         ("px/mm", settings.px_per_mm),
     ] {
-        if !(v.is_finite() && v > 0.0) {
+        if !(v.is_finite() && v > 0.0 && v <= 1000.0) {
             return Err(CalibrationError::Settings(format!(
-                "{what} must be a finite positive number, got {v}"
+                "{what} must be a finite positive number up to 1000, got {v}"
             )));
         }
     }
