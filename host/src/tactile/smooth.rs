@@ -19,7 +19,8 @@ pub struct BlockMeans {
     pub height: usize,
     /// Mean `[R, G, B]` per block, row by row.
     pub means: Vec<[f32; 3]>,
-    /// Channel values at 255 (clipped: the light there is unknown) per block.
+    /// Per block, how many of its pixel columns' channels reach 255 in some row
+    /// (clipped: the light there is unknown); 0 when nothing is clipped.
     pub clipped: Vec<u32>,
 }
 
@@ -33,7 +34,7 @@ impl BlockMeans {
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let raw = image.as_raw();
         let mut rows = vec![0u16; w * 3];
-        let mut clipped_rows = vec![0u16; w * 3];
+        let mut clipped_rows = vec![0u8; w * 3];
         let mut means = Vec::with_capacity(bw * bh);
         let mut clipped = Vec::with_capacity(bw * bh);
         for by in 0..bh {
@@ -48,7 +49,7 @@ impl BlockMeans {
                 let (sums, clips) = (&mut rows[..row.len()], &mut clipped_rows[..row.len()]);
                 for i in 0..row.len() {
                     sums[i] = sums[i].wrapping_add(u16::from(row[i]));
-                    clips[i] = clips[i].wrapping_add(u16::from(row[i] == u8::MAX));
+                    clips[i] = clips[i].max(row[i]);
                 }
             }
             // Sums of at most 256 × 256 values of 255 fit a u32: wrapping adds keep the
@@ -71,7 +72,7 @@ impl BlockMeans {
                 }
                 let mut clips = 0u32;
                 for &c in &clipped_rows[span] {
-                    clips = clips.wrapping_add(u32::from(c));
+                    clips += u32::from(c == u8::MAX);
                 }
                 means.push(s.map(|v| v as f32 * inv));
                 clipped.push(clips);
