@@ -269,6 +269,29 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         text.contains("16 presses") || text.matches("phase0").count() == 16,
         "{text}"
     );
+    // Again into the same file: refused before any work; --force replaces it.
+    let presses = out.join("presses.mcap");
+    let again = |force: bool| {
+        let mut args = vec![
+            "calibrate",
+            path(&presses),
+            "--ball-diameter-mm",
+            "6",
+            "--out",
+            path(&model),
+        ];
+        if force {
+            args.push("--force");
+        }
+        stereotac(&args)
+    };
+    let (ok, _, err) = again(false);
+    assert!(
+        !ok && err.contains("exists") && err.contains("--force"),
+        "{err}"
+    );
+    let (ok, _, err) = again(true);
+    assert!(ok, "{err}");
     let (ok, text, err) = stereotac(&[
         "process",
         path(&out.join("demo.mcap")),

@@ -60,12 +60,21 @@ pub struct Args {
     /// warnings) as JSON here.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Model file to write.
+    /// Model file to write (an existing file is kept unless --force).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the model file if it exists.
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
+    // Before the work, not after: a model is never replaced by accident.
+    anyhow::ensure!(
+        a.force || !a.out.exists(),
+        "{} exists: pass --force to replace it, or choose another --out",
+        a.out.display()
+    );
     let pairs = if a.dir.is_file() {
         recorded_pairs(&a.dir)?
     } else {
