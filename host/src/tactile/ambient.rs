@@ -69,6 +69,12 @@ const EXCESS_DN: u8 = 12;
 /// same scene light (another exposure, another camera's view, a stale frame).
 pub const MAX_BRIGHTER_FRACTION: f64 = 0.05;
 
+/// Whether a LEDs-off value `d` exceeds the lit value `l` by more than noise allows.
+#[inline]
+fn is_brighter(l: u8, d: u8) -> bool {
+    d.saturating_sub(l) > EXCESS_DN
+}
+
 /// `out = lit − dark` per channel, clamped at 0; a saturated `lit` value (255) stays 255
 /// so the colour filter still sees it as saturated. Returns the fraction of values where
 /// `dark` was brighter than `lit` by more than the noise allows (see
@@ -93,7 +99,7 @@ pub fn subtract_into(lit: &RgbImage, dark: &RgbImage, out: &mut RgbImage) -> f64
             let (l, d) = (l[i], d[i]);
             // Saturated stays saturated: l | 0xff when l == 255.
             o[i] = l.saturating_sub(d) | (u8::from(l == u8::MAX).wrapping_neg());
-            count = count.wrapping_add(u16::from(d.saturating_sub(l) > EXCESS_DN));
+            count = count.wrapping_add(u16::from(is_brighter(l, d)));
         }
         brighter += u64::from(count);
     }
@@ -110,7 +116,7 @@ pub fn brighter_fraction(lit: &RgbImage, dark: &RgbImage) -> f64 {
         .as_raw()
         .iter()
         .zip(dark.as_raw())
-        .filter(|(l, d)| d.saturating_sub(**l) > EXCESS_DN)
+        .filter(|(l, d)| is_brighter(**l, **d))
         .count();
     n as f64 / lit.as_raw().len().max(1) as f64
 }

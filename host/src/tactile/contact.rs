@@ -175,10 +175,12 @@ pub struct Detection {
 }
 
 impl Detection {
-    /// Whether pixel `(x, y)` lies in a touched block.
+    /// The touched flags of the blocks that pixel row `y` crosses (block `x / step` for
+    /// pixel column `x`).
     #[inline]
-    pub fn touched_at(&self, x: usize, y: usize) -> bool {
-        self.touched[(y / self.step) * self.blocks_across + x / self.step]
+    pub fn touched_row(&self, y: usize) -> &[bool] {
+        let start = y / self.step.max(1) * self.blocks_across;
+        &self.touched[start..start + self.blocks_across]
     }
 }
 

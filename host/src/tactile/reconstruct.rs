@@ -388,8 +388,7 @@ impl Reconstructor {
         let step = detection.step.max(1);
         let block_of_column: Vec<usize> = (roi.x..roi.x + roi.width).map(|x| x / step).collect();
         for (ry, row) in mask.chunks_exact_mut(roi.width).enumerate() {
-            let start = (roi.y + ry) / step * detection.blocks_across;
-            let touched = &detection.touched[start..start + detection.blocks_across];
+            let touched = detection.touched_row(roi.y + ry);
             for (m, &bx) in row.iter_mut().zip(&block_of_column) {
                 *m = touched[bx];
             }

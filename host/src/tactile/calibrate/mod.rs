@@ -323,61 +323,15 @@ pub fn calibrate(
         }
     }
     // LED light alone when every press has its LEDs-off frame.
-    let with_dark = pairs.iter().filter(|p| p.dark.is_some()).count();
-    let mut ambient_warning = None;
-    // LEDs only add light: a LEDs-off frame brighter than its lit frames does not show
-    // their scene light.
-    let refused = pairs
-        .iter()
-        .filter_map(|p| Some((p.name.as_str(), p.dark.as_ref()?, [&p.dx, &p.dy])))
-        .chain(references.and_then(|r| Some(("reference", r.dark?, [r.dx, r.dy]))))
-        .map(|(name, dark, lit)| {
-            let worst = lit
-                .iter()
-                .map(|l| ambient::brighter_fraction(l, dark))
-                .fold(0.0, f64::max);
-            (name, worst)
-        })
-        .find(|(_, f)| *f > ambient::MAX_BRIGHTER_FRACTION);
-    let ambient = if let Some((name, fraction)) = refused {
-        ambient_warning = Some(format!(
-            "LEDs-off frames ignored: {name}'s is brighter than its lit frames in {:.0}% of \
-             the frame (the LEDs only add light: it shows other light, such as another \
-             exposure or another camera's view); the model works on raw frames",
-            fraction * 100.0
-        ));
-        None
-    } else if with_dark == pairs.len() {
-        let mut darks: Vec<&RgbImage> = pairs.iter().filter_map(|p| p.dark.as_ref()).collect();
-        darks.extend(references.and_then(|r| r.dark));
-        AmbientEstimate::of(&darks)
-    } else {
-        if with_dark > 0 || references.is_some_and(|r| r.dark.is_some()) {
-            ambient_warning = Some(format!(
-                "LEDs-off frames ignored: {with_dark} of {} presses have one (all or none); \
-                 the model works on raw frames",
-                pairs.len()
-            ));
-        }
-        None
-    };
+    let light = led_light(pairs, references);
+    let (ambient, ambient_warning) = (light.ambient, light.warning);
     let led_only: Vec<CalibrationPair>;
-    let pairs: &[CalibrationPair] = if ambient.is_some() {
-        led_only = pairs
-            .iter()
-            .map(|p| {
-                let dark = p.dark.as_ref().expect("every press has one");
-                CalibrationPair {
-                    name: p.name.clone(),
-                    dx: subtracted(&p.dx, dark),
-                    dy: subtracted(&p.dy, dark),
-                    dark: None,
-                }
-            })
-            .collect();
-        &led_only
-    } else {
-        pairs
+    let pairs: &[CalibrationPair] = match light.led_pairs {
+        Some(led) => {
+            led_only = led;
+            &led_only
+        }
+        None => pairs,
     };
     let (ref_dx, ref_dy) = match (references, &ambient) {
         (Some(r), Some(estimate)) => {
@@ -682,6 +636,85 @@ pub fn calibrate(
         rejected,
         report,
     })
+}
+
+/// Presses in the light the model will work on (see [`calibrate`]).
+struct Light {
+    /// The presses minus their own LEDs-off frames, when the model works on LED light.
+    led_pairs: Option<Vec<CalibrationPair>>,
+    /// The mean ambient light the model keeps (with `led_pairs`).
+    ambient: Option<AmbientEstimate>,
+    /// Why LEDs-off frames that were given are not used.
+    warning: Option<String>,
+}
+
+/// LED light alone when every press (and the references, if they have one) comes with a
+/// LEDs-off frame that is not brighter than its lit frames; raw frames otherwise, with
+/// the reason when LEDs-off frames were given.
+fn led_light(pairs: &[CalibrationPair], references: Option<PhaseFrames<'_>>) -> Light {
+    let ignored = |why: String| Light {
+        led_pairs: None,
+        ambient: None,
+        warning: Some(format!(
+            "LEDs-off frames ignored: {why}; the model works on raw frames"
+        )),
+    };
+    let with_dark = pairs.iter().filter(|p| p.dark.is_some()).count();
+    if pairs.is_empty() || with_dark < pairs.len() {
+        if with_dark > 0 || references.is_some_and(|r| r.dark.is_some()) {
+            return ignored(format!(
+                "{with_dark} of {} presses have one (all or none)",
+                pairs.len()
+            ));
+        }
+        return Light {
+            led_pairs: None,
+            ambient: None,
+            warning: None,
+        };
+    }
+    // LEDs only add light: a LEDs-off frame brighter than its lit frames does not show
+    // their scene light.
+    let too_bright = |name: &str, fraction: f64| {
+        ignored(format!(
+            "{name}'s is brighter than its lit frames in {:.0}% of the frame (the LEDs only \
+             add light: it shows other light, such as another exposure or another camera's \
+             view)",
+            fraction * 100.0
+        ))
+    };
+    if let Some(r) = references
+        && let Some(dark) = r.dark
+    {
+        let fraction =
+            ambient::brighter_fraction(r.dx, dark).max(ambient::brighter_fraction(r.dy, dark));
+        if fraction > ambient::MAX_BRIGHTER_FRACTION {
+            return too_bright("reference", fraction);
+        }
+    }
+    let mut led = Vec::with_capacity(pairs.len());
+    for p in pairs {
+        let dark = p.dark.as_ref().expect("every press has one");
+        let (mut dx, mut dy) = (RgbImage::new(0, 0), RgbImage::new(0, 0));
+        let fraction = ambient::subtract_into(&p.dx, dark, &mut dx)
+            .max(ambient::subtract_into(&p.dy, dark, &mut dy));
+        if fraction > ambient::MAX_BRIGHTER_FRACTION {
+            return too_bright(&p.name, fraction);
+        }
+        led.push(CalibrationPair {
+            name: p.name.clone(),
+            dx,
+            dy,
+            dark: None,
+        });
+    }
+    let mut darks: Vec<&RgbImage> = pairs.iter().filter_map(|p| p.dark.as_ref()).collect();
+    darks.extend(references.and_then(|r| r.dark));
+    Light {
+        ambient: AmbientEstimate::of(&darks),
+        led_pairs: Some(led),
+        warning: None,
+    }
 }
 
 /// RMS slope error of `model` on `set` (0 for an empty set).
