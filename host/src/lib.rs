@@ -6,7 +6,8 @@
 //!
 //! From the foundations up (a module uses only those above it in this list):
 //!
-//! * Shared foundations: [`grid`] (row-major 2-D arrays), [`rng`] (a deterministic
+//! * Shared foundations: [`limits`] (bounds every reader of outside files checks),
+//!   [`grid`] (row-major 2-D arrays), [`rng`] (a deterministic
 //!   random generator), [`timing`] (median timings for the benchmarks), [`output`] (NPY,
 //!   PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
 //!   (firmware ELF to UF2 image, flash and RAM footprint).
@@ -36,6 +37,7 @@ pub mod describe;
 pub mod device;
 pub mod frames;
 pub mod grid;
+pub mod limits;
 pub mod live;
 pub mod matcher;
 pub mod output;

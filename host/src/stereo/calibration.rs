@@ -17,6 +17,7 @@ use nalgebra::{Isometry3, Matrix3, Matrix3x4, Rotation3, Translation3, UnitQuate
 
 use super::camera::{Camera, Distortion};
 use super::yaml::{self, Value, YamlError};
+use crate::limits::{MAX_CALIBRATION_FILE, MAX_FRAME_SIDE};
 
 /// Why a calibration could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -217,8 +218,13 @@ impl<'a> Fields<'a> {
         let s = self.scalar(field)?;
         s.parse::<u32>()
             .ok()
-            .filter(|&v| v > 0)
-            .ok_or_else(|| self.invalid(field, format!("{s:?} is not a positive size")))
+            .filter(|&v| v > 0 && v as usize <= MAX_FRAME_SIDE)
+            .ok_or_else(|| {
+                self.invalid(
+                    field,
+                    format!("{s:?} is not a size in pixels from 1 to {MAX_FRAME_SIDE}"),
+                )
+            })
     }
 
     /// A matrix: a mapping with `rows`, `cols` and `data` (OpenCV and ROS), or a bare
@@ -242,7 +248,7 @@ impl<'a> Fields<'a> {
             Value::List(data) => (1, data.len(), data),
             Value::Scalar(_) => return Err(self.invalid(field, "expected a matrix")),
         };
-        if rows * cols != data.len() {
+        if rows.checked_mul(cols) != Some(data.len()) {
             return Err(self.invalid(field, format!("{rows}×{cols} but {} values", data.len())));
         }
         let values = data
@@ -343,9 +349,13 @@ impl<'a> Fields<'a> {
         for field in ["image_size", "imageSize"] {
             if self.has(field) {
                 let (_, _, d) = self.matrix(field)?;
-                let ok = d.len() == 2 && d.iter().all(|&v| v >= 1.0 && v.fract() == 0.0);
+                let side = 1.0..=MAX_FRAME_SIDE as f64;
+                let ok = d.len() == 2 && d.iter().all(|v| side.contains(v) && v.fract() == 0.0);
                 if !ok {
-                    return Err(self.invalid(field, "expected [width, height]"));
+                    return Err(self.invalid(
+                        field,
+                        format!("expected [width, height], 1 to {MAX_FRAME_SIDE} px each"),
+                    ));
                 }
                 return Ok((d[0] as u32, d[1] as u32));
             }
@@ -355,6 +365,23 @@ impl<'a> Fields<'a> {
             field: "image_width/image_height".into(),
         })
     }
+}
+
+/// A calibration file's text, refused unread when it is larger than any calibration
+/// ([`MAX_CALIBRATION_FILE`]) or not UTF-8.
+fn read_bounded(path: &std::path::Path) -> Result<String, String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let mut text = String::new();
+    file.take(MAX_CALIBRATION_FILE + 1)
+        .read_to_string(&mut text)
+        .map_err(|e| e.to_string())?;
+    if text.len() as u64 > MAX_CALIBRATION_FILE {
+        return Err(format!(
+            "larger than {MAX_CALIBRATION_FILE} bytes: not a calibration file"
+        ));
+    }
+    Ok(text)
 }
 
 /// Whether `r` is a rotation (orthonormal, determinant +1) to 1e-6.
@@ -395,12 +422,9 @@ impl StereoCalibration {
     pub fn load_in(files: &[std::path::PathBuf], unit: LengthUnit) -> Result<Self, CalibError> {
         let read = |path: &std::path::Path| {
             let file = path.display().to_string();
-            match std::fs::read_to_string(path) {
+            match read_bounded(path) {
                 Ok(text) => Ok((file, text)),
-                Err(e) => Err(CalibError::Read {
-                    file,
-                    why: e.to_string(),
-                }),
+                Err(why) => Err(CalibError::Read { file, why }),
             }
         };
         match files {
@@ -770,6 +794,34 @@ pub(crate) mod tests {
         assert!(e.to_string().contains("not a rotation"), "{e}");
         let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
         assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
+    }
+
+    #[test]
+    fn hostile_sizes_and_repeated_keys_are_refused_before_any_allocation() {
+        let good = sensor_pair(Distortion::NONE).to_opencv_yaml();
+        let read = |text: &str| {
+            StereoCalibration::from_opencv_yaml("c.yaml", text)
+                .unwrap_err()
+                .to_string()
+        };
+        let e = read(&good.replace("image_width: 640", "image_width: 4294967295"));
+        assert!(
+            e.contains("`image_width`") && e.contains("1 to 8192"),
+            "{e}"
+        );
+        let e = read(&good.replace("image_height: 480", "image_height: 100000"));
+        assert!(e.contains("`image_height`"), "{e}");
+        let huge = good.replacen(
+            "rows: 3\n   cols: 3",
+            "rows: 18446744073709551615\n   cols: 2",
+            1,
+        );
+        assert!(read(&huge).contains("but 9 values"));
+        // A second `T` would double the baseline if it silently replaced the first.
+        let t = good.lines().skip_while(|l| !l.starts_with("T:")).take(5);
+        let doubled = format!("{good}{}\n", t.collect::<Vec<_>>().join("\n"));
+        let e = read(&doubled);
+        assert!(e.contains("`T` is given twice"), "{e}");
     }
 
     #[test]

@@ -1,13 +1,22 @@
-//! The YAML subset that camera calibration files use, read and written by hand.
+//! Reading calibration YAML with a maintained parser (saphyr-parser, linear time) into the
+//! few shapes calibration files use, and writing them back.
 //!
-//! ROS `camera_info` files and OpenCV `FileStorage` files are flat: top-level keys with a
-//! scalar, or a one-level mapping (`rows`, `cols`, `dt`, `data`) whose `data` is a flow
-//! list that may span lines. OpenCV's `%YAML:1.0` header and `!!opencv-matrix` tags are
-//! not valid YAML 1.2 and trip general parsers, so this reader takes exactly that subset
-//! and says which line it could not read.
+//! ROS `camera_info` files and OpenCV `FileStorage` files are mappings of scalars, lists of
+//! scalars and small nested mappings (`rows`, `cols`, `dt`, `data`). OpenCV's `%YAML:1.0`
+//! header is not valid YAML 1.2, so that one line is blanked before parsing (line numbers
+//! stay true); its `!!opencv-matrix` tags are valid YAML and ignored. What a calibration
+//! never needs is refused with the line: a key given twice (the second would silently
+//! replace the first), aliases, lists of lists, nesting deeper than
+//! [`MAX_DEPTH`], more than one document, files over [`MAX_CALIBRATION_FILE`] bytes.
 
 use std::collections::BTreeMap;
 
+use saphyr_parser::{Event, Parser, Span, StrInput};
+
+use crate::limits::MAX_CALIBRATION_FILE;
+
+/// Deepest nesting of mappings a calibration file may use (the top level is 1).
+pub const MAX_DEPTH: usize = 4;
 /// A value in a calibration file.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Value {
@@ -36,119 +45,142 @@ fn error(line: usize, what: impl Into<String>) -> YamlError {
     }
 }
 
-/// Strip a comment (not inside quotes) and trailing space.
-fn strip_comment(line: &str) -> &str {
-    let mut quoted = None;
-    for (i, c) in line.char_indices() {
-        match (c, quoted) {
-            ('"' | '\'', None) => quoted = Some(c),
-            (q, Some(open)) if q == open => quoted = None,
-            ('#', None) if i == 0 || line[..i].ends_with(' ') => return line[..i].trim_end(),
-            _ => {}
-        }
-    }
-    line.trim_end()
-}
-
-fn unquote(s: &str) -> String {
-    let s = s.trim();
-    let quoted = s.len() >= 2
-        && ((s.starts_with('"') && s.ends_with('"')) || (s.starts_with('\'') && s.ends_with('\'')));
-    if quoted {
-        s[1..s.len() - 1].to_string()
-    } else {
-        s.to_string()
-    }
-}
-
-/// Drop a leading `!!tag` or `!tag` from a value.
-fn strip_tag(s: &str) -> &str {
-    let s = s.trim();
-    if s.starts_with('!') {
-        s.split_once(' ').map_or("", |(_, rest)| rest.trim())
-    } else {
-        s
-    }
-}
-
 /// Parse the file: top-level keys and their values.
 pub fn parse(text: &str) -> Result<BTreeMap<String, Value>, YamlError> {
-    let lines: Vec<(usize, &str)> = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, strip_comment(l)))
-        .filter(|(_, l)| !l.trim().is_empty())
-        .filter(|(_, l)| !l.starts_with('%') && l.trim() != "---" && l.trim() != "...")
-        .collect();
-    let mut top = BTreeMap::new();
-    let mut i = 0;
-    while i < lines.len() {
-        let (n, line) = lines[i];
-        if line.starts_with(' ') || line.starts_with('\t') {
-            return Err(error(n, "unexpected indentation"));
-        }
-        let (key, rest) = line
-            .split_once(':')
-            .ok_or_else(|| error(n, format!("expected `key: value`, found {line:?}")))?;
-        let key = unquote(key);
-        let rest = strip_tag(rest);
-        i += 1;
-        let value = if rest.is_empty() {
-            // A nested mapping: the indented lines that follow.
-            let mut map = BTreeMap::new();
-            while i < lines.len() && lines[i].1.starts_with([' ', '\t']) {
-                let (m, inner) = lines[i];
-                let (k, v) = inner
-                    .trim()
-                    .split_once(':')
-                    .ok_or_else(|| error(m, format!("expected `key: value`, found {inner:?}")))?;
-                i += 1;
-                let (value, used) = value_of(strip_tag(v), &lines[i..], m)?;
-                i += used;
-                map.insert(unquote(k), value);
-            }
-            if map.is_empty() {
-                return Err(error(n, format!("`{key}` has no value")));
-            }
-            Value::Map(map)
-        } else {
-            let (value, used) = value_of(rest, &lines[i..], n)?;
-            i += used;
-            value
-        };
-        top.insert(key, value);
+    if text.len() as u64 > MAX_CALIBRATION_FILE {
+        return Err(error(
+            1,
+            format!(
+                "{} bytes is more than a calibration file holds (at most {MAX_CALIBRATION_FILE})",
+                text.len()
+            ),
+        ));
     }
-    Ok(top)
+    let text = without_opencv_header(text);
+    let mut events = Events {
+        parser: Parser::new_from_str(text),
+    };
+    let mut top = BTreeMap::new();
+    let mut documents = 0;
+    loop {
+        let (event, span) = events.next()?;
+        match event {
+            Event::StreamStart | Event::DocumentEnd | Event::Nothing => {}
+            Event::StreamEnd => return Ok(top),
+            Event::DocumentStart(_) => {
+                documents += 1;
+                if documents > 1 {
+                    return Err(error(
+                        line(&span),
+                        "a second document: a calibration file holds one",
+                    ));
+                }
+            }
+            Event::MappingStart(..) => top = events.mapping(1)?,
+            Event::Scalar(s, ..) if s.is_empty() => {}
+            _ => {
+                return Err(error(
+                    line(&span),
+                    "expected `key: value` lines at the top level",
+                ));
+            }
+        }
+    }
 }
 
-/// A scalar, or a flow list that may continue on the following lines; returns the value
-/// and how many following lines it used.
-fn value_of(first: &str, rest: &[(usize, &str)], n: usize) -> Result<(Value, usize), YamlError> {
-    if !first.starts_with('[') {
-        return Ok((Value::Scalar(unquote(first)), 0));
+/// `text` with OpenCV's `%YAML:1.0` directive line blanked (it is not YAML 1.2); other
+/// lines untouched so that line numbers in errors stay true.
+fn without_opencv_header(text: &str) -> &str {
+    let first = text.lines().next().unwrap_or("");
+    if first.trim_start().starts_with("%YAML:") {
+        &text[first.len()..]
+    } else {
+        text
     }
-    let mut text = first.to_string();
-    let mut used = 0;
-    while !text.contains(']') {
-        let (_, next) = rest
-            .get(used)
-            .ok_or_else(|| error(n, "unterminated list"))?;
-        text.push(' ');
-        text.push_str(next.trim());
-        used += 1;
+}
+
+fn line(span: &Span) -> usize {
+    span.start.line()
+}
+
+/// The parser's events with errors in our terms.
+struct Events<'a> {
+    parser: Parser<'a, StrInput<'a>>,
+}
+
+impl<'a> Events<'a> {
+    fn next(&mut self) -> Result<(Event<'a>, Span), YamlError> {
+        match self.parser.next() {
+            Some(Ok(e)) => Ok(e),
+            Some(Err(e)) => Err(error(e.marker().line(), e.info())),
+            None => Err(error(0, "unexpected end of the file")),
+        }
     }
-    let inner = text.trim_start_matches('[');
-    let (inner, after) = inner.split_once(']').expect("checked above");
-    if !after.trim().is_empty() {
-        return Err(error(n, format!("unexpected {after:?} after a list")));
+
+    /// The entries of a mapping whose start was just read, at nesting `depth`.
+    fn mapping(&mut self, depth: usize) -> Result<BTreeMap<String, Value>, YamlError> {
+        let mut map = BTreeMap::new();
+        loop {
+            let (event, span) = self.next()?;
+            let key = match event {
+                Event::MappingEnd => return Ok(map),
+                Event::Scalar(key, ..) => key.into_owned(),
+                _ => return Err(error(line(&span), "keys must be plain names")),
+            };
+            let (event, span) = self.next()?;
+            let value = self.value(event, &span, &key, depth)?;
+            if map.insert(key.clone(), value).is_some() {
+                return Err(error(
+                    line(&span),
+                    format!("`{key}` is given twice (the second would silently replace the first)"),
+                ));
+            }
+        }
     }
-    let items = inner
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(unquote)
-        .collect();
-    Ok((Value::List(items), used))
+
+    /// The value that `event` starts, for `key`.
+    fn value(
+        &mut self,
+        event: Event<'a>,
+        span: &Span,
+        key: &str,
+        depth: usize,
+    ) -> Result<Value, YamlError> {
+        match event {
+            Event::Scalar(s, ..) => Ok(Value::Scalar(s.into_owned())),
+            Event::SequenceStart(..) => self.list(key),
+            Event::MappingStart(..) if depth < MAX_DEPTH => {
+                Ok(Value::Map(self.mapping(depth + 1)?))
+            }
+            Event::MappingStart(..) => Err(error(
+                line(span),
+                format!("`{key}` nests deeper than {MAX_DEPTH} levels"),
+            )),
+            Event::Alias(_) => Err(error(
+                line(span),
+                format!("`{key}`: aliases (*name) are not used in calibration files"),
+            )),
+            _ => Err(error(line(span), format!("`{key}` has no value"))),
+        }
+    }
+
+    /// The scalars of a list whose start was just read.
+    fn list(&mut self, key: &str) -> Result<Value, YamlError> {
+        let mut items = Vec::new();
+        loop {
+            let (event, span) = self.next()?;
+            match event {
+                Event::SequenceEnd => return Ok(Value::List(items)),
+                Event::Scalar(s, ..) => items.push(s.into_owned()),
+                _ => {
+                    return Err(error(
+                        line(&span),
+                        format!("`{key}`: a list may hold only numbers or words"),
+                    ));
+                }
+            }
+        }
+    }
 }
 
 /// One OpenCV `FileStorage` matrix entry (row-major `data`).
@@ -187,9 +219,68 @@ mod tests {
     #[test]
     fn says_which_line_is_wrong() {
         let e = parse("a: 1\nthis is not yaml\n").unwrap_err();
-        assert_eq!(e.line, 2);
+        assert!((2..=3).contains(&e.line), "{e}");
         let e = parse("a: [1, 2,\n").unwrap_err();
-        assert!(e.what.contains("unterminated"), "{e}");
-        assert_eq!(parse("  b: 1\n").unwrap_err().line, 1);
+        assert!(e.line >= 1, "{e}");
+        let e = parse("a: 1\nb: [1, [2]]\n").unwrap_err();
+        assert_eq!(e.line, 2, "{e}");
+        assert!(e.what.contains("only numbers"), "{e}");
+    }
+
+    #[test]
+    fn a_key_given_twice_is_refused_at_its_second_line() {
+        let e = parse("T: [1, 0, 0]\nR: [1]\nT: [2, 0, 0]\n").unwrap_err();
+        assert_eq!(e.line, 3, "{e}");
+        assert!(e.what.contains("`T` is given twice"), "{e}");
+        let e = parse("K1:\n  rows: 3\n  rows: 4\n").unwrap_err();
+        assert!(e.what.contains("`rows` is given twice"), "{e}");
+    }
+
+    #[test]
+    fn aliases_deep_nesting_and_second_documents_are_refused() {
+        let e = parse("a: &x [1, 2]\nb: *x\n").unwrap_err();
+        assert!(e.what.contains("aliases"), "{e}");
+        let e = parse("a: {b: {c: {d: {e: 1}}}}\n").unwrap_err();
+        assert!(e.what.contains("deeper"), "{e}");
+        let e = parse("a: 1\n---\nb: 2\n").unwrap_err();
+        assert!(e.what.contains("second document"), "{e}");
+        assert!(parse("").unwrap().is_empty());
+        assert!(parse("- 1\n- 2\n").is_err());
+    }
+
+    #[test]
+    fn huge_and_unterminated_lists_end_in_an_error_not_a_hang() {
+        // Over the size bound: refused before parsing.
+        let big = format!("a: [{}]\n", "1, ".repeat(400_000));
+        let e = parse(&big).unwrap_err();
+        assert!(e.what.contains("more than a calibration file"), "{e}");
+        // Under it but never closed: the linear parser reaches the end and says so.
+        let open = format!("a: [{}\n", "1, ".repeat(300_000));
+        assert!(parse(&open).is_err());
+        // A long list that is well formed reads in full.
+        let long = format!("a: [{}1]\n", "1, ".repeat(300_000));
+        let Value::List(items) = &parse(&long).unwrap()["a"] else {
+            panic!()
+        };
+        assert_eq!(items.len(), 300_001);
+    }
+
+    proptest::proptest! {
+        /// Any text, and any damage to a real calibration file, gives a value or an
+        /// error with a line, never a panic.
+        #[test]
+        fn any_text_parses_or_errors(text in "\\PC{0,300}", cut in 0usize..3000, junk in "[\\[\\]{}:,&*!%# -]{0,8}") {
+            let _ = parse(&text);
+            let good = format!(
+                "%YAML:1.0\n---\nimage_width: 640\n{}T: {}\nname: \"a # b\"\n",
+                opencv_matrix("K1", 3, 3, &[500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0]),
+                list(&[-14.0, 0.0, 0.0]),
+            );
+            let at = good.floor_char_boundary(cut.min(good.len()));
+            let damaged = format!("{}{junk}{}", &good[..at], &good[at..]);
+            if let Err(e) = parse(&damaged) {
+                proptest::prop_assert!(e.line <= damaged.lines().count() + 1, "{}", e);
+            }
+        }
     }
 }

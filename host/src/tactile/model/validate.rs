@@ -10,7 +10,7 @@ use super::mlp::Mlp;
 
 /// Largest frame side a model may declare (px): no sensor camera we support gives more,
 /// and it bounds what a model file can make us allocate.
-pub const MAX_FRAME_SIDE: usize = 8192;
+pub use crate::limits::MAX_FRAME_SIDE;
 /// Largest LUT side (bins) and MLP layer width a model may declare.
 const MAX_TABLE: usize = 1024;
 

@@ -1,0 +1,15 @@
+//! Bounds on what any input may make us allocate or process, in one place: every reader
+//! of files written by someone else (models, calibrations, images, recordings) checks
+//! against these before it allocates. They are set by what a sensor can produce, with
+//! room to spare, not by what a machine could hold.
+
+/// Largest image side (px) anything accepts: frames, model sizes, calibration image
+/// sizes. No camera we support gives more.
+pub const MAX_FRAME_SIDE: usize = 8192;
+
+/// Most memory one image decode may allocate (bytes): an 8-bit RGBA image of
+/// [`MAX_FRAME_SIDE`]² pixels.
+pub const MAX_IMAGE_ALLOC: u64 = (MAX_FRAME_SIDE * MAX_FRAME_SIDE * 4) as u64;
+
+/// Largest calibration YAML file (bytes). A full stereo calibration is about 3 KB.
+pub const MAX_CALIBRATION_FILE: u64 = 1 << 20;
