@@ -7,9 +7,10 @@
 //! From the foundations up (a module uses only those above it in this list):
 //!
 //! * Shared foundations: [`limits`] (bounds every reader of outside files checks),
-//!   [`grid`] (row-major 2-D arrays), [`rng`] (a deterministic
-//!   random generator), [`timing`] (median timings for the benchmarks), [`output`] (NPY,
-//!   PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
+//!   [`grid`] (row-major 2-D arrays), [`image_file`] (image files read within bounds),
+//!   [`out_dir`] (an output directory per run: nothing replaced without `--force`, no
+//!   folder left by a failed run), [`rng`] (a deterministic random generator),
+//!   [`timing`] (median timings for the benchmarks), [`output`] (NPY, PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
 //!   (firmware ELF to UF2 image, flash and RAM footprint).
 //! * The link: [`transport`] (byte pipes to a sensor: USB through nusb or libusb; owns
 //!   [`transport::Transport`] and the connectors), [`client`] (the protocol client:
@@ -37,9 +38,11 @@ pub mod describe;
 pub mod device;
 pub mod frames;
 pub mod grid;
+pub mod image_file;
 pub mod limits;
 pub mod live;
 pub mod matcher;
+pub mod out_dir;
 pub mod output;
 pub mod recording;
 pub mod rng;

@@ -8,6 +8,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use crate::grid::Grid;
+use crate::image_file::{self, ImageFileError, Need};
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -28,6 +29,9 @@ pub enum OutputError {
         /// Cause.
         source: image::ImageError,
     },
+    /// An image file that could not be read, or not as 8-bit grey or colour.
+    #[error(transparent)]
+    Read(#[from] ImageFileError),
     /// A file read back that is not in the form this module writes.
     #[error("{path}: {why}")]
     Format {
@@ -52,9 +56,10 @@ fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '
     }
 }
 
-/// Reads an image as 8-bit grey (colour is converted to luma, as [`grey`] does).
+/// Reads an 8-bit image as grey (colour is converted to luma, as [`grey`] does); 16-bit,
+/// float and oversized images are refused ([`crate::image_file`]).
 pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
-    let img = image::open(path).map_err(image_error(path))?.into_luma8();
+    let img = image_file::read(path, Need::Grey)?.into_luma8();
     let (w, h) = img.dimensions();
     Grid::from_vec(w as usize, h as usize, img.into_raw()).ok_or_else(|| OutputError::Format {
         path: path.to_path_buf(),

@@ -125,7 +125,8 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
 #[test]
 fn bad_inputs_are_refused_with_a_reason() {
     let dir = temp_dir("stereo-bad");
-    let out = dir.to_str().unwrap();
+    let out_dir = dir.join("out");
+    let out = out_dir.to_str().unwrap();
     let refused = |args: &[&str], why: &str| {
         let (ok, _, err) = stereotac(args);
         assert!(!ok && err.contains(why), "{args:?}: {err}");
@@ -189,7 +190,10 @@ fn bad_inputs_are_refused_with_a_reason() {
         !summary["warnings"].as_array().unwrap().is_empty(),
         "{summary}"
     );
-    refused(&[&cut_args[..], &["--strict"]].concat(), "--strict");
+    refused(
+        &[&cut_args[..], &["--strict", "--force"]].concat(),
+        "--strict",
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -114,7 +114,10 @@ impl Recorder {
             line: self.indexed as usize + 1,
             message: e.to_string(),
         })?;
+        // Flushed line by line: a recording killed at any moment (SIGKILL, power) keeps
+        // an index of every frame labelled so far.
         writeln!(self.index, "{text}").map_err(io(&path))?;
+        self.index.flush().map_err(io(&path))?;
         self.indexed += 1;
         Ok(())
     }
@@ -184,12 +187,10 @@ impl FrameSource for ReplaySource {
         };
         self.next += 1;
         let path = self.dir.join(&line.file);
-        let image = image::open(&path)
-            .map_err(|e| FrameError::Image {
-                path: path.clone(),
-                message: e.to_string(),
-            })?
-            .to_rgb8();
+        let image = crate::image_file::read_rgb(&path).map_err(|e| FrameError::Image {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         Ok(Some(Frame {
             stamp: line.stamp(),
             image,

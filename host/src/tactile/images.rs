@@ -7,18 +7,14 @@ use std::path::{Path, PathBuf};
 use image::RgbImage;
 
 use super::calibrate::CalibrationPair;
+use crate::image_file::{self, ImageFileError};
 
 /// Why images could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
-    /// The file could not be opened or decoded.
-    #[error("{}: {source}", path.display())]
-    Read {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        source: image::ImageError,
-    },
+    /// The file could not be read, decoded, or is not an 8-bit colour image.
+    #[error(transparent)]
+    Read(#[from] ImageFileError),
     /// The directory could not be listed.
     #[error("{}: {source}", path.display())]
     Dir {
@@ -46,14 +42,10 @@ pub enum ImageError {
     },
 }
 
-/// Reads an image as RGB8 (grey or 16-bit inputs are converted).
+/// Reads an 8-bit RGB(A) image; grey, 16-bit and oversized images are refused
+/// ([`crate::image_file`]).
 pub fn load_rgb(path: &Path) -> Result<RgbImage, ImageError> {
-    image::open(path)
-        .map(|i| i.to_rgb8())
-        .map_err(|source| ImageError::Read {
-            path: path.to_path_buf(),
-            source,
-        })
+    Ok(image_file::read_rgb(path)?)
 }
 
 /// Reads the no-contact reference frames (dx, dy) when both are given; `None` when

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use image::RgbImage;
+use stereotac::image_file::{self, Need};
 use stereotac::live::{StereoStage, TactileStage};
 use stereotac::matcher::StampRef;
 use stereotac::recording::topics;
@@ -241,9 +242,5 @@ pub fn png(img: &RgbImage) -> Result<Vec<u8>> {
 
 /// An RGB image from PNG bytes; `name` says which in errors.
 pub fn from_png(name: &str, bytes: &[u8]) -> Result<RgbImage> {
-    Ok(
-        image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
-            .with_context(|| format!("decoding {name}"))?
-            .to_rgb8(),
-    )
+    Ok(image_file::decode_bytes(name, bytes, image::ImageFormat::Png, Need::Colour)?.into_rgb8())
 }

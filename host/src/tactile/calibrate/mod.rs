@@ -147,6 +147,24 @@ pub struct CalibrationSettings {
     pub overrides: HashMap<String, Circle>,
 }
 
+impl CalibrationSettings {
+    /// Checks the numbers a user gives (ball diameter, px/mm) against the bounds a model
+    /// file is held to ([`super::model::validate`]), before any work.
+    pub fn check(&self) -> Result<(), CalibrationError> {
+        for (what, v) in [
+            ("ball diameter (mm)", self.ball_diameter_mm),
+            ("px/mm", self.px_per_mm),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 1000.0) {
+                return Err(CalibrationError::Settings(format!(
+                    "{what} must be a finite positive number up to 1000, got {v}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for CalibrationSettings {
     fn default() -> Self {
         Self {
@@ -285,17 +303,7 @@ pub fn calibrate(
     mut progress: impl FnMut(CalibrationProgress),
 ) -> Result<Calibration, CalibrationError> {
     let first = pairs.first().ok_or(CalibrationError::NoPairs)?;
-    // The same bounds a model file is held to (model::validate).
-    for (what, v) in [
-        ("ball diameter (mm)", settings.ball_diameter_mm),
-        ("px/mm", settings.px_per_mm),
-    ] {
-        if !(v.is_finite() && v > 0.0 && v <= 1000.0) {
-            return Err(CalibrationError::Settings(format!(
-                "{what} must be a finite positive number up to 1000, got {v}"
-            )));
-        }
-    }
+    settings.check()?;
     let want = first.dx.dimensions();
     let check = |name: &str, img: &RgbImage| {
         if img.dimensions() == want {

@@ -6,6 +6,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use stereotac::out_dir::{OutDir, Replace};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
@@ -75,13 +76,6 @@ pub fn run(a: Args) -> Result<()> {
         "{} exists: pass --force to replace it, or choose another --out",
         a.out.display()
     );
-    let pairs = if a.dir.is_file() {
-        recorded_pairs(&a.dir)?
-    } else {
-        load_pairs(&a.dir)?
-    };
-    let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
-    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let overrides: HashMap<String, Circle> = match &a.overrides {
         Some(path) => serde_json::from_slice(
             &std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
@@ -109,6 +103,19 @@ pub fn run(a: Args) -> Result<()> {
         settings.contact.threshold = t;
         settings.fixed_threshold = true;
     }
+    settings.check()?;
+    let overlays = a
+        .overlays
+        .as_deref()
+        .map(|dir| OutDir::prepare(dir, Replace::force_if(a.force)))
+        .transpose()?;
+    let pairs = if a.dir.is_file() {
+        recorded_pairs(&a.dir)?
+    } else {
+        load_pairs(&a.dir)?
+    };
+    let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
+    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let epochs = settings.mlp.epochs;
     let progress = bar(
         (pairs.len() + 2 * epochs) as u64,
@@ -189,8 +196,9 @@ pub fn run(a: Args) -> Result<()> {
     for w in &rep.warnings {
         eprintln!("warning: {w}");
     }
-    if let Some(dir) = &a.overlays {
-        write_overlays(dir, &pairs, &cal)?;
+    if let Some(dir) = overlays {
+        write_overlays(dir.path(), &pairs, &cal)?;
+        dir.keep();
     }
     if let Some(path) = &a.report {
         let json = serde_json::json!({
@@ -209,7 +217,6 @@ pub fn run(a: Args) -> Result<()> {
 
 /// One overlay image per press: `DIR/NAME.png`.
 fn write_overlays(dir: &Path, pairs: &[CalibrationPair], cal: &Calibration) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     for pair in pairs {
         let used = cal.presses.iter().find(|p| p.name == pair.name);
         let rejected = cal.rejected.iter().find(|r| r.name == pair.name);

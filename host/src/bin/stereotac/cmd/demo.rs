@@ -8,6 +8,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use stereotac::out_dir::{OutDir, Replace};
 
 use anyhow::{Context, Result, bail};
 use stereotac::client::Client;
@@ -49,9 +50,13 @@ pub struct Args {
     /// Number of phases to run.
     #[arg(long, default_value_t = 12)]
     pub phases: u32,
-    /// Where the tactile and stereo parts write their outputs.
+    /// Where the tactile and stereo parts write their outputs. A folder an earlier demo
+    /// made is reused; one with other files in it is refused unless --force.
     #[arg(long, default_value = "stereotac-demo-out")]
     pub out: PathBuf,
+    /// Write into --out even when it holds files the demo did not make.
+    #[arg(long)]
+    pub force: bool,
     /// Skip the tactile part (calibration and reconstruction).
     #[arg(long)]
     pub no_tactile: bool,
@@ -83,10 +88,17 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let mode: Mode = a.mode.into();
+    let out = OutDir::prepare(
+        &a.out,
+        Replace::OwnEarlierRun {
+            command: "demo",
+            force: a.force,
+        },
+    )?;
     timeline(mode, a.period_ms, a.phases)?;
     if !a.no_tactile {
         match mode {
-            Mode::Gradient | Mode::Interleaved => tactile(&a.out, mode)?,
+            Mode::Gradient | Mode::Interleaved => tactile(out.path(), mode)?,
             _ => println!(
                 "\n(tactile part skipped: --mode {} has no dx/dy phases; use gradient or \
                  interleaved)",
@@ -95,11 +107,12 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     if !a.no_stereo {
-        stereo(&a.out)?;
+        stereo(out.path())?;
     }
     if !a.no_recordings {
-        recordings(&a.out, a.period_ms)?;
+        recordings(out.path(), a.period_ms)?;
     }
+    out.keep();
     Ok(())
 }
 

@@ -4,6 +4,7 @@
 //! (what `stereo` reads), NAME being the phase index of the pair's first frame.
 
 use std::path::{Path, PathBuf};
+use stereotac::out_dir::{OutDir, Replace};
 
 use anyhow::{Context, Result, bail};
 use image::RgbImage;
@@ -23,7 +24,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    std::fs::create_dir_all(&a.pairs).with_context(|| format!("creating {}", a.pairs.display()))?;
+    // Existing files are never replaced (each is created new), so a folder with files in
+    // it is fine; one this run made goes again if the export fails.
+    let out = OutDir::prepare(&a.pairs, Replace::Force)?;
     let progress = spinner("exporting");
     let (mut gradient, mut stereo) = (0u64, 0u64);
     let truncated = pairs(&a.recording, |pair| -> Result<()> {
@@ -57,6 +60,7 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
+    out.keep();
     println!(
         "wrote {gradient} dx/dy pairs and {stereo} stereo pairs to {}",
         a.pairs.display()

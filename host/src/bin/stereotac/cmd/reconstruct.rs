@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use stereotac::out_dir::{OutDir, Replace};
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::images::{load_references, load_rgb};
 use stereotac::tactile::model::{ModelKind, TactileModel};
@@ -36,9 +37,12 @@ pub struct Args {
     /// LEDs-off frame taken with the no-contact frames.
     #[arg(long, requires = "ref_dx")]
     pub ref_dark: Option<PathBuf>,
-    /// Output directory.
+    /// Output directory (created; one with files in it is refused unless --force).
     #[arg(long)]
     pub out_dir: PathBuf,
+    /// Write into an output directory that already has files in it.
+    #[arg(long)]
+    pub force: bool,
     /// Poisson solver: dct (Neumann, default) or dst (Dirichlet).
     #[arg(long, default_value = "dct")]
     pub solver: SolverKind,
@@ -51,6 +55,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let out = OutDir::prepare(&a.out_dir, Replace::force_if(a.force))?;
     let model = TactileModel::load(&a.model)?;
     let px_per_mm = model.px_per_mm;
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
@@ -85,7 +90,8 @@ pub fn run(a: Args) -> Result<()> {
         a.dy.display(),
         r.unlit_fraction * 100.0
     );
-    let summary = output::write_all(&a.out_dir, &r, px_per_mm)?;
+    let summary = output::write_all(out.path(), &r, px_per_mm)?;
+    out.keep();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else if summary.no_contact {

@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use stereotac::out_dir::{OutDir, Replace};
 use stereotac::output::{read_grey, write_grey_png};
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::output::{StereoSummary, write_outputs};
@@ -39,9 +40,12 @@ pub struct Args {
     /// through the skin (its inputs are written to the output directory too).
     #[arg(long, conflicts_with_all = ["left", "right", "calib"])]
     pub synthetic: Option<f64>,
-    /// Output directory.
+    /// Output directory (created; one with files in it is refused unless --force).
     #[arg(long)]
     pub out_dir: PathBuf,
+    /// Write into an output directory that already has files in it.
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
     /// Turn off the edge-preserving spatial filter.
@@ -61,8 +65,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    std::fs::create_dir_all(&a.out_dir)
-        .with_context(|| format!("creating {}", a.out_dir.display()))?;
+    let out = OutDir::prepare(&a.out_dir, Replace::force_if(a.force))?;
     let (calib, left, right) = match a.synthetic {
         Some(z) => {
             if !(z.is_finite() && z > 0.0) {
@@ -75,8 +78,8 @@ pub fn run(a: Args) -> Result<()> {
                 tilt_y: 0.1,
             };
             let (l, r) = render_pair(&rig, &plane, &Membrane::sensor(), 1);
-            write_grey_png(&a.out_dir.join("input_left.png"), &l)?;
-            write_grey_png(&a.out_dir.join("input_right.png"), &r)?;
+            write_grey_png(&out.path().join("input_left.png"), &l)?;
+            write_grey_png(&out.path().join("input_right.png"), &r)?;
             (rig.calibration(), l, r)
         }
         None => {
@@ -100,7 +103,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut pipeline = StereoPipeline::new(&calib, config)?;
     let frame = pipeline.process(&left, &right)?;
-    let summary = write_outputs(&a.out_dir, &pipeline, &frame, &config)?;
+    let summary = write_outputs(out.path(), &pipeline, &frame, &config)?;
+    out.keep();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

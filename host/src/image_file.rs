@@ -1,0 +1,223 @@
+//! Reading image files written by someone else, within bounds: the header is read first,
+//! and an image larger than [`MAX_FRAME_SIDE`] a side, or of a colour type or bit depth
+//! the caller cannot use, is refused before a pixel is decoded; decoding may allocate at
+//! most [`MAX_IMAGE_ALLOC`] bytes. One place for every file reader (tactile pairs, stereo
+//! pairs, recordings replayed, frames inside MCAP files), so each gets the same rules.
+//!
+//! What each use accepts:
+//! - [`Need::Colour`] (tactile frames): 8-bit RGB or RGBA (alpha dropped). A grey image
+//!   has lost the strip colours the pipeline reads, and a 16-bit or float image would be
+//!   rescaled into a range the model was not calibrated on: both are refused with a hint.
+//! - [`Need::Grey`] (stereo pairs): 8-bit grey, grey+alpha, RGB or RGBA (colour is
+//!   converted to luma); 16-bit and float are refused.
+
+use std::io::{BufRead, Cursor, Seek};
+use std::path::{Path, PathBuf};
+
+use image::{ColorType, DynamicImage, ImageDecoder, ImageFormat, ImageReader, Limits, RgbImage};
+
+use crate::limits::{MAX_FRAME_SIDE, MAX_IMAGE_ALLOC};
+
+/// What the caller will do with the pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Need {
+    /// 8-bit colour (the tactile pipeline reads the LED strips' colours).
+    Colour,
+    /// 8-bit grey; colour is converted to luma (stereo matching).
+    Grey,
+}
+
+/// Why an image file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageFileError {
+    /// The file could not be opened or read.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The bytes are not an image the decoder could read, or it hit a limit.
+    #[error("{}: {source}", path.display())]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// Cause.
+        source: image::ImageError,
+    },
+    /// Larger than any sensor frame.
+    #[error(
+        "{}: {width}×{height} px is larger than any sensor frame (at most {MAX_FRAME_SIDE} px a side); not decoded",
+        path.display()
+    )]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Declared width.
+        width: u32,
+        /// Declared height.
+        height: u32,
+    },
+    /// A colour type or bit depth this use cannot read.
+    #[error("{}: {found} image, but {need}", path.display())]
+    Colour {
+        /// The file.
+        path: PathBuf,
+        /// What the file holds.
+        found: String,
+        /// What was needed and how to get it.
+        need: &'static str,
+    },
+}
+
+/// Plain words for a colour type.
+fn describe(c: ColorType) -> String {
+    let bits = c.bits_per_pixel() / u16::from(c.channel_count());
+    let kind = match c.channel_count() {
+        1 => "grey",
+        2 => "grey+alpha",
+        3 => "RGB",
+        _ => "RGBA",
+    };
+    format!("a {bits}-bit {kind}")
+}
+
+/// Whether `need` can use an image of colour type `c`; the hint when not.
+fn check(c: ColorType, need: Need) -> Result<(), &'static str> {
+    match (need, c) {
+        (Need::Colour, ColorType::Rgb8 | ColorType::Rgba8) => Ok(()),
+        (Need::Colour, ColorType::L8 | ColorType::La8) => Err(
+            "tactile frames must be 8-bit colour (RGB): the pipeline tells the LED strips apart by colour, which a grey image has lost",
+        ),
+        (Need::Colour, _) => Err(
+            "tactile frames must be 8 bits per channel (RGB), as the camera delivers them; convert without rescaling, or record them with `stereotac record`",
+        ),
+        (Need::Grey, ColorType::L8 | ColorType::La8 | ColorType::Rgb8 | ColorType::Rgba8) => Ok(()),
+        (Need::Grey, _) => {
+            Err("stereo images must be 8 bits per channel (grey or RGB); convert to 8 bits first")
+        }
+    }
+}
+
+fn limits() -> Limits {
+    let mut l = Limits::default();
+    l.max_image_width = Some(MAX_FRAME_SIDE as u32);
+    l.max_image_height = Some(MAX_FRAME_SIDE as u32);
+    l.max_alloc = Some(MAX_IMAGE_ALLOC);
+    l
+}
+
+/// Decodes from `reader` after checking the header; `path` names the source in errors.
+fn decode<R: BufRead + Seek>(
+    mut reader: ImageReader<R>,
+    path: &Path,
+    need: Need,
+) -> Result<DynamicImage, ImageFileError> {
+    let decode_error = |source| ImageFileError::Decode {
+        path: path.to_path_buf(),
+        source,
+    };
+    reader.no_limits();
+    let decoder = reader.into_decoder().map_err(decode_error)?;
+    let (width, height) = decoder.dimensions();
+    let side = 1..=MAX_FRAME_SIDE as u32;
+    if !side.contains(&width) || !side.contains(&height) {
+        return Err(ImageFileError::TooLarge {
+            path: path.to_path_buf(),
+            width,
+            height,
+        });
+    }
+    let colour = decoder.color_type();
+    check(colour, need).map_err(|need| ImageFileError::Colour {
+        path: path.to_path_buf(),
+        found: describe(colour),
+        need,
+    })?;
+    let mut decoder = decoder;
+    decoder.set_limits(limits()).map_err(decode_error)?;
+    DynamicImage::from_decoder(decoder).map_err(decode_error)
+}
+
+/// Reads an image file for `need`, within the bounds above.
+pub fn read(path: &Path, need: Need) -> Result<DynamicImage, ImageFileError> {
+    let io = |source| ImageFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let reader = ImageReader::open(path)
+        .map_err(io)?
+        .with_guessed_format()
+        .map_err(io)?;
+    decode(reader, path, need)
+}
+
+/// Reads an 8-bit colour image (tactile frames).
+pub fn read_rgb(path: &Path) -> Result<RgbImage, ImageFileError> {
+    Ok(read(path, Need::Colour)?.into_rgb8())
+}
+
+/// Decodes image bytes of a known format for `need`; `name` says where they came from.
+pub fn decode_bytes(
+    name: &str,
+    bytes: &[u8],
+    format: ImageFormat,
+    need: Need,
+) -> Result<DynamicImage, ImageFileError> {
+    let mut reader = ImageReader::new(Cursor::new(bytes));
+    reader.set_format(format);
+    decode(reader, Path::new(name), need)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png(img: &DynamicImage) -> Vec<u8> {
+        let mut out = Cursor::new(Vec::new());
+        img.write_to(&mut out, ImageFormat::Png).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn colour_and_grey_uses_accept_and_refuse_what_they_should() {
+        let rgb = DynamicImage::ImageRgb8(RgbImage::new(8, 6));
+        let grey = DynamicImage::ImageLuma8(image::GrayImage::new(8, 6));
+        let deep = DynamicImage::ImageRgb16(image::ImageBuffer::new(8, 6));
+        let d = |img: &DynamicImage, need| decode_bytes("x.png", &png(img), ImageFormat::Png, need);
+        assert_eq!(d(&rgb, Need::Colour).unwrap().width(), 8);
+        assert_eq!(d(&grey, Need::Grey).unwrap().width(), 8);
+        assert_eq!(d(&rgb, Need::Grey).unwrap().width(), 8);
+        let e = d(&grey, Need::Colour).unwrap_err().to_string();
+        assert!(
+            e.contains("x.png: a 8-bit grey image") && e.contains("colour"),
+            "{e}"
+        );
+        let e = d(&deep, Need::Colour).unwrap_err().to_string();
+        assert!(e.contains("16-bit RGB") && e.contains("8 bits"), "{e}");
+        assert!(matches!(
+            d(&deep, Need::Grey),
+            Err(ImageFileError::Colour { .. })
+        ));
+    }
+
+    #[test]
+    fn an_image_larger_than_any_frame_is_refused_from_its_header() {
+        // A valid PNG header declaring 100000×100000 px, with no pixel data: refused
+        // before decoding allocates anything.
+        let mut bytes = png(&DynamicImage::ImageRgb8(RgbImage::new(1, 1)));
+        bytes[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+        bytes[20..24].copy_from_slice(&100_000u32.to_be_bytes());
+        // The header's CRC covers the size: recompute it so only the size is wrong.
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[12..29]);
+        bytes[29..33].copy_from_slice(&crc.to_be_bytes());
+        let e = decode_bytes("big.png", &bytes, ImageFormat::Png, Need::Colour).unwrap_err();
+        assert!(
+            matches!(e, ImageFileError::TooLarge { width: 100_000, .. }),
+            "{e}"
+        );
+        let e = decode_bytes("junk.png", b"not a png", ImageFormat::Png, Need::Grey);
+        assert!(matches!(e, Err(ImageFileError::Decode { .. })));
+    }
+}

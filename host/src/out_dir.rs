@@ -1,0 +1,211 @@
+//! The output directory of one run: nothing in it is replaced without the user's say, and
+//! a run that fails leaves no folder behind.
+//!
+//! [`OutDir::prepare`] is called before any work: an absent directory is created, an
+//! empty one is used, and one with files in it is refused unless the user passed
+//! `--force` ([`Replace::Force`]), or an earlier run of the same command made it
+//! ([`Replace::OwnEarlierRun`], for the demo's scratch folder: a marker file, [`MARKER`],
+//! names the command; its files are replaced, others left alone). When the value is dropped without [`OutDir::keep`]
+//! (the run failed), a directory this run created is removed again with what it wrote;
+//! one that existed before is left as it is.
+
+use std::path::{Path, PathBuf};
+
+/// The marker file naming the command that wrote a directory.
+pub const MARKER: &str = ".stereotac-output";
+
+/// When an existing directory with files in it may be written into.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Replace {
+    /// Never: refuse with the fix (`--force`).
+    Never,
+    /// The user said so (`--force`).
+    Force,
+    /// When an earlier run of `command` made it (its marker is there), or `--force`
+    /// (`force`).
+    OwnEarlierRun {
+        /// The command's name, as written in the marker.
+        command: &'static str,
+        /// `--force` given.
+        force: bool,
+    },
+}
+
+impl Replace {
+    /// [`Replace::Force`] when `--force` was given, else [`Replace::Never`].
+    pub fn force_if(force: bool) -> Self {
+        if force { Self::Force } else { Self::Never }
+    }
+}
+
+/// Why the directory cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum OutDirError {
+    /// Files are in it and replacing them was not allowed.
+    #[error(
+        "{}: exists and holds {count} file(s) (e.g. {example}): pass --force to write into it anyway, or choose another output directory",
+        path.display()
+    )]
+    NotEmpty {
+        /// The directory.
+        path: PathBuf,
+        /// Entries found.
+        count: usize,
+        /// One of them.
+        example: String,
+    },
+    /// It is a file, or could not be read or created.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The directory.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+}
+
+/// An output directory prepared for one run (see the module documentation).
+#[derive(Debug)]
+pub struct OutDir {
+    path: PathBuf,
+    created: bool,
+    kept: bool,
+}
+
+impl OutDir {
+    /// Checks and creates `path` before any work (see the module documentation).
+    pub fn prepare(path: &Path, replace: Replace) -> Result<Self, OutDirError> {
+        let io = |source| OutDirError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        if !path.exists() {
+            std::fs::create_dir_all(path).map_err(io)?;
+            let dir = Self {
+                path: path.to_path_buf(),
+                created: true,
+                kept: false,
+            };
+            dir.mark(replace)?;
+            return Ok(dir);
+        }
+        let entries: Vec<String> = std::fs::read_dir(path)
+            .map_err(io)?
+            .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+            .collect::<Result<_, _>>()
+            .map_err(io)?;
+        let allowed = entries.is_empty()
+            || match replace {
+                Replace::Never => false,
+                Replace::Force | Replace::OwnEarlierRun { force: true, .. } => true,
+                Replace::OwnEarlierRun { command, .. } => {
+                    std::fs::read_to_string(path.join(MARKER)).is_ok_and(|m| m.trim() == command)
+                }
+            };
+        if !allowed {
+            let example = entries.iter().min().cloned().unwrap_or_default();
+            return Err(OutDirError::NotEmpty {
+                path: path.to_path_buf(),
+                count: entries.len(),
+                example,
+            });
+        }
+        let dir = Self {
+            path: path.to_path_buf(),
+            created: false,
+            kept: false,
+        };
+        dir.mark(replace)?;
+        Ok(dir)
+    }
+
+    /// Writes the marker for commands that replace their own earlier runs.
+    fn mark(&self, replace: Replace) -> Result<(), OutDirError> {
+        if let Replace::OwnEarlierRun { command, .. } = replace {
+            let path = self.path.join(MARKER);
+            std::fs::write(&path, format!("{command}\n"))
+                .map_err(|source| OutDirError::Io { path, source })?;
+        }
+        Ok(())
+    }
+
+    /// The directory.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The run succeeded (or wrote what it reports): keep the directory.
+    pub fn keep(mut self) -> PathBuf {
+        self.kept = true;
+        std::mem::take(&mut self.path)
+    }
+}
+
+impl Drop for OutDir {
+    fn drop(&mut self) {
+        if self.created && !self.kept {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d =
+            std::env::temp_dir().join(format!("stereotac-outdir-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn a_failed_run_leaves_no_folder_and_a_kept_one_stays() {
+        let d = scratch("fail");
+        let dir = OutDir::prepare(&d.join("a/b"), Replace::Never).unwrap();
+        std::fs::write(dir.path().join("partial.npy"), b"x").unwrap();
+        drop(dir);
+        assert!(!d.join("a/b").exists());
+        let dir = OutDir::prepare(&d.join("c"), Replace::Never).unwrap();
+        std::fs::write(dir.path().join("depth.npy"), b"x").unwrap();
+        assert_eq!(dir.keep(), d.join("c"));
+        assert!(d.join("c/depth.npy").exists());
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn files_already_there_are_refused_unless_forced_or_our_own() {
+        let d = scratch("full");
+        std::fs::create_dir_all(&d).unwrap();
+        // An existing empty directory is used, and not removed on failure.
+        drop(OutDir::prepare(&d, Replace::Never).unwrap());
+        assert!(d.exists());
+        std::fs::write(d.join("mine.txt"), b"user data").unwrap();
+        let e = OutDir::prepare(&d, Replace::Never).unwrap_err().to_string();
+        assert!(e.contains("mine.txt") && e.contains("--force"), "{e}");
+        OutDir::prepare(&d, Replace::Force).unwrap().keep();
+        let demo = Replace::OwnEarlierRun {
+            command: "demo",
+            force: false,
+        };
+        assert!(
+            OutDir::prepare(&d, demo).is_err(),
+            "not marked as the demo's"
+        );
+        let e2 = scratch("own");
+        OutDir::prepare(&e2, demo).unwrap().keep();
+        std::fs::write(e2.join("depth.npy"), b"x").unwrap();
+        OutDir::prepare(&e2, demo).unwrap().keep();
+        let other = Replace::OwnEarlierRun {
+            command: "stereo",
+            force: false,
+        };
+        assert!(
+            OutDir::prepare(&e2, other).is_err(),
+            "another command's folder"
+        );
+        let _ = std::fs::remove_dir_all(&d);
+        let _ = std::fs::remove_dir_all(&e2);
+    }
+}

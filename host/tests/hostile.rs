@@ -1,0 +1,231 @@
+//! Hostile input, by category: files written by someone else, given to the CLI as a user
+//! would. Each case must end in a clear error that names the file and the problem (or a
+//! warning and a sane result), never a panic, an abort, a hang or an allocation beyond the
+//! documented bounds (`stereotac::limits`).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::temp_dir;
+use image::{DynamicImage, ImageBuffer, RgbImage};
+use stereotac::stereo::synthetic::StereoRig;
+
+/// Runs `stereotac ARGS` and asserts that it was refused cleanly: exit code 1 or 2 (not
+/// a panic's 101 or an abort's 134), no panic message, and every one of `expect` in
+/// stderr. Returns stderr.
+fn refused(args: &[&str], expect: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(args)
+        .output()
+        .expect("run stereotac");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    let code = out.status.code();
+    assert!(
+        matches!(code, Some(1 | 2)) && !err.contains("panicked"),
+        "{args:?}: exit {code:?}\n{err}"
+    );
+    for e in expect {
+        assert!(err.contains(e), "{args:?}: {e:?} not in\n{err}");
+    }
+    err
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 path")
+}
+
+/// A left/right pair of plain RGB frames and the sensor's calibration, in `dir`.
+fn stereo_inputs(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let (calib, left, right) = (dir.join("c.yaml"), dir.join("l.png"), dir.join("r.png"));
+    std::fs::write(&calib, StereoRig::sensor().calibration().to_opencv_yaml()).unwrap();
+    let img = RgbImage::from_fn(640, 480, |x, y| image::Rgb([(x ^ y) as u8, 90, 40]));
+    img.save(&left).unwrap();
+    img.save(&right).unwrap();
+    (calib, left, right)
+}
+
+fn stereo_args<'a>(
+    calib: &'a Path,
+    left: &'a Path,
+    right: &'a Path,
+    out: &'a Path,
+) -> Vec<&'a str> {
+    vec![
+        "stereo",
+        "--calib",
+        s(calib),
+        "--left",
+        s(left),
+        "--right",
+        s(right),
+        "--out-dir",
+        s(out),
+    ]
+}
+
+/// Calibration YAML: repeated keys, impossible sizes, overflowing matrix sizes, huge
+/// and unterminated lists, bytes that are not text.
+#[test]
+fn calibration_files() {
+    let dir = temp_dir("hostile-calib");
+    let (calib, left, right) = stereo_inputs(&dir);
+    let out = dir.join("out");
+    let good = std::fs::read_to_string(&calib).unwrap();
+    let bad = dir.join("bad.yaml");
+    let args = stereo_args(&bad, &left, &right, &out);
+    let t_lines: Vec<&str> = good
+        .lines()
+        .skip_while(|l| !l.starts_with("T:"))
+        .take(5)
+        .collect();
+    let cases: Vec<(String, Vec<&str>)> = vec![
+        (
+            format!("{good}{}\n", t_lines.join("\n")),
+            vec!["bad.yaml", "`T` is given twice"],
+        ),
+        (
+            good.replace("image_width: 640", "image_width: 4294967295"),
+            vec!["bad.yaml", "`image_width`", "8192"],
+        ),
+        (
+            good.replacen("rows: 3", "rows: 18446744073709551615", 1),
+            vec!["bad.yaml", "but 9 values"],
+        ),
+        (
+            format!("K1: [{}\n", "1.5, ".repeat(700_000)),
+            vec!["bad.yaml", "larger than"],
+        ),
+        (
+            format!("K1: [{}\n", "1.5, ".repeat(200_000)),
+            vec!["bad.yaml", "line"],
+        ),
+        (
+            format!("{good}a: &x [1]\nb: *x\n"),
+            vec!["bad.yaml", "aliases"],
+        ),
+    ];
+    for (text, expect) in &cases {
+        std::fs::write(&bad, text).unwrap();
+        refused(&args, expect);
+        assert!(!out.exists(), "a refused run leaves no output folder");
+    }
+    std::fs::write(&bad, [0xff, 0xfe, 0x00, 0x41]).unwrap();
+    refused(&args, &["bad.yaml"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Image files: colour types and bit depths a command cannot use, and sizes no sensor
+/// produces (refused from the header, before decoding).
+#[test]
+fn image_files() {
+    let dir = temp_dir("hostile-images");
+    let (calib, left, right) = stereo_inputs(&dir);
+    let out = dir.join("out");
+    // Stereo: 8-bit grey is fine; 16-bit is refused with the fix.
+    let deep = dir.join("deep.png");
+    DynamicImage::ImageRgb16(ImageBuffer::from_pixel(
+        640,
+        480,
+        image::Rgb([9000u16, 0, 0]),
+    ))
+    .save(&deep)
+    .unwrap();
+    refused(
+        &stereo_args(&calib, &deep, &right, &out),
+        &["deep.png", "16-bit RGB", "8 bits"],
+    );
+    // A PNG header declaring 100000×100000 px (a few hundred bytes of file).
+    let big = dir.join("big.png");
+    let mut bytes = std::fs::read(&left).unwrap();
+    bytes[16..24].copy_from_slice(&[0, 1, 0x86, 0xa0, 0, 1, 0x86, 0xa0]);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&bytes[12..29]);
+    bytes[29..33].copy_from_slice(&crc.to_be_bytes());
+    std::fs::write(&big, &bytes).unwrap();
+    refused(
+        &stereo_args(&calib, &left, &big, &out),
+        &["big.png", "100000×100000", "8192"],
+    );
+    // Tactile calibration: a grey or a 16-bit press is refused by name before any work.
+    let presses = dir.join("presses");
+    std::fs::create_dir_all(&presses).unwrap();
+    let rgb = RgbImage::from_pixel(64, 48, image::Rgb([200, 40, 90]));
+    rgb.save(presses.join("a_dx.png")).unwrap();
+    DynamicImage::ImageRgb8(rgb.clone())
+        .into_luma8()
+        .save(presses.join("a_dy.png"))
+        .unwrap();
+    let model = dir.join("model.json");
+    let calibrate = [
+        "calibrate",
+        s(&presses),
+        "--ball-diameter-mm",
+        "8",
+        "--out",
+        s(&model),
+    ];
+    refused(&calibrate, &["a_dy.png", "8-bit grey", "colour"]);
+    DynamicImage::ImageRgb16(ImageBuffer::from_pixel(
+        64,
+        48,
+        image::Rgb([60000u16, 0, 0]),
+    ))
+    .save(presses.join("a_dy.png"))
+    .unwrap();
+    refused(&calibrate, &["a_dy.png", "16-bit RGB"]);
+    // Not an image at all.
+    std::fs::write(presses.join("a_dy.png"), b"GIF89a, or so it says").unwrap();
+    refused(&calibrate, &["a_dy.png"]);
+    assert!(!model.exists(), "no model written from refused input");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Numbers on the command line outside what the sensor or the pipelines can mean.
+#[test]
+fn arguments() {
+    refused(
+        &["--sim", "stream", "--duration-s", "1e15"],
+        &["--duration-s"],
+    );
+    refused(
+        &["--sim", "stream", "--duration-s", "NaN"],
+        &["--duration-s"],
+    );
+    let dir = temp_dir("hostile-args");
+    // Refused before the (empty) directory is even read.
+    for (flag, value, says) in [
+        ("--px-per-mm", "1e9", "px/mm"),
+        ("--ball-diameter-mm", "inf", "ball diameter"),
+    ] {
+        let model = dir.join("m.json");
+        let mut args = vec!["calibrate", s(&dir), "--out", s(&model), flag, value];
+        if flag != "--ball-diameter-mm" {
+            args.extend(["--ball-diameter-mm", "8"]);
+        }
+        refused(&args, &[says]);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Output folders: files already there are never replaced without --force, and a run that
+/// fails leaves no folder behind.
+#[test]
+fn output_folders() {
+    let dir = temp_dir("hostile-out");
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("notes.txt"), b"the user's").unwrap();
+    let args = ["stereo", "--synthetic", "150", "--out-dir", s(&out)];
+    refused(&args, &["notes.txt", "--force"]);
+    assert!(!out.join("summary.json").exists());
+    let forced = Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(args)
+        .arg("--force")
+        .output()
+        .unwrap();
+    assert!(forced.status.success());
+    assert!(out.join("summary.json").exists());
+    assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"the user's");
+    let _ = std::fs::remove_dir_all(&dir);
+}
