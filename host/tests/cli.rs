@@ -132,7 +132,7 @@ fn flash_refuses_a_file_that_is_not_uf2() {
     let path = std::env::temp_dir().join(format!("not-uf2-{}.bin", std::process::id()));
     std::fs::write(&path, [0u8; 1024]).unwrap();
     let (ok, _, err) = stereotac(&["--sim", "flash", path.to_str().unwrap()]);
-    assert!(!ok && err.contains("not a UF2 file"), "{err}");
+    assert!(!ok && err.contains("not a UF2 image"), "{err}");
     std::fs::remove_file(&path).unwrap();
 }
 

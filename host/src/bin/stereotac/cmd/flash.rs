@@ -1,11 +1,12 @@
 //! `stereotac flash`: reboots the sensor into its USB bootloader and copies a UF2 file
 //! onto the boot drive (RPI-RP2).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use stereotac::clock::{HostClock, MonotonicClock};
+use stereotac::uf2::{MAX_UF2_BYTES, check_uf2};
 use stereotac_protocol::Request;
 
 use crate::sensor_args::{DeviceArgs, open};
@@ -15,8 +16,8 @@ use crate::sensor_args::{DeviceArgs, open};
 pub struct Args {
     /// The UF2 file (from `stereotac firmware-image ELF --uf2 OUT`).
     pub file: PathBuf,
-    /// How long to wait for the boot drive, seconds.
-    #[arg(long, default_value_t = 15)]
+    /// How long to wait for the boot drive, seconds (1 to 600).
+    #[arg(long, default_value_t = 15, value_parser = clap::value_parser!(u64).range(1..=600))]
     pub wait_s: u64,
     #[command(flatten)]
     pub device: DeviceArgs,
@@ -36,15 +37,30 @@ fn boot_drive() -> Option<PathBuf> {
         .find(|p| p.join("INFO_UF2.TXT").exists())
 }
 
+/// The file's bytes, refused unread past [`MAX_UF2_BYTES`].
+fn read_bounded(file: &Path) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let mut data = Vec::new();
+    std::fs::File::open(file)
+        .and_then(|f| f.take(MAX_UF2_BYTES + 1).read_to_end(&mut data))
+        .with_context(|| format!("reading {}", file.display()))?;
+    anyhow::ensure!(
+        data.len() as u64 <= MAX_UF2_BYTES,
+        "{}: larger than any RP2040 image ({MAX_UF2_BYTES} bytes)",
+        file.display()
+    );
+    Ok(data)
+}
+
 pub fn run(a: Args) -> Result<()> {
     let file = &a.file;
-    let data = std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
-    if data.len() < 512 || data.len() % 512 != 0 || data[..4] != [0x55, 0x46, 0x32, 0x0A] {
-        bail!(
-            "{} is not a UF2 file (make one with `stereotac firmware-image ELF --uf2 OUT`)",
+    let data = read_bounded(file)?;
+    let blocks = check_uf2(&data).with_context(|| {
+        format!(
+            "{} is not a UF2 image for this sensor (make one with `stereotac firmware-image ELF --uf2 OUT`)",
             file.display()
-        );
-    }
+        )
+    })?;
     let mut opened = open(&a.device)?;
     opened
         .sensor
@@ -64,7 +80,7 @@ pub fn run(a: Args) -> Result<()> {
             println!(
                 "wrote {} ({} blocks) to {}; the sensor reboots into the new firmware",
                 file.display(),
-                data.len() / 512,
+                blocks,
                 drive.display()
             );
             return Ok(());
