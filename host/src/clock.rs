@@ -274,7 +274,9 @@ impl ClockSync {
         let device_ref = (samples.iter().map(|s| s.device_us as u128).sum::<u128>()
             / samples.len() as u128) as u64;
         let first = samples.first()?.device_us;
-        let span = samples.last()?.device_us - first;
+        // The window is in device order (a step back resets it in `add`), so this does not
+        // wrap; saturating all the same, as a device clock is input from outside.
+        let span = samples.last()?.device_us.saturating_sub(first);
         let drift_fitted = span as f64 >= self.config.min_drift_span.as_micros() as f64;
         let slope = if drift_fitted {
             let guess = least_squares_slope(&samples, device_ref, self.config.keep_fraction);

@@ -100,6 +100,21 @@ pub fn encode<'a, T: Serialize>(
     })
 }
 
+/// Frame raw payload bytes (checksum, COBS, delimiter) as [`encode`] frames a message:
+/// how tests and fuzzers put arbitrary payloads past the checksum and into the message
+/// decoders. `out` of [`MAX_FRAME`] bytes suffices for payloads up to [`MAX_PAYLOAD`].
+pub fn encode_payload<'a>(payload: &[u8], out: &'a mut [u8]) -> Result<&'a mut [u8], EncodeError> {
+    use postcard::ser_flavors::Flavor;
+    let mut flavor = CrcModifier::new(
+        Cobs::try_new(Slice::new(out)).map_err(|_| EncodeError::BufferTooSmall)?,
+        CRC32C.digest(),
+    );
+    flavor
+        .try_extend(payload)
+        .map_err(|_| EncodeError::BufferTooSmall)?;
+    flavor.finalize().map_err(|_| EncodeError::BufferTooSmall)
+}
+
 /// Decode a checked payload (from [`FrameDecoder`]) as a message of type `T`.
 pub fn decode<'de, T: Deserialize<'de>>(payload: &'de [u8]) -> Result<T, DecodeError> {
     let (message, rest) = postcard::take_from_bytes(payload).map_err(|_| DecodeError::Malformed)?;

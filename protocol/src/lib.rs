@@ -32,7 +32,7 @@ mod messages;
 
 pub use frame::{
     DecodeError, EncodeError, FrameDecoder, FrameError, MAX_FRAME, MAX_PAYLOAD, decode, encode,
-    peek_protocol_version, peek_request_id,
+    encode_payload, peek_protocol_version, peek_request_id,
 };
 pub use messages::*;
 pub use postcard::experimental::max_size::MaxSize;
