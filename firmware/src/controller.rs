@@ -10,7 +10,7 @@
 use stereotac_protocol::{
     Capabilities, Config, DeviceError, DeviceInfo, DeviceMessage, DeviceMicros, Event, Fault,
     FaultKind, Field, FrameError, HostMessage, Mode, PROTOCOL_VERSION, Phase, PhaseEvent,
-    ProbeEvent, Request, Response, Status, Timing, decode, peek_request_id,
+    ProbeEvent, Request, Response, Settings, Status, Strip, Timing, decode, peek_request_id,
 };
 
 use crate::leds::{DEFAULT_STRIPS, PhaseFrame, compose_phase};
@@ -209,32 +209,45 @@ impl Controller {
                 self.refresh_power_scale();
                 ack(Effect::Reconfigured)
             }
-            Request::SetLedCount(n) if (1..=frame_leds).contains(&n) => {
-                self.config.leds_per_strip = n;
-                self.refresh_power_scale();
-                ack(Effect::Reconfigured)
-            }
-            Request::SetLedCount(_) => (
-                Err(DeviceError::InvalidValue(Field::LedCount)),
-                Effect::None,
-            ),
-            Request::SetPowerBudget(ma) if POWER_BUDGET_RANGE_MA.contains(&ma) => {
-                self.config.power_budget_ma = ma;
-                self.refresh_power_scale();
-                ack(Effect::Reconfigured)
-            }
-            Request::SetPowerBudget(_) => (
-                Err(DeviceError::InvalidValue(Field::PowerBudget)),
-                Effect::None,
-            ),
-            Request::SetHostTimeout(ms) if ms == 0 || HOST_TIMEOUT_RANGE_MS.contains(&ms) => {
-                self.config.host_timeout_ms = ms;
-                ack(Effect::None)
-            }
-            Request::SetHostTimeout(_) => (
-                Err(DeviceError::InvalidValue(Field::HostTimeout)),
-                Effect::None,
-            ),
+            Request::SetLedCount(n) => match check_led_count(n, frame_leds) {
+                Ok(()) => {
+                    self.config.leds_per_strip = n;
+                    self.refresh_power_scale();
+                    ack(Effect::Reconfigured)
+                }
+                Err(e) => (Err(e), Effect::None),
+            },
+            Request::SetPowerBudget(ma) => match check_power_budget(ma) {
+                Ok(()) => {
+                    self.config.power_budget_ma = ma;
+                    self.refresh_power_scale();
+                    ack(Effect::Reconfigured)
+                }
+                Err(e) => (Err(e), Effect::None),
+            },
+            Request::SetHostTimeout(ms) => match check_host_timeout(ms) {
+                Ok(()) => {
+                    self.config.host_timeout_ms = ms;
+                    ack(Effect::None)
+                }
+                Err(e) => (Err(e), Effect::None),
+            },
+            Request::Configure(settings) => match check_settings(&settings, frame_leds) {
+                Ok(()) => {
+                    let c = &mut self.config;
+                    c.mode = settings.mode;
+                    c.timing = settings.timing;
+                    c.strips = settings.strips;
+                    c.leds_per_strip = settings.leds_per_strip;
+                    c.power_budget_ma = settings.power_budget_ma;
+                    c.host_timeout_ms = settings.host_timeout_ms;
+                    self.sequencer
+                        .reconfigure(self.config.mode, self.config.timing);
+                    self.refresh_power_scale();
+                    ack(Effect::Reconfigured)
+                }
+                Err(e) => (Err(e), Effect::None),
+            },
             Request::Start if self.config.mode == Mode::Off => {
                 (Err(DeviceError::InvalidState), Effect::None)
             }
@@ -355,6 +368,46 @@ impl Controller {
             .finish(plan, settle, write_start_us, latched_us, now);
         (event, self.event(Event::Phase(event)))
     }
+}
+
+fn check_led_count(n: u16, frame_leds: u16) -> Result<(), DeviceError> {
+    if (1..=frame_leds).contains(&n) {
+        Ok(())
+    } else {
+        Err(DeviceError::InvalidValue(Field::LedCount))
+    }
+}
+
+fn check_power_budget(ma: u16) -> Result<(), DeviceError> {
+    if POWER_BUDGET_RANGE_MA.contains(&ma) {
+        Ok(())
+    } else {
+        Err(DeviceError::InvalidValue(Field::PowerBudget))
+    }
+}
+
+fn check_host_timeout(ms: u32) -> Result<(), DeviceError> {
+    if ms == 0 || HOST_TIMEOUT_RANGE_MS.contains(&ms) {
+        Ok(())
+    } else {
+        Err(DeviceError::InvalidValue(Field::HostTimeout))
+    }
+}
+
+/// Every field of a [`Request::Configure`], checked as its single `Set…` request checks
+/// it, before any is applied.
+fn check_settings(s: &Settings, frame_leds: u16) -> Result<(), DeviceError> {
+    check_timing(&s.timing, frame_leds)?;
+    if s.strips
+        .iter()
+        .zip(Strip::ALL)
+        .any(|(got, want)| got.strip != want)
+    {
+        return Err(DeviceError::InvalidValue(Field::StripOrder));
+    }
+    check_led_count(s.leds_per_strip, frame_leds)?;
+    check_power_budget(s.power_budget_ma)?;
+    check_host_timeout(s.host_timeout_ms)
 }
 
 /// Lowest brightness scale of any phase (255: no phase is capped).

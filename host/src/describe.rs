@@ -3,7 +3,9 @@
 //! debug text. Strips are named by number and side everywhere (`strip 1 (x−)`).
 
 use serde_json::{Value, json};
-use stereotac_protocol::{Config, Mode, Request, Response, Rgb, Status, StripSettings, Timing};
+use stereotac_protocol::{
+    Config, Mode, Request, Response, Rgb, Settings, Status, StripSettings, Timing,
+};
 
 use crate::device::SensorError;
 
@@ -58,7 +60,22 @@ pub fn request(r: &Request) -> String {
         Request::TimeSync => "time sync".into(),
         Request::EnterBootloader => "enter the USB bootloader".into(),
         Request::SetProbe(on) => format!("turn the loopback probe {}", on_off(*on)),
+        Request::Configure(s) => format!("configure: {}", settings_line(s)),
     }
+}
+
+/// Everything a `Configure` sets, on one line.
+pub fn settings_line(s: &Settings) -> String {
+    let strips: Vec<String> = s.strips.iter().map(strip).collect();
+    format!(
+        "mode {}, {}, {} LEDs per strip, power budget {} mA, host timeout {} ms; {}",
+        mode(s.mode),
+        timing(&s.timing),
+        s.leds_per_strip,
+        s.power_budget_ma,
+        s.host_timeout_ms,
+        strips.join("; ")
+    )
 }
 
 /// How the device answered: `acknowledged`, `refused: …`, or what it sent.

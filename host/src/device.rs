@@ -343,6 +343,11 @@ impl Sensor {
                     .retain(|r| !matches!(r, Request::SetStrip(o) if o.strip == s.strip));
                 self.applied.push(request);
             }
+            // Sets everything but the probe: earlier settings are replaced by it.
+            Request::Configure(_) => {
+                self.applied.retain(|r| matches!(r, Request::SetProbe(_)));
+                self.applied.push(request);
+            }
             Request::GetInfo | Request::GetStatus | Request::GetConfig | Request::TimeSync => {}
         }
     }

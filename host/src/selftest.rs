@@ -200,6 +200,38 @@ pub fn run_command_checks(sensor: &mut Sensor) -> Result<SelftestReport, SensorE
             describe::answer(&answer),
         );
     }
+    // Many settings with one bad value: refused whole, nothing applied.
+    let before = sensor.config()?;
+    let mut bad = before.settings();
+    bad.timing.phase_period_us = before.timing.phase_period_us.saturating_add(10_000);
+    bad.power_budget_ma = if before.power_budget_ma == 300 {
+        400
+    } else {
+        300
+    };
+    bad.leds_per_strip = 0;
+    let answer = sensor.request(Request::Configure(bad));
+    let ok = matches!(
+        &answer,
+        Err(SensorError::Client(ClientError::Device(
+            DeviceError::InvalidValue(Field::LedCount)
+        )))
+    );
+    refused += u32::from(ok);
+    let after = sensor.config()?;
+    report.record(
+        "configure with one bad value refused with InvalidValue(LedCount), nothing applied",
+        ok && after == before,
+        format!(
+            "{}; configuration {}",
+            describe::answer(&answer),
+            if after == before {
+                "unchanged"
+            } else {
+                "changed"
+            }
+        ),
+    );
     sensor.request(Request::SetMode(Mode::Off))?;
     let answer = sensor.request(Request::Start);
     let ok = matches!(

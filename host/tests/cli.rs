@@ -62,6 +62,13 @@ fn info_stream_set_and_record_against_the_simulated_sensor() {
     assert!(!ok && err.contains("RRGGBB"), "{err}");
     let (ok, _, err) = stereotac(&["--sim", "set", "--leds", "0"]);
     assert!(!ok && err.contains("invalid value for LED count"), "{err}");
+    // One bad value among good ones: one request, refused whole.
+    let (ok, out, err) = stereotac(&["--sim", "set", "--period-ms", "100", "--leds", "0"]);
+    assert!(
+        !ok && err.contains("LED count") && err.contains("nothing was changed"),
+        "{err}"
+    );
+    assert!(!out.contains("ok:"), "{out}");
     let (ok, out, err) = stereotac(&["--sim", "set", "--period-ms", "100", "--mode", "vision"]);
     assert!(ok, "{err}");
     assert!(

@@ -38,7 +38,7 @@ pub use messages::*;
 pub use postcard::experimental::max_size::MaxSize;
 
 /// Version of this wire protocol. A host refuses a device with another version.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// USB vendor id of the sensor (pid.codes open-source VID).
 pub const USB_VID: u16 = 0x1209;

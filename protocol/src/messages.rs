@@ -79,6 +79,10 @@ wire_type! {
         /// (the default). Needs [`Capabilities::LOOPBACK_PROBE`], else
         /// [`DeviceError::InvalidState`].
         SetProbe(bool),
+        /// Every setting at once: validated as a whole and applied all together, or
+        /// refused with the first bad field and nothing changed (what `set` sends, so a
+        /// refused value never leaves the others applied).
+        Configure(Settings),
     }
 }
 
@@ -326,6 +330,25 @@ wire_type! {
 }
 
 wire_type! {
+    /// Everything [`Request::Configure`] sets: the writable part of [`Config`].
+    pub struct Settings {
+        /// Lighting mode.
+        pub mode: Mode,
+        /// Timing.
+        pub timing: Timing,
+        /// Per-strip colour and brightness, in wiring order (`strips[i].strip` must be
+        /// [`Strip::ALL`]`[i]`).
+        pub strips: [StripSettings; 4],
+        /// Pixels per strip.
+        pub leds_per_strip: u16,
+        /// LED current budget in mA.
+        pub power_budget_ma: u16,
+        /// Host-silence timeout in ms (0: disabled).
+        pub host_timeout_ms: u32,
+    }
+}
+
+wire_type! {
     /// The device's complete configuration.
     pub struct Config {
         /// Current mode.
@@ -526,6 +549,8 @@ wire_type! {
         PowerBudget,
         /// [`Request::SetHostTimeout`].
         HostTimeout,
+        /// [`Settings::strips`] not in wiring order.
+        StripOrder,
     }
 }
 
@@ -538,6 +563,21 @@ impl core::fmt::Display for Field {
             Field::LedCount => "LED count per strip",
             Field::PowerBudget => "power budget",
             Field::HostTimeout => "host timeout",
+            Field::StripOrder => "strip order (strips 1 to 4, in wiring order)",
         })
+    }
+}
+
+impl Config {
+    /// The writable part, to change some of it and send back as [`Request::Configure`].
+    pub const fn settings(&self) -> Settings {
+        Settings {
+            mode: self.mode,
+            timing: self.timing,
+            strips: self.strips,
+            leds_per_strip: self.leds_per_strip,
+            power_budget_ma: self.power_budget_ma,
+            host_timeout_ms: self.host_timeout_ms,
+        }
     }
 }

@@ -52,9 +52,10 @@ fn request_kind(r: &Request) -> usize {
         Request::TimeSync => 11,
         Request::EnterBootloader => 12,
         Request::SetProbe(_) => 13,
+        Request::Configure(_) => 14,
     }
 }
-const REQUEST_KINDS: usize = 14;
+const REQUEST_KINDS: usize = 15;
 
 /// Index of a device message kind (reply variants, errors and events), exhaustive.
 fn device_kind(m: &DeviceMessage) -> usize {
@@ -123,6 +124,20 @@ fn host_examples() -> Vec<(&'static str, HostMessage)> {
         ("host/time_sync", r(0xFFFF_FFFF, Request::TimeSync)),
         ("host/enter_bootloader", r(300, Request::EnterBootloader)),
         ("host/set_probe_on", r(301, Request::SetProbe(true))),
+        (
+            "host/configure",
+            r(
+                302,
+                Request::Configure(Settings {
+                    mode: Mode::Gradient,
+                    timing: Timing::DEFAULT,
+                    strips: Strip::ALL.map(|s| strip(s, Rgb::new(0, 0, 255), 200)),
+                    leds_per_strip: 8,
+                    power_budget_ma: 500,
+                    host_timeout_ms: 0,
+                }),
+            ),
+        ),
     ]
 }
 

@@ -179,6 +179,66 @@ fn bad_values_get_typed_errors_and_change_nothing() {
 }
 
 #[test]
+fn configure_applies_everything_or_nothing() {
+    let mut c = controller();
+    let before = *c.config();
+    let mut s = before.settings();
+    s.mode = Mode::Gradient;
+    s.timing.phase_period_us = 100_000;
+    s.strips[1].brightness = 7;
+    s.power_budget_ma = 300;
+    // Every value good but one: refused with that field, and nothing changed.
+    for (bad, field) in [
+        (
+            Settings {
+                leds_per_strip: 0,
+                ..s
+            },
+            Field::LedCount,
+        ),
+        (
+            Settings {
+                power_budget_ma: 0,
+                ..s
+            },
+            Field::PowerBudget,
+        ),
+        (
+            Settings {
+                host_timeout_ms: 5,
+                ..s
+            },
+            Field::HostTimeout,
+        ),
+        (
+            Settings {
+                strips: [s.strips[1], s.strips[0], s.strips[2], s.strips[3]],
+                ..s
+            },
+            Field::StripOrder,
+        ),
+    ] {
+        assert_eq!(
+            call(&mut c, 1, Request::Configure(bad), 0),
+            Err(DeviceError::InvalidValue(field))
+        );
+        assert_eq!(*c.config(), before, "{field:?} refused, nothing applied");
+    }
+    let slow = Settings {
+        timing: Timing {
+            phase_period_us: 10,
+            ..s.timing
+        },
+        ..s
+    };
+    assert!(call(&mut c, 2, Request::Configure(slow), 0).is_err());
+    assert_eq!(*c.config(), before);
+    // All good: all applied at once, the power scale recomputed.
+    assert_eq!(call(&mut c, 3, Request::Configure(s), 0), Ok(Response::Ack));
+    assert_eq!(c.config().settings(), s);
+}
+
+#[test]
 fn settings_are_applied_and_reported() {
     let mut c = controller();
     let red = StripSettings {

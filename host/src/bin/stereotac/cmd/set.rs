@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use stereotac::describe;
-use stereotac_protocol::{Request, Rgb, Strip, StripSettings, Timing};
+use stereotac_protocol::{Request, Rgb, Settings, Strip, StripSettings, Timing};
 
 use crate::args::ModeArg;
 use crate::sensor_args::{DeviceArgs, open};
@@ -64,35 +64,60 @@ pub fn run(a: Args) -> Result<()> {
     let mut opened = open(&a.device)?;
     let sensor = &mut opened.sensor;
     let current = sensor.config()?;
-    let mut requests = Vec::new();
+    let (settings, changes) = changed(&a, current.settings());
+    if changes.is_empty() {
+        bail!("nothing to set: see `stereotac set --help`");
+    }
+    // One request carrying everything: the device checks every value before applying
+    // any, so a refused one leaves it exactly as it was.
+    sensor
+        .request(Request::Configure(settings))
+        .with_context(|| format!("{} (nothing was changed)", changes.join(", ")))?;
+    for change in changes {
+        println!("ok: {change}");
+    }
+    Ok(())
+}
+
+/// `current` with the options applied, and each change in words.
+fn changed(a: &Args, current: Settings) -> (Settings, Vec<String>) {
+    let mut s = current;
+    let mut changes = Vec::new();
     if a.period_ms.is_some() || a.pulse_us.is_some() || a.settle_us.is_some() {
-        requests.push(Request::SetTiming(Timing {
+        s.timing = Timing {
             phase_period_us: a
                 .period_ms
                 .map_or(current.timing.phase_period_us, |ms| ms.saturating_mul(1000)),
             trigger_pulse_us: a.pulse_us.unwrap_or(current.timing.trigger_pulse_us),
             led_settle_us: a.settle_us.unwrap_or(current.timing.led_settle_us),
-        }));
+        };
+        changes.push(describe::request(&Request::SetTiming(s.timing)));
     }
     if let Some(strip) = a.strip {
         let was = current.strips[strip.index()];
-        requests.push(Request::SetStrip(StripSettings {
+        let new = StripSettings {
             strip,
             colour: a.colour.unwrap_or(was.colour),
             brightness: a.brightness.unwrap_or(was.brightness),
-        }));
+        };
+        s.strips[strip.index()] = new;
+        changes.push(describe::request(&Request::SetStrip(new)));
     }
-    requests.extend(a.leds.map(Request::SetLedCount));
-    requests.extend(a.budget_ma.map(Request::SetPowerBudget));
-    requests.extend(a.host_timeout_ms.map(Request::SetHostTimeout));
-    requests.extend(a.mode.map(|m| Request::SetMode(m.into())));
-    if requests.is_empty() {
-        bail!("nothing to set: see `stereotac set --help`");
+    if let Some(n) = a.leds {
+        s.leds_per_strip = n;
+        changes.push(describe::request(&Request::SetLedCount(n)));
     }
-    for request in requests {
-        let what = describe::request(&request);
-        sensor.request(request).with_context(|| what.clone())?;
-        println!("ok: {what}");
+    if let Some(ma) = a.budget_ma {
+        s.power_budget_ma = ma;
+        changes.push(describe::request(&Request::SetPowerBudget(ma)));
     }
-    Ok(())
+    if let Some(ms) = a.host_timeout_ms {
+        s.host_timeout_ms = ms;
+        changes.push(describe::request(&Request::SetHostTimeout(ms)));
+    }
+    if let Some(m) = a.mode {
+        s.mode = m.into();
+        changes.push(describe::request(&Request::SetMode(s.mode)));
+    }
+    (s, changes)
 }
