@@ -13,3 +13,7 @@ pub const MAX_IMAGE_ALLOC: u64 = (MAX_FRAME_SIDE * MAX_FRAME_SIDE * 4) as u64;
 
 /// Largest calibration YAML file (bytes). A full stereo calibration is about 3 KB.
 pub const MAX_CALIBRATION_FILE: u64 = 1 << 20;
+
+/// Largest model file (bytes). A model of a 640×480 frame is about 350 KB and grows with
+/// the frame's area, so one of a [`MAX_FRAME_SIDE`]² frame stays near 80 MB.
+pub const MAX_MODEL_FILE: u64 = 256 << 20;

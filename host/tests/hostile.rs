@@ -229,3 +229,39 @@ fn output_folders() {
     assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"the user's");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Model files: not JSON, not a model, another version, bytes that are not text. (Damaged
+/// fields of a real model are refused by name in tests/tactile.rs.)
+#[test]
+fn model_files() {
+    let dir = temp_dir("hostile-model");
+    let (_, left, _) = stereo_inputs(&dir);
+    let model = dir.join("model.json");
+    let out = dir.join("out");
+    let args = [
+        "reconstruct",
+        "--model",
+        s(&model),
+        "--dx",
+        s(&left),
+        "--dy",
+        s(&left),
+        "--out-dir",
+        s(&out),
+    ];
+    for (text, expect) in [
+        (&b""[..], "model.json"),
+        (b"{ not json", "not a stereotac model file"),
+        (b"[1, 2, 3]", "not a stereotac model file"),
+        (
+            br#"{"format": "stereotac-tactile-model", "version": 99}"#,
+            "version",
+        ),
+        (&[0xff, 0xfe, 0xfd][..], "model.json"),
+    ] {
+        std::fs::write(&model, text).unwrap();
+        refused(&args, &[expect]);
+        assert!(!out.exists(), "a refused run leaves no output folder");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

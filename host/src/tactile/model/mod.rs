@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 pub use lut::Lut;
 pub use mlp::{Mlp, MlpTraining};
 
+use crate::limits::MAX_MODEL_FILE;
 use super::ambient::AmbientEstimate;
 use super::colour::{ColourFilter, Reference};
 use super::contact::{ContactParams, References};
@@ -318,11 +319,25 @@ impl TactileModel {
 
     /// Reads and checks a model file.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
+        use std::io::Read;
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
+        let io = |source| ModelError::Io {
             path: name.clone(),
             source,
-        })?;
+        };
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_MODEL_FILE + 1).read_to_end(&mut bytes))
+            .map_err(io)?;
+        if bytes.len() as u64 > MAX_MODEL_FILE {
+            return Err(ModelError::Invalid {
+                path: name,
+                field: "(file)".into(),
+                why: format!(
+                    "larger than {MAX_MODEL_FILE} bytes, more than a model of the largest frame holds"
+                ),
+            });
+        }
         Self::from_json(&name, &bytes)
     }
 
