@@ -90,19 +90,13 @@ pub fn answer(a: &Result<Response, SensorError>) -> String {
     }
 }
 
-/// A whole configuration on one line.
+/// A whole configuration on one line: its settings, then what the device derives.
 pub fn config_line(c: &Config) -> String {
-    let strips: Vec<String> = c.strips.iter().map(strip).collect();
     format!(
-        "mode {}, {}, {} LEDs per strip, power budget {} mA (scale {}/255), host timeout {} ms, probe {}; {}",
-        mode(c.mode),
-        timing(&c.timing),
-        c.leds_per_strip,
-        c.power_budget_ma,
+        "{}; brightness scale {}/255 under the power budget, probe {}",
+        settings_line(&c.settings()),
         c.power_scale,
-        c.host_timeout_ms,
-        on_off(c.probe),
-        strips.join("; ")
+        on_off(c.probe)
     )
 }
 

@@ -56,6 +56,29 @@ fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '
     }
 }
 
+/// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, synced,
+/// then renamed over `path`. A crash or a full disk leaves the old file (or none), never
+/// a truncated one. For files users keep: models, calibrations, firmware images.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file name"))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".tmp-{}", std::process::id()));
+    let tmp = path.with_file_name(tmp_name);
+    let written = (|| {
+        let mut f = File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
 /// Reads an 8-bit image as grey (colour is converted to luma, as [`grey`] does); 16-bit,
 /// float and oversized images are refused ([`crate::image_file`]).
 pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
@@ -280,6 +303,24 @@ mod tests {
         assert_eq!(read_npy(&path).unwrap(), g);
         std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
         assert!(matches!(read_npy(&path), Err(OutputError::Format { .. })));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn atomic_writes_replace_whole_files_and_leave_no_temporaries() {
+        let dir = std::env::temp_dir().join(format!("stereotac-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("model.json");
+        write_atomic(&path, b"first").unwrap();
+        write_atomic(&path, b"second, longer").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"second, longer");
+        assert_eq!(
+            std::fs::read_dir(&dir).unwrap().count(),
+            1,
+            "no temporary left"
+        );
+        // Into a folder that does not exist: an error, nothing written.
+        assert!(write_atomic(&dir.join("no/such/dir/x"), b"x").is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -220,7 +220,7 @@ impl FirmwareImage {
     /// Write the UF2 file.
     pub fn write_uf2(&self, path: &Path) -> Result<usize, ImageError> {
         let uf2 = self.to_uf2();
-        std::fs::write(path, &uf2).map_err(|source| ImageError::Io {
+        crate::output::write_atomic(path, &uf2).map_err(|source| ImageError::Io {
             path: path.display().to_string(),
             source,
         })?;

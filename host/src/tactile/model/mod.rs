@@ -21,11 +21,11 @@ use serde::{Deserialize, Serialize};
 pub use lut::Lut;
 pub use mlp::{Mlp, MlpTraining};
 
-use crate::limits::MAX_MODEL_FILE;
 use super::ambient::AmbientEstimate;
 use super::colour::{ColourFilter, Reference};
 use super::contact::{ContactParams, References};
 use super::smooth::bilinear;
+use crate::limits::MAX_MODEL_FILE;
 
 /// Colour range covered by the lookup table (cross-normalised units, flat skin = 1).
 pub const LUT_MAX_COLOUR: f32 = 4.0;
@@ -309,7 +309,7 @@ impl TactileModel {
             path: path.display().to_string(),
             source,
         };
-        std::fs::write(path, self.to_json()).map_err(io)
+        crate::output::write_atomic(path, &self.to_json()).map_err(io)
     }
 
     /// The model as JSON, as [`Self::save`] writes it (and recordings attach it).

@@ -41,9 +41,13 @@ pub struct Args {
     /// Fewest pairs that must show the whole board in both views.
     #[arg(long, default_value_t = 6)]
     pub min_pairs: usize,
-    /// Where to write the calibration (OpenCV stereo YAML, as `stereo --calib` reads).
+    /// Where to write the calibration (OpenCV stereo YAML, as `stereo --calib` reads); an
+    /// existing file is kept unless --force.
     #[arg(long, default_value = "stereotac-calib.yaml")]
     pub out: PathBuf,
+    /// Replace an existing --out file (and write into a --save-views folder with files).
+    #[arg(long)]
+    pub force: bool,
     /// With --synthetic: also save the built-in views here as left_NN.png/right_NN.png.
     #[arg(long)]
     pub save_views: Option<PathBuf>,
@@ -69,6 +73,7 @@ mod with_solver {
     use anyhow::{Context, Result, bail};
     use serde::Serialize;
     use stereotac::grid::Grid;
+    use stereotac::out_dir::{OutDir, Replace};
     use stereotac::output::{read_grey, write_grey_png};
     use stereotac::stereo::board::{Checkerboard, render_board_capture};
     use stereotac::stereo::board_calibration::{
@@ -151,12 +156,12 @@ mod with_solver {
                 );
             }
             if let Some(dir) = &a.save_views {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("creating {}", dir.display()))?;
+                let dir = OutDir::prepare(dir, Replace::force_if(a.force))?;
                 for (i, (l, r)) in capture.left.iter().zip(&capture.right).enumerate() {
-                    write_grey_png(&dir.join(format!("left_{i:02}.png")), l)?;
-                    write_grey_png(&dir.join(format!("right_{i:02}.png")), r)?;
+                    write_grey_png(&dir.path().join(format!("left_{i:02}.png")), l)?;
+                    write_grey_png(&dir.path().join(format!("right_{i:02}.png")), r)?;
                 }
+                dir.keep();
             }
             return Ok(Inputs {
                 left: capture.left,
@@ -178,6 +183,12 @@ mod with_solver {
     }
 
     pub fn run(a: Args) -> Result<()> {
+        // Before the work, not after: a calibration is never replaced by accident.
+        anyhow::ensure!(
+            a.force || !a.out.exists(),
+            "{} exists: pass --force to replace it, or choose another --out",
+            a.out.display()
+        );
         let board = Checkerboard::parse(&a.board, a.square_mm)?;
         let Inputs { left, right, truth } = inputs(&a, &board)?;
         let options = CalibrateOptions {
@@ -197,7 +208,8 @@ mod with_solver {
         let name = a.out.display().to_string();
         StereoCalibration::from_opencv_yaml(&name, &yaml)
             .context("the calibration does not read back")?;
-        std::fs::write(&a.out, &yaml).with_context(|| format!("writing {name}"))?;
+        stereotac::output::write_atomic(&a.out, yaml.as_bytes())
+            .with_context(|| format!("writing {name}"))?;
         let report = report(&result, &name, truth.as_ref());
         if a.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
