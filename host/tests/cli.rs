@@ -19,6 +19,7 @@ fn help_documents_every_subcommand() {
         "reconstruct",
         "stereo",
         "stereo-eval",
+        "stereo-convert",
         "bench",
         "firmware-image",
         "run",

@@ -303,3 +303,75 @@ fn a_closed_stdout_is_not_a_crash() {
     assert!(out.join("summary.json").is_file(), "outputs written");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `stereo-convert`: an OpenCV file in metres becomes an OpenCV file in mm and a ROS pair,
+/// each reading back as the rig; the ROS pair converts back to the same OpenCV file;
+/// metres read as mm are refused with the hint; outputs are not replaced without --force.
+#[test]
+fn calibrations_convert_between_formats_and_read_back() {
+    let dir = temp_dir("stereo-convert");
+    let rig = StereoRig::sensor().calibration();
+    let mut in_m = rig.clone();
+    in_m.t /= 1000.0;
+    let yaml_m = dir.join("rig_m.yaml");
+    std::fs::write(&yaml_m, in_m.to_opencv_yaml()).unwrap();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let (ok, _, err) = stereotac(&[
+        "stereo-convert",
+        "--calib",
+        &p("rig_m.yaml"),
+        "--opencv",
+        &p("mm.yaml"),
+    ]);
+    assert!(!ok && err.contains("--units m"), "{err}");
+    let (ok, out, err) = stereotac(&[
+        "stereo-convert",
+        "--calib",
+        &p("rig_m.yaml"),
+        "--units",
+        "m",
+        "--opencv",
+        &p("mm.yaml"),
+        "--ros-left",
+        &p("left.yaml"),
+        "--ros-right",
+        &p("right.yaml"),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("baseline 14.000 mm"), "{out}");
+    let read = |files: &[&str]| {
+        let paths: Vec<_> = files.iter().map(|f| dir.join(f)).collect();
+        stereotac::stereo::StereoCalibration::load(&paths).unwrap()
+    };
+    for files in [&["mm.yaml"][..], &["left.yaml", "right.yaml"]] {
+        let d = read(files).difference_from(&rig);
+        assert!(
+            d.focal_error_percent < 1e-9
+                && d.baseline_error_percent < 1e-9
+                && d.rotation_error_deg < 1e-6,
+            "{files:?}: {d:?}"
+        );
+    }
+    // Back from the ROS pair: the same calibration, to round-off.
+    let (ok, _, err) = stereotac(&[
+        "stereo-convert",
+        "--calib",
+        &p("left.yaml"),
+        "--calib",
+        &p("right.yaml"),
+        "--opencv",
+        &p("again.yaml"),
+    ]);
+    assert!(ok, "{err}");
+    let d = read(&["again.yaml"]).difference_from(&read(&["mm.yaml"]));
+    assert!(d.baseline_error_percent < 1e-9, "{d:?}");
+    let (ok, _, err) = stereotac(&[
+        "stereo-convert",
+        "--calib",
+        &p("mm.yaml"),
+        "--opencv",
+        &p("again.yaml"),
+    ]);
+    assert!(!ok && err.contains("--force"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

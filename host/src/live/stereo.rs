@@ -5,8 +5,8 @@ use crate::frames::capture::LabelledFrame;
 use crate::matcher::{Label, StampRef};
 use crate::output::grey;
 pub use crate::recording::messages::StereoRecord;
-use crate::stereo::StereoError;
 use crate::stereo::pipeline::{StereoFrame, StereoPipeline};
+use crate::stereo::{StereoError, warnings};
 
 /// Dark frames of one phase from camera 0 (left) and camera 1 (right).
 #[derive(Debug, Clone)]
@@ -56,6 +56,14 @@ impl StereoStage {
         let left_end = pair.left.frame.stamp.exposure_end_us(self.stamp_refs[0]);
         let right_end = pair.right.frame.stamp.exposure_end_us(self.stamp_refs[1]);
         let valid = frame.sorted_valid_depths();
+        let config = self.pipeline.config();
+        let warnings = warnings::of(
+            &frame.stats,
+            &valid,
+            frame.depth_mm.as_slice().len(),
+            config.near_mm,
+            config.far_mm,
+        );
         let record = StereoRecord {
             sequence: self.frames,
             phase: match pair.left.label {
@@ -70,8 +78,66 @@ impl StereoStage {
             latency_ms: ready_us.map(|t| (t - left_end.max(right_end)) / 1000.0),
             frames_dropped,
             jobs_skipped: 0,
+            warnings,
         };
         self.frames += 1;
         Ok((frame, record))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frames::Frame;
+    use crate::matcher::FrameStamp;
+    use crate::sim::camera::SimStereo;
+    use crate::stereo::StereoConfig;
+
+    fn labelled(image: image::RgbImage) -> LabelledFrame {
+        LabelledFrame {
+            frame: Frame {
+                stamp: FrameStamp {
+                    sequence: 0,
+                    timestamp_us: 0.0,
+                    exposure_us: 1.0,
+                },
+                image,
+            },
+            label: Label::Unresolved,
+        }
+    }
+
+    /// Live records carry the same warnings as `stereo`'s summary: none for the
+    /// simulated board in range, some when the working range ends before the board.
+    #[test]
+    fn records_warn_when_the_working_range_cuts_the_scene() {
+        let rig = SimStereo::new(320, 240);
+        let (l, r) = rig.dark_views();
+        let pair = DarkPair {
+            left: labelled(l),
+            right: labelled(r),
+        };
+        let run = |config: StereoConfig| {
+            let pipeline = StereoPipeline::new(&rig.calibration(), config).unwrap();
+            let mut stage = StereoStage::new(pipeline, [StampRef::ExposureStart; 2]);
+            stage.process(&pair, || None, 0).unwrap().1
+        };
+        let fine = run(StereoConfig::default());
+        assert!(fine.warnings.is_empty(), "{:?}", fine.warnings);
+        let median = f64::from(fine.median_depth_mm.unwrap());
+        let cut = run(StereoConfig {
+            far_mm: median * 0.6,
+            near_mm: median * 0.3,
+            ..StereoConfig::default()
+        });
+        assert!(!cut.warnings.is_empty(), "{cut:?}");
+        let json = serde_json::to_value(&cut).unwrap();
+        assert!(json["warnings"].as_array().is_some_and(|w| !w.is_empty()));
+        assert!(
+            serde_json::to_value(&fine)
+                .unwrap()
+                .get("warnings")
+                .is_none()
+        );
     }
 }

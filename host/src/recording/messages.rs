@@ -287,6 +287,10 @@ pub struct StereoRecord {
     /// Frame pairs the stereo stage skipped so far for a newer one while it was busy.
     #[serde(default)]
     pub jobs_skipped: u64,
+    /// What this result should make its user look twice at ([`crate::stereo::warnings`]):
+    /// almost nothing matched, the scene outside the working range.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// Foxglove's timestamp of `unix_ns`.

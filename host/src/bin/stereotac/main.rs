@@ -100,6 +100,9 @@ enum Command {
     /// OpenCV YAML `stereo --calib` reads; `--synthetic N` uses built-in views. Needs
     /// the `calibrate` cargo feature.
     StereoCalibrate(cmd::stereo_calibrate::Args),
+    /// A stereo calibration in the other formats: OpenCV YAML (mm) and a ROS camera_info
+    /// pair (metres), each checked to read back as what was read.
+    StereoConvert(cmd::stereo_convert::Args),
     /// Benchmarks on built-in synthetic data.
     Bench(cmd::bench::Args),
     /// Report a firmware ELF's flash and RAM footprint, and optionally write it as UF2.
@@ -146,6 +149,7 @@ fn run(cli: Cli, name: &str) -> Result<()> {
         Command::Stereo(a) => cmd::stereo::run(a),
         Command::StereoEval(a) => cmd::stereo_eval::run(a),
         Command::StereoCalibrate(a) => cmd::stereo_calibrate::run(a),
+        Command::StereoConvert(a) => cmd::stereo_convert::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::FirmwareImage(a) => cmd::firmware_image::run(a),
     }

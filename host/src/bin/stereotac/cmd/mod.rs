@@ -17,5 +17,6 @@ pub mod selftest;
 pub mod set;
 pub mod stereo;
 pub mod stereo_calibrate;
+pub mod stereo_convert;
 pub mod stereo_eval;
 pub mod stream;
