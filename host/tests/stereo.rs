@@ -311,7 +311,7 @@ fn a_closed_stdout_is_not_a_crash() {
 fn calibrations_convert_between_formats_and_read_back() {
     let dir = temp_dir("stereo-convert");
     let rig = StereoRig::sensor().calibration();
-    let mut in_m = rig.clone();
+    let mut in_m = rig;
     in_m.t /= 1000.0;
     let yaml_m = dir.join("rig_m.yaml");
     std::fs::write(&yaml_m, in_m.to_opencv_yaml()).unwrap();
