@@ -17,8 +17,10 @@ pub const MARKER: &str = ".stereotac-output";
 /// When an existing directory with files in it may be written into.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Replace {
-    /// Never: refuse with the fix (`--force`).
+    /// Never: the command offers no `--force` (recordings never write over files).
     Never,
+    /// Not now: `--force` was not given; refuse with that fix.
+    NotForced,
     /// The user said so (`--force`).
     Force,
     /// When an earlier run of `command` made it (its marker is there), or `--force`
@@ -32,9 +34,9 @@ pub enum Replace {
 }
 
 impl Replace {
-    /// [`Replace::Force`] when `--force` was given, else [`Replace::Never`].
+    /// [`Replace::Force`] when `--force` was given, else [`Replace::NotForced`].
     pub fn force_if(force: bool) -> Self {
-        if force { Self::Force } else { Self::Never }
+        if force { Self::Force } else { Self::NotForced }
     }
 }
 
@@ -43,8 +45,9 @@ impl Replace {
 pub enum OutDirError {
     /// Files are in it and replacing them was not allowed.
     #[error(
-        "{}: exists and holds {count} file(s) (e.g. {example}): pass --force to write into it anyway, or choose another output directory",
-        path.display()
+        "{}: exists and holds {count} file(s) (e.g. {example}): {}",
+        path.display(),
+        if *forcible { "pass --force to write into it anyway, or choose another folder" } else { "choose another folder (nothing is ever written over files)" }
     )]
     NotEmpty {
         /// The directory.
@@ -53,6 +56,8 @@ pub enum OutDirError {
         count: usize,
         /// One of them.
         example: String,
+        /// Whether `--force` would allow it.
+        forcible: bool,
     },
     /// It is a file, or could not be read or created.
     #[error("{}: {source}", path.display())]
@@ -96,7 +101,7 @@ impl OutDir {
             .map_err(io)?;
         let allowed = entries.is_empty()
             || match replace {
-                Replace::Never => false,
+                Replace::Never | Replace::NotForced => false,
                 Replace::Force | Replace::OwnEarlierRun { force: true, .. } => true,
                 Replace::OwnEarlierRun { command, .. } => {
                     std::fs::read_to_string(path.join(MARKER)).is_ok_and(|m| m.trim() == command)
@@ -108,6 +113,7 @@ impl OutDir {
                 path: path.to_path_buf(),
                 count: entries.len(),
                 example,
+                forcible: replace != Replace::Never,
             });
         }
         let dir = Self {
@@ -182,8 +188,12 @@ mod tests {
         drop(OutDir::prepare(&d, Replace::Never).unwrap());
         assert!(d.exists());
         std::fs::write(d.join("mine.txt"), b"user data").unwrap();
-        let e = OutDir::prepare(&d, Replace::Never).unwrap_err().to_string();
+        let e = OutDir::prepare(&d, Replace::NotForced)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("mine.txt") && e.contains("--force"), "{e}");
+        let e = OutDir::prepare(&d, Replace::Never).unwrap_err().to_string();
+        assert!(e.contains("mine.txt") && !e.contains("--force"), "{e}");
         OutDir::prepare(&d, Replace::Force).unwrap().keep();
         let demo = Replace::OwnEarlierRun {
             command: "demo",

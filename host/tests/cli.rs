@@ -129,7 +129,7 @@ fn info_stream_set_and_record_against_the_simulated_sensor() {
     );
     let (ok, _, err) = stereotac(&["--sim", "record", "--png", "--out", d, "--duration-s", "1"]);
     assert!(
-        !ok && err.contains("File exists"),
+        !ok && err.contains("frame_00000000.png") && err.contains("nothing is ever written over"),
         "never overwrites: {err}"
     );
     std::fs::remove_dir_all(&dir).unwrap();

@@ -227,6 +227,21 @@ fn output_folders() {
     assert!(forced.status.success());
     assert!(out.join("summary.json").exists());
     assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"the user's");
+    // A PNG recording never writes into a folder with files (no --force there).
+    refused(
+        &[
+            "--sim",
+            "record",
+            "--png",
+            "--camera",
+            "sim",
+            "--duration-s",
+            "1",
+            "--out",
+            s(&out),
+        ],
+        &["exists and holds", "nothing is ever written over"],
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

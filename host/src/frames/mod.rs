@@ -36,6 +36,9 @@ pub enum FrameError {
         /// The cause.
         error: std::io::Error,
     },
+    /// The recording's folder cannot be used (it holds files).
+    #[error(transparent)]
+    Folder(#[from] crate::out_dir::OutDirError),
     /// An image could not be decoded or encoded.
     #[error("{path}: {message}")]
     Image {

@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use super::{Frame, FrameError, FrameSource};
 use crate::matcher::{FrameStamp, Label, MatchedFrame, StampRef};
+use crate::out_dir::{OutDir, Replace};
 
 /// The index file's name inside a recording.
 pub const INDEX_FILE: &str = "index.jsonl";
@@ -71,10 +72,11 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Start a recording in `dir` (created; an existing index is refused, never
-    /// overwritten).
+    /// Start a recording in `dir`: created, or empty; a folder with files in it (an
+    /// earlier recording, or anything else) is refused, so no frame is ever overwritten.
+    /// The folder stays whatever happens next: frames already written are data.
     pub fn create(dir: &Path) -> Result<Self, FrameError> {
-        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        OutDir::prepare(dir, Replace::Never)?.keep();
         let path = dir.join(INDEX_FILE);
         let file = File::options()
             .write(true)

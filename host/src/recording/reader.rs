@@ -273,6 +273,11 @@ pub enum Content {
     Other(Record),
 }
 
+/// Most frame labels kept waiting for their images. A recording from `record` or `run`
+/// writes each image right after its label, so a handful wait at a time; this bounds the
+/// memory a damaged or hostile file can take.
+pub const MAX_PENDING_LABELS: usize = 4096;
+
 /// Reads `path` through, joining frames: `each` gets every labelled frame and every
 /// other message in file order (and may break off); the header is returned with how the
 /// file ended.
@@ -306,6 +311,17 @@ pub fn frames<E: From<RecordingError>>(
                         .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
                     let label = info.label().map_err(|e| bad(topic, *log_time_ns, e))?;
                     labels.insert((camera, *log_time_ns), (info, label));
+                    if labels.len() > MAX_PENDING_LABELS {
+                        return Err(bad(
+                            topic,
+                            *log_time_ns,
+                            format!(
+                                "more than {MAX_PENDING_LABELS} frame labels without their images: \
+                                 not a recording `record` or `run` writes (each label is followed by its image)"
+                            ),
+                        )
+                        .into());
+                    }
                 }
                 Some(camera) if *topic == topics::camera_image(camera) => {
                     let raw = RawImage::decode(data.as_slice())
@@ -380,4 +396,46 @@ pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
         }
     }
     Ok(header)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    /// A file of frame labels whose images never come is refused once too many wait,
+    /// instead of growing without bound.
+    #[test]
+    fn labels_without_images_are_bounded() {
+        let path =
+            std::env::temp_dir().join(format!("stereotac-labels-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new().create(file).unwrap();
+        let topic = topics::camera_frame(0);
+        let channel = w.add_channel(0, &topic, "json", &BTreeMap::new()).unwrap();
+        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
+        for i in 0..(MAX_PENDING_LABELS as u64 + 10) {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, label).unwrap();
+        }
+        w.finish().unwrap();
+        drop(w);
+        let mut frames_seen = 0;
+        let result = frames::<RecordingError>(&path, |content, _| {
+            if let Content::Frame(_) = content {
+                frames_seen += 1;
+            }
+            Ok(ControlFlow::Continue(()))
+        });
+        let e = result.unwrap_err().to_string();
+        assert!(e.contains("without their images"), "{e}");
+        assert_eq!(frames_seen, 0);
+        let _ = std::fs::remove_file(&path);
+    }
 }

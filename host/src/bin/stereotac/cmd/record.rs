@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use stereotac::device::SensorEvent;
 use stereotac::frames::FrameSource;
 use stereotac::frames::capture::{Capture, LabelledFrame};
@@ -89,8 +89,8 @@ pub fn run(a: Args) -> Result<()> {
             a.out.join(format!("cam{i}"))
         };
         eprintln!("camera {i}: {} -> {}", source.describe(), dir.display());
-        let recorder = Recorder::create(&dir)
-            .with_context(|| format!("starting a recording in {}", dir.display()))?;
+        // Its errors name the folder.
+        let recorder = Recorder::create(&dir)?;
         let capture = Capture::new(
             source,
             MatcherConfig {
