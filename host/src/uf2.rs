@@ -399,6 +399,19 @@ mod tests {
     }
 
     proptest::proptest! {
+        /// Any damage to a valid UF2 file is accepted only if every block still checks
+        /// out; never a panic.
+        #[test]
+        fn damaged_uf2_files_never_panic(at in 0usize..1024, byte in proptest::num::u8::ANY, cut in 0usize..1100) {
+            let image = FirmwareImage::parse(&tiny_elf(0x1000_0080, &[9; 300])).unwrap();
+            let mut uf2 = image.to_uf2();
+            uf2[at] = byte;
+            uf2.truncate(cut);
+            if let Ok(blocks) = check_uf2(&uf2) {
+                proptest::prop_assert_eq!(blocks * 512, uf2.len());
+            }
+        }
+
         /// Any damage to a valid image is an image or a typed error, never a panic or a
         /// copy larger than flash.
         #[test]

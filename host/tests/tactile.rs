@@ -465,6 +465,21 @@ fn model_files_round_trip_and_refuse_other_versions() {
     ));
     // Damaged or hostile fields are refused by name, never a panic later.
     let good: serde_json::Value = serde_json::from_slice(&model.to_json()).unwrap();
+    // A key this version does not have (a typo, or a hand edit) is refused by name, at
+    // the top level and inside.
+    for (place, key) in [("", "px_per_mmm"), ("contact", "treshold")] {
+        let mut m = good.clone();
+        let target = if place.is_empty() {
+            &mut m
+        } else {
+            &mut m[place]
+        };
+        target[key] = 15.into();
+        let e = TactileModel::from_json("m.json", &serde_json::to_vec(&m).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(key) && e.contains("unknown field"), "{e}");
+    }
     type Damage = fn(&mut serde_json::Value);
     let cases: [(&str, Damage); 10] = [
         ("background.dx", |m| {

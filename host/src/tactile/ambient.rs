@@ -131,6 +131,7 @@ pub fn subtracted(lit: &RgbImage, dark: &RgbImage) -> RgbImage {
 /// Mean ambient light of a calibration's LEDs-off frames, as block means: what a model
 /// calibrated on LED light subtracts from frames that come without a LEDs-off frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AmbientEstimate {
     /// Block size (px).
     pub step: usize,

@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 /// Thresholds of the colour filter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ColourFilter {
     /// Minimum LED light `max(R−G, B−G)` for a usable pixel (DN).
     pub min_led: f32,

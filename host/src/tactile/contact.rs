@@ -19,6 +19,7 @@ use super::smooth::BlockMeans;
 
 /// Thresholds of contact detection.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ContactParams {
     /// A block is touched when its mean colour's weighted departure from flat skin
     /// (`Σ w·|normalised colour − 1|` over both images, see [`colours_of`]) exceeds this.

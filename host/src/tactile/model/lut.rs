@@ -17,6 +17,7 @@ use super::Sample;
 
 /// The table and its axes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Lut {
     /// Entries per colour axis.
     pub bins: usize,

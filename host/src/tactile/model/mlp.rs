@@ -15,6 +15,7 @@ const BLOCK: usize = 64;
 
 /// One fully connected layer: `out = W · in + b`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Layer {
     /// Inputs.
     pub inputs: usize,
@@ -28,6 +29,7 @@ pub struct Layer {
 
 /// The network with its input normalisation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Mlp {
     /// Subtracted from each input.
     pub input_offset: [f32; 4],

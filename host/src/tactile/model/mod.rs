@@ -103,6 +103,7 @@ impl FromStr for ModelKind {
 
 /// Both models of one phase.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AxisModel {
     /// Lookup table.
     pub lut: Lut,
@@ -123,6 +124,7 @@ impl AxisModel {
 /// No-contact LED light at reduced resolution: per block, `[red − green, blue − green,
 /// green]` of each phase, averaged over `factor × factor` pixels.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Background {
     /// Block size (px).
     pub factor: usize,
@@ -203,6 +205,7 @@ impl Background {
 
 /// How well the models fit, in slope units (RMS).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FitReport {
     /// Pairs used for training.
     pub training_pairs: usize,
@@ -227,6 +230,7 @@ pub const MODEL_VERSION: u32 = 1;
 
 /// A calibrated sensor: everything reconstruction needs besides the frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TactileModel {
     /// Always [`MODEL_FORMAT`].
     pub format: String,
