@@ -113,6 +113,19 @@ fn calibration_files() {
     }
     std::fs::write(&bad, [0xff, 0xfe, 0x00, 0x41]).unwrap();
     refused(&args, &["bad.yaml"]);
+    // A key the format does not have is not refused (newer tools add keys) but said, so
+    // a misspelt one is seen.
+    std::fs::write(&bad, format!("{good}k1: [1]\n")).unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(&args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    assert!(
+        err.contains("warning: ") && err.contains("bad.yaml: key `k1`") && err.contains("`K1`"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -320,6 +320,74 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         err.contains("stereo: 8 frame pairs") || err.contains("stereo: 7 frame pairs"),
         "{err}"
     );
+
+    // A skin said to be 0.5 mm thick: presses about 1 mm deep cannot be right. Calibrate
+    // sets each aside with that reason; `process` with such a model refuses those pairs
+    // with a warning each, keeps the rest, and counts them.
+    let (ok, _, err) = stereotac(&[
+        "calibrate",
+        path(&presses),
+        "--ball-diameter-mm",
+        "6",
+        "--skin-thickness-mm",
+        "0.5",
+        "--out",
+        path(&dir.join("thin.json")),
+    ]);
+    assert!(!ok && err.contains("deeper than the 0.5 mm skin"), "{err}");
+    assert!(!dir.join("thin.json").exists());
+    let mut thin: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    thin["skin_thickness_mm"] = 0.5.into();
+    let thin_model = dir.join("thin-edited.json");
+    std::fs::write(&thin_model, serde_json::to_vec(&thin).unwrap()).unwrap();
+    let (ok, text, err) = stereotac(&[
+        "process",
+        path(&out.join("demo.mcap")),
+        "--model",
+        path(&thin_model),
+        "--jsonl",
+    ]);
+    assert!(ok, "{err}");
+    let kept: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let refused = err.matches("tactile pair refused: depth").count();
+    assert_eq!(kept.len() + refused, records.len(), "{err}");
+    assert!(refused >= 6, "{err}");
+    assert!(
+        err.contains(&format!("with contact, {refused} refused")) && err.contains("0.5 mm"),
+        "{err}"
+    );
+    assert!(
+        kept.iter()
+            .all(|r| r["max_depth_mm"].as_f64().unwrap() <= 0.5),
+        "{text}"
+    );
+    // Live, the same: each such pair is a warning, and the run goes on to its end.
+    let (ok, text, err) = stereotac(&[
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--model",
+        path(&thin_model),
+        "--duration-s",
+        "3",
+        "--jsonl",
+    ]);
+    assert!(ok, "{err}");
+    let refused = err.matches("tactile pair refused: depth").count();
+    assert!(refused > 0, "{err}");
+    assert!(
+        err.contains(&format!("with contact, {refused} refused")),
+        "{err}"
+    );
+    for line in text.lines() {
+        let r: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert!(r["max_depth_mm"].as_f64().unwrap() <= 0.5, "{line}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

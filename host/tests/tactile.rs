@@ -481,7 +481,9 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 10] = [
+    let cases: [(&str, Damage); 12] = [
+        ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 0.into()),
+        ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 1e6.into()),
         ("background.dx", |m| {
             m["background"]["dx"].as_array_mut().unwrap().truncate(3)
         }),
@@ -521,6 +523,93 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(err.to_string().contains("recalibrate"), "{err}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn depth_beyond_the_skin_is_refused_with_the_reason() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    assert_eq!(model.skin_thickness_mm, 3.0, "the default skin");
+    let pair = render(&optics, &ball(10.0, 8.0, 1.0), 3);
+    let reconstructor = |model: &TactileModel| {
+        Reconstructor::new(
+            model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some((&refs.0, &refs.1).into()),
+        )
+    };
+    let deepest = reconstructor(&model)
+        .unwrap()
+        .reconstruct(&pair.dx, &pair.dy)
+        .unwrap()
+        .depth_mm
+        .as_slice()
+        .iter()
+        .fold(0.0f32, |a, d| a.max(d.abs()));
+    assert!((0.8..1.2).contains(&deepest), "{deepest}");
+    // A 1 mm press on a skin said to be 0.5 mm thick cannot be right: refused, with the
+    // depth, where, and the fix.
+    let thin = TactileModel {
+        skin_thickness_mm: 0.5,
+        ..model.clone()
+    };
+    let err = reconstructor(&thin)
+        .unwrap()
+        .reconstruct(&pair.dx, &pair.dy)
+        .unwrap_err();
+    match &err {
+        ReconstructError::DepthBeyondSkin {
+            depth_mm,
+            x,
+            y,
+            skin_mm,
+        } => {
+            assert_eq!(*depth_mm, deepest);
+            assert_eq!(*skin_mm, 0.5);
+            // Where the ball is: 10 × 8 mm at 15 px/mm, give or take its radius.
+            let r = 4.0 * optics.px_per_mm;
+            let (bx, by) = (10.0 * optics.px_per_mm, 8.0 * optics.px_per_mm);
+            assert!(
+                (*x as f64 - bx).hypot(*y as f64 - by) < r,
+                "({x}, {y}) is not on the ball"
+            );
+        }
+        e => panic!("{e}"),
+    }
+    assert!(err.refuses_this_pair_only());
+    let text = err.to_string();
+    assert!(text.contains("--skin-thickness-mm"), "{text}");
+    // Files written before the field existed read as the default skin.
+    let mut json: serde_json::Value = serde_json::from_slice(&model.to_json()).unwrap();
+    json.as_object_mut().unwrap().remove("skin_thickness_mm");
+    let old = TactileModel::from_json("old.json", &serde_json::to_vec(&json).unwrap()).unwrap();
+    assert_eq!(old.skin_thickness_mm, 3.0);
+
+    // Calibration sets aside presses deeper than the skin, with that reason, and refuses
+    // a skin thickness that is not a number.
+    let pairs = ball_presses(&optics, 6, 6.0, 11);
+    let mut s = settings(&optics);
+    s.skin_thickness_mm = 0.3;
+    match calibrate(&pairs, Some((&refs.0, &refs.1).into()), &s, |_| {}) {
+        Err(CalibrationError::TooFewPresses { rejected, .. }) => {
+            assert!(!rejected.is_empty());
+            for r in &rejected {
+                assert!(
+                    matches!(r.reason, Rejection::DeeperThanSkin { depth_mm, skin_mm: 0.3 } if depth_mm > 0.3),
+                    "{}: {}",
+                    r.name,
+                    r.reason
+                );
+            }
+        }
+        other => panic!("{:?}", other.map(|c| c.presses.len())),
+    }
+    for bad in [f64::NAN, 0.0, 51.0] {
+        s.skin_thickness_mm = bad;
+        let e = calibrate(&pairs, None, &s, |_| {}).unwrap_err();
+        assert!(matches!(e, CalibrationError::Settings(_)), "{bad}: {e}");
+    }
 }
 
 #[test]

@@ -86,8 +86,9 @@ pub fn run<H: Hooks>(
     );
     let (rest, tactile, stereo) = workers.finish();
     *pipeline = Pipeline::from_parts(router, tactile, stereo);
+    let now = sensor.clock().now_us() as f64;
     if stopped != Stopped::Caller
-        && let Err(e) = hand_on(rest, recorder, hooks)
+        && let Err(e) = hand_on(rest, recorder, hooks, now)
         && !matches!(stopped, Stopped::Failed(_))
     {
         stopped = Stopped::Failed(e.to_string());
@@ -117,7 +118,8 @@ fn drive<H: Hooks>(
         for w in session.take_warnings() {
             hooks.warning(w);
         }
-        match stepped.and_then(|()| hand_on(workers.ready(), recorder, hooks)) {
+        let now = sensor.clock().now_us() as f64;
+        match stepped.and_then(|()| hand_on(workers.ready(), recorder, hooks, now)) {
             Ok(true) => {}
             Ok(false) => break Stopped::Caller,
             Err(e) => break Stopped::Failed(e.to_string()),
@@ -161,13 +163,28 @@ fn route<H: Hooks>(
 }
 
 /// Outputs to the caller and the recorder; `false` once the caller says stop.
+/// Records and hands on each output; a pair refused on its own (its depth cannot be
+/// right: see [`crate::tactile::reconstruct::ReconstructError::refuses_this_pair_only`])
+/// becomes a warning at host time `now_us` and the run goes on.
 fn hand_on<H: Hooks>(
     produced: Vec<Produced>,
     recorder: &Recorder,
     hooks: &mut H,
+    now_us: f64,
 ) -> Result<bool, H::Error> {
     for p in produced {
-        let output = p?;
+        let output = match p {
+            Err(PipelineError::Tactile(e)) if e.refuses_this_pair_only() => {
+                let message = format!("tactile pair refused: {e}");
+                recorder.send(crate::recording::writer::Item::Warning {
+                    at_us: now_us,
+                    message: message.clone(),
+                });
+                hooks.warning(message);
+                continue;
+            }
+            p => p?,
+        };
         let keep = hooks.output(&output)?;
         if recorder.is_active() {
             recorder.send(output.into_item());

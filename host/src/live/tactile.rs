@@ -29,6 +29,7 @@ pub struct TactileStage {
     px_per_mm: f64,
     stamp_ref: StampRef,
     pairs: u64,
+    refused: u64,
 }
 
 impl std::fmt::Debug for TactileStage {
@@ -50,12 +51,27 @@ impl TactileStage {
             px_per_mm,
             stamp_ref,
             pairs: 0,
+            refused: 0,
         }
     }
 
     /// Pairs reconstructed so far.
     pub fn pairs(&self) -> u64 {
         self.pairs
+    }
+
+    /// Pairs refused on their own so far (depth that cannot be right: see
+    /// [`ReconstructError::refuses_this_pair_only`]).
+    pub fn refused(&self) -> u64 {
+        self.refused
+    }
+
+    fn count_refused<T>(&mut self, r: &Result<T, ReconstructError>) {
+        if r.as_ref()
+            .is_err_and(ReconstructError::refuses_this_pair_only)
+        {
+            self.refused += 1;
+        }
     }
 
     /// Reconstructs `pair`; `now_us` reads the host clock when the depth is ready (none
@@ -66,7 +82,9 @@ impl TactileStage {
         now_us: impl FnOnce() -> Option<f64>,
         frames_dropped: u64,
     ) -> Result<(Reconstruction, TactileRecord), ReconstructError> {
-        let r = self.reconstructor.reconstruct_frames(frames(pair))?;
+        let r = self.reconstructor.reconstruct_frames(frames(pair));
+        self.count_refused(&r);
+        let r = r?;
         let record = self.record(pair, &r, now_us(), frames_dropped);
         Ok((r, record))
     }
@@ -102,6 +120,7 @@ impl TactileStage {
             .flatten()
             .zip(pairs)
             .map(|(r, pair)| {
+                self.count_refused(&r);
                 r.map(|(r, ready_us)| {
                     let record = self.record(pair, &r, ready_us, frames_dropped);
                     (r, record)

@@ -162,6 +162,57 @@ impl StereoCalibration {
     }
 }
 
+/// Keys of an OpenCV stereo file that [`StereoCalibration::from_opencv_yaml_in`] reads.
+const OPENCV_KEYS_READ: &[&str] = &[
+    "image_width",
+    "image_height",
+    "image_size",
+    "imageSize",
+    "K1",
+    "K2",
+    "M1",
+    "M2",
+    "D1",
+    "D2",
+    "R",
+    "T",
+    "R1",
+    "R2",
+    "P1",
+    "P2",
+    "distortion_model",
+];
+/// Keys OpenCV's stereo calibration and the usual tools write that are not needed here.
+const OPENCV_KEYS_UNUSED: &[&str] = &[
+    "E",
+    "F",
+    "Q",
+    "rms",
+    "avg_reprojection_error",
+    "reprojection_error",
+    "calibration_time",
+    "nframes",
+    "nr_of_frames",
+    "flags",
+    "validRoi1",
+    "validRoi2",
+    "square_size",
+    "board_width",
+    "board_height",
+    "camera_name",
+];
+/// Keys of a ROS `camera_info` file, all known (`camera_name` is not needed).
+const ROS_KEYS: &[&str] = &[
+    "image_width",
+    "image_height",
+    "camera_name",
+    "camera_matrix",
+    "distortion_model",
+    "distortion_coefficients",
+    "rectification_matrix",
+    "projection_matrix",
+];
+
 /// Reads fields of one parsed file, naming the file in errors.
 struct Fields<'a> {
     file: &'a str,
@@ -183,6 +234,27 @@ impl<'a> Fields<'a> {
             field: field.into(),
             why: why.into(),
         }
+    }
+
+    /// A note for each key that is none of `known`: ignored, but said, since a misspelt
+    /// key (`k1` for `K1`) would otherwise look like a missing one, or not be missed at all.
+    fn unknown_keys(&self, known: &[&[&str]], read: &[&str]) -> Vec<String> {
+        self.map
+            .keys()
+            .filter(|k| !known.iter().any(|list| list.contains(&k.as_str())))
+            .map(|k| {
+                let hint = read
+                    .iter()
+                    .find(|r| r.eq_ignore_ascii_case(k))
+                    .map_or(String::new(), |r| {
+                        format!(" (did you mean `{r}`? keys are case-sensitive)")
+                    });
+                format!(
+                    "{}: key `{k}` is not one this format has; ignored{hint}",
+                    self.file
+                )
+            })
+            .collect()
     }
 
     fn has(&self, field: &str) -> bool {
@@ -420,6 +492,15 @@ impl StereoCalibration {
 
     /// [`Self::load`] with an OpenCV file's `T` in `unit`.
     pub fn load_in(files: &[std::path::PathBuf], unit: LengthUnit) -> Result<Self, CalibError> {
+        Self::load_noting(files, unit).map(|(c, _)| c)
+    }
+
+    /// [`Self::load_in`], with a note for each key of the files that is not one of their
+    /// format's (ignored, for forward compatibility, but a typo should be seen).
+    pub fn load_noting(
+        files: &[std::path::PathBuf],
+        unit: LengthUnit,
+    ) -> Result<(Self, Vec<String>), CalibError> {
         let read = |path: &std::path::Path| {
             let file = path.display().to_string();
             match read_bounded(path) {
@@ -430,11 +511,15 @@ impl StereoCalibration {
         match files {
             [one] => {
                 let (name, text) = read(one)?;
-                Self::from_opencv_yaml_in(&name, &text, unit)
+                let mut notes = Vec::new();
+                let c = Self::opencv_noting(&name, &text, unit, &mut notes)?;
+                Ok((c, notes))
             }
             [left, right] => {
                 let (l, r) = (read(left)?, read(right)?);
-                Self::from_ros_pair((&l.0, &l.1), (&r.0, &r.1))
+                let mut notes = Vec::new();
+                let c = Self::ros_noting((&l.0, &l.1), (&r.0, &r.1), &mut notes)?;
+                Ok((c, notes))
             }
             [] => Err(CalibError::Files(
                 "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS)".into(),
@@ -459,7 +544,17 @@ impl StereoCalibration {
         text: &str,
         unit: LengthUnit,
     ) -> Result<Self, CalibError> {
+        Self::opencv_noting(file, text, unit, &mut Vec::new())
+    }
+
+    fn opencv_noting(
+        file: &str,
+        text: &str,
+        unit: LengthUnit,
+        notes: &mut Vec<String>,
+    ) -> Result<Self, CalibError> {
         let f = Fields::parse(file, text)?;
+        notes.extend(f.unknown_keys(&[OPENCV_KEYS_READ, OPENCV_KEYS_UNUSED], OPENCV_KEYS_READ));
         let (width, height) = f.image_size()?;
         let model = f.model()?;
         let camera = |k: &str, d: &str| -> Result<Camera, CalibError> {
@@ -494,14 +589,20 @@ impl StereoCalibration {
     }
 
     /// Read a left and a right ROS `camera_info` YAML.
-    pub fn from_ros_pair(
+    pub fn from_ros_pair(left: (&str, &str), right: (&str, &str)) -> Result<Self, CalibError> {
+        Self::ros_noting(left, right, &mut Vec::new())
+    }
+
+    fn ros_noting(
         (left_file, left_text): (&str, &str),
         (right_file, right_text): (&str, &str),
+        notes: &mut Vec<String>,
     ) -> Result<Self, CalibError> {
-        let read = |file: &str,
-                    text: &str|
+        let mut read = |file: &str,
+                        text: &str|
          -> Result<(Camera, Matrix3<f64>, Matrix3x4<f64>), CalibError> {
             let f = Fields::parse(file, text)?;
+            notes.extend(f.unknown_keys(&[ROS_KEYS], ROS_KEYS));
             let (width, height) = f.image_size()?;
             let camera = Camera {
                 width,
@@ -724,6 +825,38 @@ pub(crate) mod tests {
         let e =
             StereoCalibration::from_ros_pair(("r.yaml", &right), ("l.yaml", &left)).unwrap_err();
         assert!(e.to_string().contains("not the left camera"), "{e}");
+        // Every key is one ROS writes: no notes; a key ROS does not have gets one.
+        let mut notes = Vec::new();
+        StereoCalibration::ros_noting(("l.yaml", &left), ("r.yaml", &right), &mut notes).unwrap();
+        assert_eq!(notes, Vec::<String>::new());
+        let odd = format!("{right}Camera_Matrix: 1\n");
+        StereoCalibration::ros_noting(("l.yaml", &left), ("r.yaml", &odd), &mut notes).unwrap();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(
+            notes[0].starts_with("r.yaml: key `Camera_Matrix`")
+                && notes[0].contains("did you mean `camera_matrix`?"),
+            "{notes:?}"
+        );
+    }
+
+    #[test]
+    fn keys_a_format_does_not_have_are_noted_not_refused() {
+        let good = sensor_pair(Distortion::NONE).to_opencv_yaml();
+        // OpenCV's own extra results (E, F, Q, rms) are known: no notes.
+        let with_extras = format!("{good}E: [1, 2]\nrms: 0.3\n");
+        let mut notes = Vec::new();
+        let read =
+            StereoCalibration::opencv_noting("c.yaml", &with_extras, LengthUnit::Mm, &mut notes)
+                .unwrap();
+        assert_eq!(notes, Vec::<String>::new());
+        // A misspelt key is read as the file would be without it, and said.
+        let typo = format!("{good}t: [1, 0, 0]\nbaseline_mm: 14\n");
+        let same =
+            StereoCalibration::opencv_noting("c.yaml", &typo, LengthUnit::Mm, &mut notes).unwrap();
+        assert_eq!(same, read);
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes[0].contains("`baseline_mm`") && notes[0].contains("ignored"));
+        assert!(notes[1].contains("`t`") && notes[1].contains("did you mean `T`?"));
     }
 
     #[test]

@@ -72,6 +72,36 @@ pub enum ReconstructError {
         /// Share of the frame where it is brighter (%).
         percent: f64,
     },
+    /// The depth found is deeper (or higher) than the skin is thick: no press makes that,
+    /// so the frames do not fit the model. Nothing of this pair is kept.
+    #[error(
+        "depth {depth_mm:.2} mm at pixel ({x}, {y}) is beyond the skin's thickness \
+         ({skin_mm} mm, the model's `skin_thickness_mm`): nothing presses deeper than the \
+         skin, so these frames do not fit this model (another sensor, other lighting, \
+         frames of another phase); if the skin is thicker, recalibrate with \
+         --skin-thickness-mm"
+    )]
+    DepthBeyondSkin {
+        /// The depth (mm; negative: raised).
+        depth_mm: f32,
+        /// Pixel column.
+        x: usize,
+        /// Pixel row.
+        y: usize,
+        /// The model's skin thickness (mm).
+        skin_mm: f64,
+    },
+    /// The depth has a non-finite value (a bug: the slopes are sanitised before they are
+    /// integrated, so this is kept typed, never written).
+    #[error("depth at pixel ({x}, {y}) is {value}: not a depth (a bug: please report it)")]
+    NonFiniteDepth {
+        /// The value.
+        value: f32,
+        /// Pixel column.
+        x: usize,
+        /// Pixel row.
+        y: usize,
+    },
     /// The model's stored ambient light does not cover its own frame size.
     #[error(
         "the model's ambient estimate ({blocks:?} blocks) does not cover its {width}x{height} \
@@ -124,6 +154,17 @@ pub struct Reconstruction {
     pub ambient: AmbientSource,
     /// Stage timings.
     pub timings: StageTimings,
+}
+
+impl ReconstructError {
+    /// `true` when only this frame pair is refused (its result cannot be right), and the
+    /// next pair may well be fine: live and batch runs warn and go on.
+    pub fn refuses_this_pair_only(&self) -> bool {
+        matches!(
+            self,
+            Self::DepthBeyondSkin { .. } | Self::NonFiniteDepth { .. }
+        )
+    }
 }
 
 impl Reconstruction {
@@ -460,13 +501,19 @@ impl Reconstructor {
         contact::fill_holes(&mut imprint, roi.width, roi.height);
         let anchor = ring_median(depth_px.as_slice(), &imprint, roi.width, roi.height);
         let scale = 1.0 / self.model.px_per_mm as f32;
+        // The deepest (or highest) point, to hold against the skin's thickness.
+        let mut extreme = (0.0f32, 0usize, 0usize);
         for ry in 0..roi.height {
             let y = roi.y + ry;
             let src = depth_px.row(ry);
             let inside = &imprint[ry * roi.width..(ry + 1) * roi.width];
             let dst = &mut out.depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
-            for ((d, s), &keep) in dst.iter_mut().zip(src).zip(inside) {
+            for (rx, ((d, s), &keep)) in dst.iter_mut().zip(src).zip(inside).enumerate() {
                 *d = if keep { (s - anchor) * scale } else { 0.0 };
+                // The first NaN is kept, never replaced.
+                if extreme.0.is_finite() && (d.is_nan() || d.abs() > extreme.0.abs()) {
+                    extreme = (*d, roi.x + rx, y);
+                }
             }
             let m = &mut out.contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
             for (d, s) in m
@@ -477,6 +524,18 @@ impl Reconstructor {
             }
         }
         debug_assert!(roi.x + roi.width <= w && roi.y + roi.height <= h);
+        let (value, x, y) = extreme;
+        if !value.is_finite() {
+            return Err(ReconstructError::NonFiniteDepth { value, x, y });
+        }
+        if f64::from(value.abs()) > self.model.skin_thickness_mm {
+            return Err(ReconstructError::DepthBeyondSkin {
+                depth_mm: value,
+                x,
+                y,
+                skin_mm: self.model.skin_thickness_mm,
+            });
+        }
         out.timings.solve_ms += ms(t2, Instant::now());
         Ok(())
     }

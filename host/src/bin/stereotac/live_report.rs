@@ -60,9 +60,10 @@ impl Report {
         };
         if let Some(t) = &pipeline.tactile {
             eprintln!(
-                "tactile: {} dx/dy pairs reconstructed, {} with contact, {} skipped while busy{}",
+                "tactile: {} dx/dy pairs reconstructed, {} with contact, {} refused, {} skipped while busy{}",
                 t.pairs(),
                 self.contacts,
+                t.refused(),
                 self.skipped.0,
                 fmt(self.tactile_latency)
             );

@@ -26,6 +26,16 @@ pub const REFERENCE_DY: &str = "reference_dy.png";
 /// Metadata record of the stereo settings.
 pub const META_STEREO: &str = "stereo_settings";
 
+/// Reads a stereo calibration (`--calib` files, `--units`), printing a warning for each
+/// key its format does not have (ignored, but a misspelt key should be seen).
+pub fn load_calibration(files: &[PathBuf], units: LengthUnit) -> Result<StereoCalibration> {
+    let (calib, notes) = StereoCalibration::load_noting(files, units)?;
+    for note in notes {
+        eprintln!("warning: {note}");
+    }
+    Ok(calib)
+}
+
 /// Model and calibration options.
 #[derive(Debug, Clone, clap::Args)]
 pub struct StageArgs {

@@ -29,9 +29,10 @@ pub use report::{CalibrationReport, overlay};
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
+use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_SKIN_THICKNESS_MM};
 use super::model::{
-    AxisModel, Background, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp,
-    MlpTraining, ModelKind, Sample, TactileModel, colour_features,
+    AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT,
+    MODEL_VERSION, Mlp, MlpTraining, ModelKind, Sample, TactileModel, colour_features,
 };
 use super::phase_check::{self, PhaseImageError};
 
@@ -72,6 +73,13 @@ pub enum Rejection {
         /// Fitted contact radius (px).
         contact_px: f64,
     },
+    /// The circle implies a press deeper than the skin is thick.
+    DeeperThanSkin {
+        /// Press depth implied by the circle and the ball (mm).
+        depth_mm: f64,
+        /// The skin's thickness (mm).
+        skin_mm: f64,
+    },
     /// The outline is not a circle (two contacts, a smear, a ball that slid).
     NotCircular {
         /// RMS distance of the outline from the circle (px).
@@ -95,6 +103,10 @@ impl fmt::Display for Rejection {
             Rejection::TooSmall { contact_px } => write!(
                 f,
                 "contact radius {contact_px:.1} px is too small to calibrate with: press deeper"
+            ),
+            Rejection::DeeperThanSkin { depth_mm, skin_mm } => write!(
+                f,
+                "the circle means a press {depth_mm:.2} mm deep, deeper than the {skin_mm} mm skin: wrong --skin-thickness-mm, --ball-diameter-mm or --px-per-mm, or light spreading beyond the imprint"
             ),
             Rejection::NotCircular {
                 rms_px,
@@ -126,6 +138,8 @@ pub struct CalibrationSettings {
     pub ball_diameter_mm: f64,
     /// Scale (px per mm).
     pub px_per_mm: f64,
+    /// Thickness of the skin (mm), stored in the model: no press goes deeper.
+    pub skin_thickness_mm: f64,
     /// Colour filter.
     pub filter: ColourFilter,
     /// Contact detection. Its threshold is replaced by the one measured on the frames
@@ -161,6 +175,13 @@ impl CalibrationSettings {
                 )));
             }
         }
+        let (lo, hi) = (MIN_SKIN_THICKNESS_MM, MAX_SKIN_THICKNESS_MM);
+        if !(lo..=hi).contains(&self.skin_thickness_mm) {
+            return Err(CalibrationError::Settings(format!(
+                "skin thickness must be {lo}–{hi} mm, got {}",
+                self.skin_thickness_mm
+            )));
+        }
         Ok(())
     }
 }
@@ -170,6 +191,7 @@ impl Default for CalibrationSettings {
         Self {
             ball_diameter_mm: 6.0,
             px_per_mm: 15.0,
+            skin_thickness_mm: DEFAULT_SKIN_THICKNESS_MM,
             filter: ColourFilter::default(),
             contact: ContactParams::default(),
             fixed_threshold: false,
@@ -514,6 +536,14 @@ pub fn calibrate(
                 _ => None,
             }
         };
+        let depth_mm =
+            (ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt()) / settings.px_per_mm;
+        let reason = reason.or_else(|| {
+            (depth_mm > settings.skin_thickness_mm).then_some(Rejection::DeeperThanSkin {
+                depth_mm,
+                skin_mm: settings.skin_thickness_mm,
+            })
+        });
         if let Some(reason) = reason {
             rejected.push(RejectedPress {
                 name: pair.name.clone(),
@@ -522,11 +552,10 @@ pub fn calibrate(
             });
             continue;
         }
-        let depth_px = ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt();
         presses.push(PressFit {
             name: pair.name.clone(),
             circle,
-            depth_mm: depth_px / settings.px_per_mm,
+            depth_mm,
             overridden,
             fit_rms_px,
         });
@@ -620,6 +649,7 @@ pub fn calibrate(
         height: h,
         px_per_mm: settings.px_per_mm,
         ball_diameter_mm: settings.ball_diameter_mm,
+        skin_thickness_mm: settings.skin_thickness_mm,
         filter: settings.filter,
         contact: contact_params,
         background: Background::from_images(&ref_dx, &ref_dy, settings.background_factor.max(1)),

@@ -228,6 +228,14 @@ pub const MODEL_FORMAT: &str = "stereotac-tactile-model";
 /// Current model file version.
 pub const MODEL_VERSION: u32 = 1;
 
+/// Skin thickness assumed when none is given (mm): the simulated sensor's, and within
+/// the 1.5–4 mm of the elastomer skins of camera-based tactile sensors.
+pub const DEFAULT_SKIN_THICKNESS_MM: f64 = 3.0;
+
+fn default_skin_thickness_mm() -> f64 {
+    DEFAULT_SKIN_THICKNESS_MM
+}
+
 /// A calibrated sensor: everything reconstruction needs besides the frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -244,6 +252,11 @@ pub struct TactileModel {
     pub px_per_mm: f64,
     /// Ball used for calibration (mm).
     pub ball_diameter_mm: f64,
+    /// Thickness of the sensor's skin (mm): nothing presses deeper, so a reconstruction
+    /// deeper than this is refused ([`crate::tactile::reconstruct::ReconstructError::DepthBeyondSkin`]).
+    /// Files written before it existed read as [`DEFAULT_SKIN_THICKNESS_MM`].
+    #[serde(default = "default_skin_thickness_mm")]
+    pub skin_thickness_mm: f64,
     /// Colour filter thresholds.
     pub filter: ColourFilter,
     /// Contact detection thresholds.

@@ -11,6 +11,10 @@ use super::mlp::Mlp;
 /// Largest frame side a model may declare (px): no sensor camera we support gives more,
 /// and it bounds what a model file can make us allocate.
 pub use crate::limits::MAX_FRAME_SIDE;
+/// Thinnest and thickest skin a model may state (mm).
+pub const MIN_SKIN_THICKNESS_MM: f64 = 0.1;
+/// See [`MIN_SKIN_THICKNESS_MM`].
+pub const MAX_SKIN_THICKNESS_MM: f64 = 50.0;
 /// Largest LUT side (bins) and MLP layer width a model may declare.
 const MAX_TABLE: usize = 1024;
 
@@ -32,6 +36,15 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
                 format!("{v} must be finite, positive and at most {max}"),
             );
         }
+    }
+    if !(MIN_SKIN_THICKNESS_MM..=MAX_SKIN_THICKNESS_MM).contains(&m.skin_thickness_mm) {
+        return fail(
+            "skin_thickness_mm",
+            format!(
+                "{} mm is outside {MIN_SKIN_THICKNESS_MM}..={MAX_SKIN_THICKNESS_MM} mm",
+                m.skin_thickness_mm
+            ),
+        );
     }
     let f = &m.filter;
     for (field, v) in [

@@ -32,6 +32,10 @@ pub struct Args {
     /// Image scale.
     #[arg(long, default_value_t = 15.0)]
     pub px_per_mm: f64,
+    /// Thickness of the sensor's skin, kept in the model: no press goes deeper, so
+    /// reconstructions deeper than this are refused (0.1–50).
+    #[arg(long, default_value_t = stereotac::tactile::model::DEFAULT_SKIN_THICKNESS_MM)]
+    pub skin_thickness_mm: f64,
     /// No-contact dx frame (otherwise the per-pixel median of the pairs).
     #[arg(long, requires = "ref_dy")]
     pub ref_dx: Option<PathBuf>,
@@ -91,6 +95,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut settings = CalibrationSettings {
         ball_diameter_mm: a.ball_diameter_mm,
         px_per_mm: a.px_per_mm,
+        skin_thickness_mm: a.skin_thickness_mm,
         min_presses: a.min_presses,
         overrides,
         ..Default::default()

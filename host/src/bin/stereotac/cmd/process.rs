@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use foxglove::Decode;
-use stereotac::live::{Job, Pipeline};
+use stereotac::live::{Job, Pipeline, PipelineError};
 use stereotac::recording::messages::{ClockInfo, PhaseInfo};
 use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
 use stereotac::recording::topics;
@@ -112,8 +112,23 @@ pub fn run(a: Args) -> Result<()> {
     // the output file is still finished).
     let mut flush = |jobs: &mut Vec<Job>, pipeline: &mut Pipeline, dropped| -> Result<bool> {
         let mut open = true;
-        for output in pipeline.run_batch(jobs, || None, dropped) {
-            let Some(output) = output? else { continue };
+        let outputs = pipeline.run_batch(jobs, || None, dropped);
+        for (job, output) in jobs.iter().zip(outputs) {
+            let output = match output {
+                // This pair's depth cannot be right; the next may be: warn and go on.
+                Err(PipelineError::Tactile(e)) if e.refuses_this_pair_only() => {
+                    let message = format!("tactile pair refused: {e}");
+                    eprintln!("warning: {message}");
+                    let at_us = match job {
+                        Job::Tactile(pair) => pair.dy.frame.stamp.timestamp_us,
+                        Job::Stereo(pair) => pair.left.frame.stamp.timestamp_us,
+                    };
+                    recorder.send(Item::Warning { at_us, message });
+                    continue;
+                }
+                output => output?,
+            };
+            let Some(output) = output else { continue };
             open = open && report.print(&output)?;
             recorder.send(output.into_item());
         }
@@ -264,7 +279,10 @@ fn setups(
     let settings =
         stereo_settings(header.metadata.get(META_STEREO)).with_context(|| format!("{file}"))?;
     let calib = if !a.stages.calib.is_empty() {
-        Some(StereoCalibration::load_in(&a.stages.calib, a.stages.units)?)
+        Some(crate::stages::load_calibration(
+            &a.stages.calib,
+            a.stages.units,
+        )?)
     } else {
         header
             .attachments

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use stereotac::out_dir::{OutDir, Replace};
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::images::{load_references, load_rgb};
@@ -78,11 +78,13 @@ pub fn run(a: Args) -> Result<()> {
             dark: ref_dark.as_ref(),
         }),
     )?;
-    let r = rec.reconstruct_frames(PhaseFrames {
-        dx: &dx,
-        dy: &dy,
-        dark: dark.as_ref(),
-    })?;
+    let r = rec
+        .reconstruct_frames(PhaseFrames {
+            dx: &dx,
+            dy: &dy,
+            dark: dark.as_ref(),
+        })
+        .with_context(|| format!("{} / {}: nothing written", a.dx.display(), a.dy.display()))?;
     anyhow::ensure!(
         !r.unlit(),
         "{} / {}: {:.0}% of the frame shows no usable LED light (black, white, overexposed, or taken with the LEDs off): not a lit dx/dy pair, nothing written",

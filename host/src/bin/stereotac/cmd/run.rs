@@ -97,7 +97,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
     let two = a.cameras.cameras.len() >= 2;
     let stereo = if dark && two {
         let calib = if !a.stages.calib.is_empty() {
-            stereotac::stereo::StereoCalibration::load_in(&a.stages.calib, a.stages.units)?
+            crate::stages::load_calibration(&a.stages.calib, a.stages.units)?
         } else if let (true, Some(sim)) = (a.device.sim, a.cameras.sim_stereo()) {
             sim.calibration()
         } else {

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use stereotac::out_dir::{OutDir, Replace};
 use stereotac::output::{read_grey, write_grey_png};
+use stereotac::stereo::LengthUnit;
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::output::{StereoSummary, write_outputs};
 use stereotac::stereo::pipeline::{StereoConfig, StereoPipeline};
 use stereotac::stereo::postfilter::HoleFill;
 use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
-use stereotac::stereo::{LengthUnit, StereoCalibration};
 
 use crate::args::PipelineArgs;
 
@@ -83,7 +83,7 @@ pub fn run(a: Args) -> Result<()> {
             (rig.calibration(), l, r)
         }
         None => {
-            let calib = StereoCalibration::load_in(&a.calib, a.units)?;
+            let calib = crate::stages::load_calibration(&a.calib, a.units)?;
             let left = read_grey(a.left.as_deref().context("--left is required")?)?;
             let right = read_grey(a.right.as_deref().context("--right is required")?)?;
             (calib, left, right)

@@ -53,7 +53,7 @@ pub fn run(a: Args) -> Result<()> {
             path.display()
         );
     }
-    let calib = StereoCalibration::load_in(&a.calib, a.units)?;
+    let calib = crate::stages::load_calibration(&a.calib, a.units)?;
     let mut written = Vec::new();
     if let Some(path) = &a.opencv {
         let yaml = calib.to_opencv_yaml();
