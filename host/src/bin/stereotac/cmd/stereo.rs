@@ -37,7 +37,8 @@ pub struct Args {
     #[arg(long, required_unless_present = "synthetic")]
     pub right: Option<PathBuf>,
     /// Use a built-in capture instead: a textured plane this many mm away, tilted, seen
-    /// through the skin (its inputs are written to the output directory too).
+    /// through the skin (its inputs and calibration are written to the output directory
+    /// too).
     #[arg(long, conflicts_with_all = ["left", "right", "calib"])]
     pub synthetic: Option<f64>,
     /// Output directory (created; one with files in it is refused unless --force).
@@ -80,7 +81,12 @@ pub fn run(a: Args) -> Result<()> {
             let (l, r) = render_pair(&rig, &plane, &Membrane::sensor(), 1);
             write_grey_png(&out.path().join("input_left.png"), &l)?;
             write_grey_png(&out.path().join("input_right.png"), &r)?;
-            (rig.calibration(), l, r)
+            // With the calibration beside them, the inputs can be run again with --calib.
+            let calib = rig.calibration();
+            let yaml = out.path().join("input_calibration.yaml");
+            std::fs::write(&yaml, calib.to_opencv_yaml())
+                .with_context(|| format!("writing {}", yaml.display()))?;
+            (calib, l, r)
         }
         None => {
             let calib = crate::stages::load_calibration(&a.calib, a.units)?;
