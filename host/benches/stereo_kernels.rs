@@ -1,9 +1,14 @@
 //! Criterion benches of the stereo kernels: the fixed-point undistort-rectify remap of a
-//! 640×480 frame, with a copy of the same frame as the reference measured in the same run.
+//! 640×480 frame, with a copy of the same frame as the reference measured in the same run;
+//! block matching; and statistical outlier removal on a full 640×480 cloud, the image-grid
+//! search against the k-d tree it replaces.
 //! Run with `cargo bench -p stereotac --bench stereo_kernels`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
+use stereotac::stereo::outliers::{OutlierParams, grid_inliers, statistical_inliers};
+use stereotac::stereo::synthetic::{
+    Membrane, Plane, StereoRig, camera_cloud, fisheye_calibration, render_pair,
+};
 use stereotac::stereo::{BlockMatchParams, BlockMatcher, Kernel, Rectification};
 
 fn remap(c: &mut Criterion) {
@@ -52,5 +57,19 @@ fn block_match(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, remap, block_match);
+fn outliers(c: &mut Criterion) {
+    let (cloud, _) = camera_cloud(640, 480, 0.6, 0.3);
+    let params = OutlierParams::default();
+    let mut g = c.benchmark_group("outliers_640x480_k20");
+    g.sample_size(10);
+    g.bench_function("image_grid", |b| {
+        b.iter(|| grid_inliers(&cloud, 640, 480, &params))
+    });
+    g.bench_function("kd_tree_reference", |b| {
+        b.iter(|| statistical_inliers(&cloud.points, &params))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, remap, block_match, outliers);
 criterion_main!(benches);

@@ -21,7 +21,7 @@ impl<T: Copy> Grid<T> {
 
     /// Wraps `data` (row-major); `None` if its length is not `width * height`.
     pub fn from_vec(width: usize, height: usize, data: Vec<T>) -> Option<Self> {
-        (data.len() == width * height).then_some(Self {
+        (width.checked_mul(height) == Some(data.len())).then_some(Self {
             width,
             height,
             data,

@@ -140,12 +140,30 @@ pub fn write_npy(path: &Path, grid: &Grid<f32>) -> Result<(), OutputError> {
 
 /// Reads a 2-D little-endian f32 `.npy` array in C order: what [`write_npy`] writes,
 /// and what NumPy's `np.save` writes for a `float32` array.
+/// At most [`crate::limits::MAX_IMAGE_ALLOC`] bytes of data are read.
 pub fn read_npy(path: &Path) -> Result<Grid<f32>, OutputError> {
+    use std::io::Read;
+    // The largest array is a frame's worth of f32, plus a header (at most 64 KiB).
+    let limit = crate::limits::MAX_IMAGE_ALLOC + 10 + u64::from(u16::MAX);
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(limit + 1).read_to_end(&mut bytes))
+        .map_err(io(path))?;
+    if bytes.len() as u64 > limit {
+        return Err(OutputError::Format {
+            path: path.to_path_buf(),
+            why: format!("larger than {limit} bytes: more than any frame's depth"),
+        });
+    }
+    parse_npy(path, &bytes)
+}
+
+/// [`read_npy`] on bytes already read; `path` names them in errors.
+pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<Grid<f32>, OutputError> {
     let bad = |why: &str| OutputError::Format {
         path: path.to_path_buf(),
         why: why.to_string(),
     };
-    let bytes = std::fs::read(path).map_err(io(path))?;
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" || bytes[6] != 1 {
         return Err(bad("not a version 1 .npy file"));
     }
@@ -160,7 +178,8 @@ pub fn read_npy(path: &Path) -> Result<Grid<f32>, OutputError> {
     let shape: Vec<usize> = header
         .split("'shape': (")
         .nth(1)
-        .and_then(|rest| rest.split(')').next())
+        .and_then(|rest| rest.split_once(')'))
+        .map(|(shape, _)| shape)
         .ok_or_else(|| bad("no shape"))?
         .split(',')
         .map(str::trim)
@@ -303,6 +322,27 @@ mod tests {
         assert_eq!(read_npy(&path).unwrap(), g);
         std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
         assert!(matches!(read_npy(&path), Err(OutputError::Format { .. })));
+        // Hostile headers: refused, never a panic or an overflow.
+        let with_header = |h: &str| {
+            let mut b = b"\x93NUMPY\x01\x00".to_vec();
+            b.extend_from_slice(&(h.len() as u16).to_le_bytes());
+            b.extend_from_slice(h.as_bytes());
+            b.extend_from_slice(&[0; 16]);
+            b
+        };
+        for header in [
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (18446744073709551615, 2), }",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2, 1), }",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (-1, 2), }",
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 2), }",
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2",
+        ] {
+            let e = parse_npy(&path, &with_header(header)).unwrap_err();
+            assert!(matches!(e, OutputError::Format { .. }), "{header}: {e}");
+        }
+        let mut short = with_header("{");
+        short[8] = 0xff;
+        assert!(parse_npy(&path, &short).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -580,6 +580,17 @@ fn depth_beyond_the_skin_is_refused_with_the_reason() {
     assert!(err.refuses_this_pair_only());
     let text = err.to_string();
     assert!(text.contains("--skin-thickness-mm"), "{text}");
+    // dx and dy given the wrong way round make depth no skin allows: refused too.
+    match reconstructor(&model)
+        .unwrap()
+        .reconstruct(&pair.dy, &pair.dx)
+    {
+        Err(e) => {
+            assert!(e.refuses_this_pair_only(), "{e}");
+            assert!(e.to_string().contains("swapped"), "{e}");
+        }
+        Ok(r) => panic!("swapped frames read {} region(s)", r.regions.len()),
+    }
     // Files written before the field existed read as the default skin.
     let mut json: serde_json::Value = serde_json::from_slice(&model.to_json()).unwrap();
     json.as_object_mut().unwrap().remove("skin_thickness_mm");

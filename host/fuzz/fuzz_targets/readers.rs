@@ -7,7 +7,10 @@
 
 use image::ImageFormat;
 use libfuzzer_sys::fuzz_target;
+use std::path::Path;
+
 use stereotac::image_file::{Need, decode_bytes};
+use stereotac::output::parse_npy;
 use stereotac::stereo::{LengthUnit, StereoCalibration};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
@@ -19,7 +22,7 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let text = String::from_utf8_lossy(file);
-    match which % 7 {
+    match which % 8 {
         0 => {
             if let Ok(c) = StereoCalibration::from_opencv_yaml_in("c.yaml", &text, LengthUnit::Mm) {
                 assert!(c.baseline().is_finite() && c.baseline() > 0.0);
@@ -46,7 +49,7 @@ fuzz_target!(|data: &[u8]| {
             }
         }
         3 | 4 => {
-            let need = if which % 7 == 3 {
+            let need = if which % 8 == 3 {
                 Need::Colour
             } else {
                 Need::Grey
@@ -62,9 +65,14 @@ fuzz_target!(|data: &[u8]| {
                 assert!(check_uf2(&uf2).is_ok());
             }
         }
-        _ => {
+        6 => {
             if let Ok(blocks) = check_uf2(file) {
                 assert_eq!(blocks * 512, file.len());
+            }
+        }
+        _ => {
+            if let Ok(grid) = parse_npy(Path::new("a.npy"), file) {
+                assert_eq!(grid.as_slice().len(), grid.width() * grid.height());
             }
         }
     }

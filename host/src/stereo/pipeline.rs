@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, BlockMatcher, MatchError, MatchStats};
 use super::calibration::StereoCalibration;
-use super::outliers::{OutlierParams, statistical_inliers};
+use super::outliers::{OutlierParams, grid_inliers};
 use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
 use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
 use super::reproject::{PointCloud, depth_from_disparity, reproject};
@@ -222,7 +222,7 @@ impl StereoPipeline {
         let t_reproject = Instant::now();
         let mut outliers_removed = 0;
         if let Some(p) = &self.config.outliers {
-            let keep = statistical_inliers(&cloud.points, p);
+            let keep = grid_inliers(&cloud, disparity.width(), disparity.height(), p);
             for (&pixel, _) in cloud.pixels.iter().zip(&keep).filter(|(_, k)| !**k) {
                 disparity.as_mut_slice()[pixel as usize] = f32::NAN;
                 outliers_removed += 1;

@@ -15,7 +15,9 @@ use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Vector3};
 
 use super::calibration::StereoCalibration;
 use super::camera::{Camera, Distortion};
+use super::reproject::PointCloud;
 use crate::grid::Grid;
+use crate::rng::Rng;
 
 pub use super::scene::Membrane;
 use super::scene::{self, RayGrid, Surface, View, value_noise};
@@ -301,6 +303,42 @@ fn target_texture(x: f64, y: f64) -> f64 {
         cell *= 2.0;
     }
     sum / 6.0
+}
+
+/// A `w`×`h` depth camera (focal 336 px at 640 wide) looking at a plane slanted
+/// `slope` (dZ/dX), with a box standing 40 mm out of it (a depth step), noise of
+/// `noise` mm, holes, and flying pixels (random depth) at 1 % of the pixels; returns
+/// the cloud and which points fly. The outlier filters' test and bench input.
+pub fn camera_cloud(w: usize, h: usize, slope: f32, noise: f32) -> (PointCloud, Vec<bool>) {
+    let f = 336.0 * w as f32 / 640.0;
+    let (cx, cy) = (w as f32 / 2.0, h as f32 / 2.0);
+    let mut rng = Rng::new(7);
+    let mut cloud = PointCloud::default();
+    let mut flying = Vec::new();
+    for v in 0..h {
+        for u in 0..w {
+            let (x, y) = ((u as f32 - cx) / f, (v as f32 - cy) / f);
+            // Z of the plane Z = 200 + slope·X along the ray (x, y, 1)·Z.
+            let mut z = 200.0 / (1.0 - slope * x);
+            if (u as f32 - cx).abs() < w as f32 / 8.0 && (v as f32 - cy).abs() < h as f32 / 8.0 {
+                z -= 40.0;
+            }
+            let roll = rng.uniform() as f32;
+            if roll < 0.02 {
+                continue; // a hole
+            }
+            let fly = roll > 0.99;
+            if fly {
+                z = 80.0 + 400.0 * rng.uniform() as f32;
+            } else {
+                z += noise * (rng.uniform() as f32 - 0.5);
+            }
+            cloud.points.push([x * z, y * z, z]);
+            cloud.pixels.push((v * w + u) as u32);
+            flying.push(fly);
+        }
+    }
+    (cloud, flying)
 }
 
 #[cfg(test)]

@@ -52,6 +52,10 @@ pub enum ReconstructError {
     /// The reference frames do not look like this sensor's dx and dy phases.
     #[error(transparent)]
     References(#[from] PhaseImageError),
+    /// Most of the frame reads as contact, and the pair does not look like this sensor's
+    /// dx and dy phases (given the wrong way round, or not lit by the strips).
+    #[error(transparent)]
+    FramePair(PhaseImageError),
     /// The model has a field that cannot be right (see [`super::model::validate`]).
     #[error("the model's `{field}`: {why}")]
     InvalidModel {
@@ -162,7 +166,7 @@ impl ReconstructError {
     pub fn refuses_this_pair_only(&self) -> bool {
         matches!(
             self,
-            Self::DepthBeyondSkin { .. } | Self::NonFiniteDepth { .. }
+            Self::DepthBeyondSkin { .. } | Self::NonFiniteDepth { .. } | Self::FramePair(_)
         )
     }
 }
@@ -179,6 +183,9 @@ impl Reconstruction {
         self.unlit_fraction > 1.0 - phase_check::MIN_LIT_FRACTION
     }
 }
+
+/// Share of the frame's blocks in contact above which the pair's phases are checked.
+const LARGE_CONTACT_FRACTION: f32 = 0.5;
 
 /// Reusable reconstruction state: model, references, solver plans and buffers.
 pub struct Reconstructor {
@@ -390,6 +397,13 @@ impl Reconstructor {
         let params = self.model.contact;
         let detection =
             contact::find_regions(dx, dy, &self.block_refs, &filter, &params, self.solver_kind);
+        // A contact over most of the frame is rare; dx and dy given the wrong way round
+        // look like one everywhere. Checked only then: it costs a pass over the frame.
+        let touched = detection.touched.iter().filter(|t| **t).count();
+        if touched as f32 > LARGE_CONTACT_FRACTION * detection.touched.len() as f32 {
+            phase_check::check_pair(dx, dy, &filter, "frame pair")
+                .map_err(ReconstructError::FramePair)?;
+        }
         let mut out = Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),
             contact_mask: Grid::filled(w, h, false),
