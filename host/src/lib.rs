@@ -44,6 +44,7 @@ pub mod live;
 pub mod matcher;
 pub mod out_dir;
 pub mod output;
+pub mod picture;
 pub mod recording;
 pub mod rng;
 pub mod selftest;

@@ -49,7 +49,7 @@ pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_
     }
 }
 
-fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '_ {
+pub(crate) fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> OutputError + '_ {
     move |source| OutputError::Image {
         path: path.to_path_buf(),
         source,
@@ -221,26 +221,6 @@ pub fn write_png16(path: &Path, grid: &Grid<f32>, counts_per_unit: f32) -> Resul
     img.save(path).map_err(image_error(path))
 }
 
-/// Writes `grid` in false colour, [`colour_map`] from `lo` (dark blue) to `hi` (red);
-/// NaN (no value) is black.
-pub fn write_false_colour_png(
-    path: &Path,
-    grid: &Grid<f32>,
-    lo: f32,
-    hi: f32,
-) -> Result<(), OutputError> {
-    let span = if hi > lo { hi - lo } else { 1.0 };
-    let mut img = image::RgbImage::new(grid.width() as u32, grid.height() as u32);
-    for (px, v) in img.pixels_mut().zip(grid.as_slice()) {
-        *px = image::Rgb(if v.is_nan() {
-            [0, 0, 0]
-        } else {
-            colour_map((v - lo) / span)
-        });
-    }
-    img.save(path).map_err(image_error(path))
-}
-
 /// A perceptually ordered map: piecewise linear through five anchor colours.
 pub fn colour_map(t: f32) -> [u8; 3] {
     const ANCHORS: [[f32; 3]; 5] = [
@@ -255,6 +235,65 @@ pub fn colour_map(t: f32) -> [u8; 3] {
     let f = t - i as f32;
     let (a, b) = (ANCHORS[i], ANCHORS[i + 1]);
     [0, 1, 2].map(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
+}
+
+/// Writes a depth map's surface as a binary little-endian PLY mesh: `vertices` holds one
+/// entry per pixel of a `width`×`height` grid (`None`: no point there), and each square of
+/// four neighbouring pixels becomes two triangles where their points exist and `joined`
+/// says each edge lies on one surface (not across a depth step). Returns the number of
+/// triangles written.
+pub fn write_mesh_ply(
+    path: &Path,
+    width: usize,
+    vertices: &[Option<[f32; 3]>],
+    joined: impl Fn(&[f32; 3], &[f32; 3]) -> bool,
+    comment: &str,
+) -> Result<usize, OutputError> {
+    let height = vertices.len().checked_div(width).unwrap_or(0);
+    let mut index = vec![u32::MAX; vertices.len()];
+    let mut count = 0u32;
+    for (slot, v) in index.iter_mut().zip(vertices) {
+        if v.is_some() {
+            *slot = count;
+            count += 1;
+        }
+    }
+    let mut faces: Vec<[u32; 3]> = Vec::new();
+    let point = |i: usize| vertices[i].as_ref();
+    for y in 0..height.saturating_sub(1) {
+        for x in 0..width - 1 {
+            let (a, b) = (y * width + x, y * width + x + 1);
+            let (c, d) = (a + width, b + width);
+            for [p, q, r] in [[a, c, b], [b, c, d]] {
+                if let (Some(pp), Some(pq), Some(pr)) = (point(p), point(q), point(r))
+                    && joined(pp, pq)
+                    && joined(pq, pr)
+                    && joined(pr, pp)
+                {
+                    faces.push([index[p], index[q], index[r]]);
+                }
+            }
+        }
+    }
+    let mut f = BufWriter::new(File::create(path).map_err(io(path))?);
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment {comment}\nelement vertex {count}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        faces.len()
+    );
+    f.write_all(header.as_bytes()).map_err(io(path))?;
+    for v in vertices.iter().flatten() {
+        for c in v {
+            f.write_all(&c.to_le_bytes()).map_err(io(path))?;
+        }
+    }
+    for face in &faces {
+        f.write_all(&[3]).map_err(io(path))?;
+        for i in face {
+            f.write_all(&(*i as i32).to_le_bytes()).map_err(io(path))?;
+        }
+    }
+    f.flush().map_err(io(path))?;
+    Ok(faces.len())
 }
 
 /// Writes points (mm) as a binary little-endian PLY, with a grey value per point when
@@ -343,6 +382,44 @@ mod tests {
         let mut short = with_header("{");
         short[8] = 0xff;
         assert!(parse_npy(&path, &short).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn meshes_join_neighbours_on_one_surface_only() {
+        let dir = std::env::temp_dir().join(format!("stereotac-mesh-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.ply");
+        // 3×3 pixels: the middle one missing, the right column behind a depth step.
+        let vertices: Vec<Option<[f32; 3]>> = (0..9)
+            .map(|i| {
+                let (x, y) = (i % 3, i / 3);
+                let z = if x == 2 { 50.0 } else { 10.0 };
+                ((x, y) != (1, 1)).then_some([x as f32, y as f32, z])
+            })
+            .collect();
+        let near = |a: &[f32; 3], b: &[f32; 3]| (a[2] - b[2]).abs() < 1.0;
+        // Of the eight triangles, two avoid the hole: (0,0)-(0,1)-(1,0) on the near
+        // surface and (2,1)-(1,2)-(2,2) across the step.
+        let all = write_mesh_ply(&path, 3, &vertices, |_, _| true, "test").unwrap();
+        assert_eq!(all, 2);
+        let faces = write_mesh_ply(&path, 3, &vertices, near, "test").unwrap();
+        assert_eq!(faces, 1);
+        let bytes = std::fs::read(&path).unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        assert!(text.contains("element vertex 8\n"), "{text}");
+        assert!(text.contains("element face 1\n"));
+        let body = bytes.len() - (text.find("end_header\n").unwrap() + 11);
+        assert_eq!(body, 8 * 12 + 13);
+        // The triangle's indices skip the missing pixel: (0,0) → 0, (0,1) → 3, (1,0) → 1.
+        let face = &bytes[bytes.len() - 13..];
+        assert_eq!(face[0], 3);
+        let idx: Vec<i32> = face[1..]
+            .chunks_exact(4)
+            .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        assert_eq!(idx, vec![0, 3, 1]);
+        assert_eq!(write_mesh_ply(&path, 0, &[], near, "empty").unwrap(), 0);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

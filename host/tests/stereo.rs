@@ -17,6 +17,72 @@ fn npy_f32(path: &Path) -> Vec<f32> {
 }
 
 #[test]
+fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
+    let dir = temp_dir("stereo-pictures");
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let mut args = vec![
+            "stereo",
+            "--synthetic",
+            "150",
+            "--out-dir",
+            out.to_str().unwrap(),
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, text, err) = stereotac(&args);
+        assert!(ok, "{err}");
+        let s: Value = serde_json::from_str(&text).expect("JSON summary");
+        (out, s)
+    };
+    // Automatic: the data's percentiles, around the plane at 150 mm.
+    let (out, s) = run("auto", &[]);
+    let depth = &s["colour_ranges"]["depth"];
+    let (lo, hi) = (depth["lo"].as_f64().unwrap(), depth["hi"].as_f64().unwrap());
+    assert!(lo > 100.0 && hi < 220.0 && lo < hi, "{depth}");
+    assert!(
+        depth["from"].as_str().unwrap().contains("percentiles"),
+        "{depth}"
+    );
+    assert_eq!(s["colour_ranges"]["disparity"]["unit"], "px");
+    let picture = image::open(out.join("depth_colour.png")).unwrap();
+    assert!(picture.width() > 640, "the legend is beside the picture");
+    assert!(s.get("mesh_triangles").is_none());
+    // Searched and fixed ranges, and a mesh.
+    let (_, s) = run("searched", &["--colour-range", "searched"]);
+    assert_eq!(s["colour_ranges"]["depth"]["lo"], 50.0);
+    assert_eq!(s["colour_ranges"]["depth"]["hi"], 600.0);
+    let (out, s) = run("fixed", &["--colour-range", "100,300", "--mesh"]);
+    assert_eq!(s["colour_ranges"]["depth"]["from"], "given");
+    assert_eq!(s["colour_ranges"]["depth"]["hi"], 300.0);
+    let triangles = s["mesh_triangles"].as_u64().unwrap();
+    let points = s["points"].as_u64().unwrap();
+    // A plane: nearly two triangles per point, none across the frame's gaps.
+    assert!(
+        triangles > points && triangles < 2 * points,
+        "{triangles} for {points} points"
+    );
+    assert!(
+        s["files"]
+            .as_array()
+            .unwrap()
+            .contains(&Value::from("mesh.ply"))
+    );
+    assert!(out.join("mesh.ply").is_file());
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "150",
+        "--out-dir",
+        dir.join("bad").to_str().unwrap(),
+        "--colour-range",
+        "300,100",
+    ]);
+    assert!(!ok && err.contains("LO,HI"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
     let dir = temp_dir("stereo-cli");
     let a = dir.join("a");

@@ -624,6 +624,90 @@ fn depth_beyond_the_skin_is_refused_with_the_reason() {
 }
 
 #[test]
+fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
+    let optics = optics();
+    let (model, _) = calibrated(&optics);
+    let dir = std::env::temp_dir().join(format!("stereotac-pictures-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let model_path = dir.join("model.json");
+    model.save(&model_path).unwrap();
+    let run = |scene: &Scene, out: &str, extra: &[&str]| {
+        let pair = render(&optics, scene, 3);
+        pair.dx.save(dir.join("dx.png")).unwrap();
+        pair.dy.save(dir.join("dy.png")).unwrap();
+        let out = dir.join(out);
+        let mut args: Vec<String> = [
+            "reconstruct",
+            "--model",
+            model_path.to_str().unwrap(),
+            "--dx",
+            dir.join("dx.png").to_str().unwrap(),
+            "--dy",
+            dir.join("dy.png").to_str().unwrap(),
+            "--out-dir",
+            out.to_str().unwrap(),
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(
+            status.status.success(),
+            "{}",
+            String::from_utf8_lossy(&status.stderr)
+        );
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+        let picture = image::open(out.join("depth_colour.png")).unwrap();
+        (out, summary, picture.width())
+    };
+    // Automatic: flat skin to the deepest point, stated; the legend beside the frame.
+    let (_, s, width) = run(&ball(10.0, 8.0, 1.0), "auto", &[]);
+    let range = &s["colour_range"];
+    assert_eq!(range["lo"], 0.0);
+    let hi = range["hi"].as_f64().unwrap();
+    assert!(
+        (hi - s["max_depth_mm"].as_f64().unwrap()).abs() < 1e-6,
+        "{s}"
+    );
+    assert_eq!(range["unit"], "mm");
+    assert!(width > optics.width as u32, "no legend: {width}");
+    // A skin at rest still has a range (not noise stretched to fill the colours).
+    let (_, s, _) = run(&Scene::default(), "rest", &[]);
+    assert_eq!(s["colour_range"]["hi"], 0.5, "{s}");
+    // Fixed, to compare pictures; and the mesh.
+    let (out, s, _) = run(
+        &ball(10.0, 8.0, 1.0),
+        "fixed",
+        &["--colour-range", "0,2", "--mesh"],
+    );
+    assert_eq!(
+        (
+            s["colour_range"]["lo"].as_f64(),
+            s["colour_range"]["hi"].as_f64()
+        ),
+        (Some(0.0), Some(2.0))
+    );
+    assert_eq!(s["colour_range"]["from"], "given");
+    let mesh = std::fs::read(out.join("depth_mesh.ply")).unwrap();
+    let header = String::from_utf8_lossy(&mesh[..400]);
+    let (w, h) = (optics.width, optics.height);
+    assert!(
+        header.contains(&format!("element vertex {}\n", w * h)),
+        "{header}"
+    );
+    assert!(
+        header.contains(&format!("element face {}\n", 2 * (w - 1) * (h - 1))),
+        "{header}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn pair_directories_report_unpaired_and_unreadable_files() {
     let dir = std::env::temp_dir().join(format!("stereotac-pairs-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);

@@ -8,10 +8,8 @@ use serde::Serialize;
 
 use super::block_match::{Kernel, MatchStats};
 use super::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
-use crate::output::{
-    OutputError, io, write_false_colour_png, write_grey_png, write_npy, write_png16,
-    write_points_ply,
-};
+use crate::output::{OutputError, io, write_grey_png, write_npy, write_png16, write_points_ply};
+use crate::picture::{self, ColourRange, RangeChoice};
 
 /// The files [`write_outputs`] writes, in order.
 pub const FILES: [&str; 9] = [
@@ -57,17 +55,86 @@ pub struct StereoSummary {
     pub timings: StereoTimings,
     /// The files written, in `dir`.
     pub files: Vec<&'static str>,
+    /// Triangles in `mesh.ply`, when it was written.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh_triangles: Option<usize>,
+    /// The ranges `depth_colour.png` and `disparity_colour.png` show (also in their
+    /// legends).
+    pub colour_ranges: ColourRanges,
     /// What to look at twice (see [`super::warnings`]); empty when nothing.
     pub warnings: Vec<String>,
 }
 
+/// The ranges of the false-colour pictures.
+#[derive(Debug, Clone, Serialize)]
+pub struct ColourRanges {
+    /// `depth_colour.png`, mm.
+    pub depth: ColourRange,
+    /// `disparity_colour.png`, px.
+    pub disparity: ColourRange,
+}
+
+/// What [`write_outputs`] writes beyond the usual files.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutputOptions {
+    /// How the pictures' ranges are chosen.
+    pub colour_range: PictureRange,
+    /// Also write `mesh.ply` ([`write_mesh`]).
+    pub mesh: bool,
+}
+
+impl Default for OutputOptions {
+    fn default() -> Self {
+        Self {
+            colour_range: PictureRange::Auto,
+            mesh: false,
+        }
+    }
+}
+
+/// How the pictures' ranges are chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PictureRange {
+    /// The data's 2nd to 98th percentiles (depth and disparity alike).
+    Auto,
+    /// The depths searched (`near_mm`–`far_mm`) and the disparities searched.
+    Searched,
+    /// This depth range (mm); disparity from the data.
+    DepthMm(f32, f32),
+}
+
+/// Largest depth step between neighbouring pixels a mesh joins, as a share of their
+/// depth: a bigger step is an object's edge in front of what is behind it.
+pub const MESH_MAX_STEP: f32 = 0.05;
+
+/// Writes `frame`'s point cloud as a mesh (PLY): neighbouring pixels' points joined in
+/// triangles unless their depths differ by more than [`MESH_MAX_STEP`]. Returns the
+/// number of triangles.
+pub fn write_mesh(path: &Path, frame: &StereoFrame) -> Result<usize, OutputError> {
+    let w = frame.disparity.width();
+    let mut vertices = vec![None; w * frame.disparity.height()];
+    for (&px, p) in frame.cloud.pixels.iter().zip(&frame.cloud.points) {
+        if let Some(v) = vertices.get_mut(px as usize) {
+            *v = Some(*p);
+        }
+    }
+    crate::output::write_mesh_ply(
+        path,
+        w,
+        &vertices,
+        |a, b| (a[2] - b[2]).abs() <= MESH_MAX_STEP * a[2].min(b[2]),
+        "stereotac stereo mesh, mm, rectified left camera frame",
+    )
+}
+
 /// Writes `frame` (processed by `pipeline` with `config`) into `dir`, which must exist,
-/// and returns its summary.
+/// with its pictures and mesh as `options` say, and returns its summary.
 pub fn write_outputs(
     dir: &Path,
     pipeline: &StereoPipeline,
     frame: &StereoFrame,
     config: &StereoConfig,
+    options: OutputOptions,
 ) -> Result<StereoSummary, OutputError> {
     let rect = pipeline.rectification();
     let params = pipeline.matcher().params();
@@ -77,17 +144,34 @@ pub fn write_outputs(
     write_npy(&dir.join("depth.npy"), &frame.depth_mm)?;
     // 100 counts per mm: 0.01 mm steps up to 655 mm.
     write_png16(&dir.join("depth16.png"), &frame.depth_mm, 100.0)?;
-    write_false_colour_png(
+    let searched = (
+        RangeChoice::Fixed {
+            lo: config.near_mm as f32,
+            hi: config.far_mm as f32,
+        },
+        RangeChoice::Fixed {
+            lo: params.min_disparity as f32,
+            hi: params.max_disparity() as f32,
+        },
+    );
+    let (depth_choice, disparity_choice) = match options.colour_range {
+        PictureRange::Auto => (RangeChoice::AUTO, RangeChoice::AUTO),
+        PictureRange::Searched => searched,
+        PictureRange::DepthMm(lo, hi) => (RangeChoice::Fixed { lo, hi }, RangeChoice::AUTO),
+    };
+    let colour_ranges = ColourRanges {
+        depth: depth_choice.resolve(&frame.depth_mm, 1.0, "mm"),
+        disparity: disparity_choice.resolve(&frame.disparity, 1.0, "px"),
+    };
+    picture::write_png(
         &dir.join("depth_colour.png"),
         &frame.depth_mm,
-        config.near_mm as f32,
-        config.far_mm as f32,
+        &colour_ranges.depth,
     )?;
-    write_false_colour_png(
+    picture::write_png(
         &dir.join("disparity_colour.png"),
         &frame.disparity,
-        params.min_disparity as f32,
-        params.max_disparity() as f32,
+        &colour_ranges.disparity,
     )?;
     let grey: Vec<u8> = frame
         .cloud
@@ -101,6 +185,13 @@ pub fn write_outputs(
         Some(&grey),
         "stereotac stereo point cloud, mm, rectified left camera frame",
     )?;
+    let mut files = FILES.to_vec();
+    let mesh_triangles = if options.mesh {
+        files.insert(files.len() - 1, "mesh.ply");
+        Some(write_mesh(&dir.join("mesh.ply"), frame)?)
+    } else {
+        None
+    };
     let depths = frame.sorted_valid_depths();
     let (w, h) = (frame.disparity.width(), frame.disparity.height());
     let summary = StereoSummary {
@@ -123,7 +214,9 @@ pub fn write_outputs(
             ]
         }),
         timings: frame.timings,
-        files: FILES.to_vec(),
+        files,
+        mesh_triangles,
+        colour_ranges,
         warnings: super::warnings::of(&frame.stats, &depths, w * h, config.near_mm, config.far_mm),
     };
     let path = dir.join("summary.json");

@@ -1,5 +1,6 @@
 //! Outputs people open elsewhere: depth as NumPy `.npy` (f32, H×W, mm), a 16-bit PNG in
-//! micrometres, a false-colour PNG, a binary PLY point cloud in mm, and a JSON summary.
+//! micrometres, a false-colour PNG with its legend (see [`crate::picture`]), a binary PLY
+//! point cloud in mm, and a JSON summary.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -8,7 +9,8 @@ use std::path::Path;
 use serde::Serialize;
 
 pub use crate::output::{OutputError, colour_map, write_npy};
-use crate::output::{io, write_false_colour_png, write_png16};
+use crate::output::{io, write_png16};
+use crate::picture::{self, ColourRange, RangeChoice};
 
 use super::ambient::AmbientSource;
 use super::contact::Roi;
@@ -42,6 +44,29 @@ pub fn write_ply(path: &Path, depth_mm: &Grid<f32>, px_per_mm: f64) -> Result<()
         f.write_all(&buf).map_err(io(path))?;
     }
     f.flush().map_err(io(path))
+}
+
+/// Writes the depth map as a mesh (PLY with two triangles per square of pixels; points
+/// as [`write_ply`] places them). Returns the number of triangles.
+pub fn write_mesh(path: &Path, depth_mm: &Grid<f32>, px_per_mm: f64) -> Result<usize, OutputError> {
+    let s = 1.0 / px_per_mm as f32;
+    let w = depth_mm.width();
+    let vertices: Vec<Option<[f32; 3]>> = depth_mm
+        .as_slice()
+        .iter()
+        .enumerate()
+        .map(|(i, d)| {
+            d.is_finite()
+                .then(|| [((i % w) as f32 + 0.5) * s, ((i / w) as f32 + 0.5) * s, -d])
+        })
+        .collect();
+    crate::output::write_mesh_ply(
+        path,
+        w,
+        &vertices,
+        |_, _| true,
+        "stereotac tactile depth mesh, mm",
+    )
 }
 
 /// Depth above which a pixel counts towards the imprint area (mm).
@@ -115,23 +140,66 @@ impl Summary {
     }
 }
 
+/// Shallowest range an automatic tactile picture shows (mm): a skin at rest is one
+/// colour, not noise stretched over the whole map.
+pub const MIN_PICTURE_SPAN_MM: f32 = 0.5;
+
+/// The range of a tactile depth picture: `choice` when fixed; automatically, from flat
+/// skin (0, or the most raised point) to the deepest point, at least
+/// [`MIN_PICTURE_SPAN_MM`] deep.
+pub fn picture_range(depth_mm: &Grid<f32>, choice: Option<RangeChoice>) -> ColourRange {
+    match choice {
+        Some(c) => c.resolve(depth_mm, 0.01, "mm"),
+        None => {
+            // Flat skin (0) is the first colour: slightly negative depth (noise, a
+            // bulge beside a press) shows as flat rather than moving the scale.
+            let lo = 0.0f32;
+            let hi = depth_mm
+                .as_slice()
+                .iter()
+                .filter(|d| d.is_finite())
+                .fold(0.0f32, |hi, &d| hi.max(d));
+            ColourRange {
+                lo,
+                hi: hi.max(lo + MIN_PICTURE_SPAN_MM),
+                unit: "mm",
+                from: format!("flat skin to the deepest point, at least {MIN_PICTURE_SPAN_MM} mm"),
+            }
+        }
+    }
+}
+
+/// `summary.json`: the summary and the picture's range.
+#[derive(Serialize)]
+struct SummaryFile<'a> {
+    #[serde(flatten)]
+    summary: &'a Summary,
+    /// The range `depth_colour.png` shows (also in its legend).
+    colour_range: &'a ColourRange,
+}
+
 /// Writes every output into `dir` (created if missing): `depth.npy`, `depth16.png`,
-/// `depth_colour.png`, `depth.ply`, `summary.json`. Returns the summary.
-pub fn write_all(dir: &Path, r: &Reconstruction, px_per_mm: f64) -> Result<Summary, OutputError> {
+/// `depth_colour.png` (over `range`, see [`picture_range`]), `depth.ply`,
+/// `summary.json`. Returns the summary.
+pub fn write_all(
+    dir: &Path,
+    r: &Reconstruction,
+    px_per_mm: f64,
+    range: Option<RangeChoice>,
+) -> Result<Summary, OutputError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let summary = Summary::of(r, px_per_mm);
     write_npy(&dir.join("depth.npy"), &r.depth_mm)?;
     write_depth_png16(&dir.join("depth16.png"), &r.depth_mm)?;
-    // Dark blue at 0 through green and yellow to red at the deepest point.
-    write_false_colour_png(
-        &dir.join("depth_colour.png"),
-        &r.depth_mm,
-        0.0,
-        summary.max_depth_mm.max(0.1),
-    )?;
+    let colour_range = picture_range(&r.depth_mm, range);
+    picture::write_png(&dir.join("depth_colour.png"), &r.depth_mm, &colour_range)?;
     write_ply(&dir.join("depth.ply"), &r.depth_mm, px_per_mm)?;
     let json_path = dir.join("summary.json");
-    let json = serde_json::to_vec_pretty(&summary).map_err(|e| OutputError::Io {
+    let file = SummaryFile {
+        summary: &summary,
+        colour_range: &colour_range,
+    };
+    let json = serde_json::to_vec_pretty(&file).map_err(|e| OutputError::Io {
         path: json_path.clone(),
         source: std::io::Error::other(e),
     })?;

@@ -22,7 +22,7 @@ use stereotac::sim::camera::{PhaseImages, SimClocking, SimStereo, SimulatedCamer
 use stereotac::sim::link::LoopbackConfig;
 use stereotac::sim::sensor::SimulatedSensor;
 use stereotac::stereo::StereoPipeline;
-use stereotac::stereo::output::write_outputs;
+use stereotac::stereo::output::{OutputOptions, write_outputs};
 use stereotac::stereo::pipeline::StereoConfig;
 use stereotac::stereo::synthetic::{Membrane, RawRig, TexturedPlane, wide_fisheye_calibration};
 use stereotac::tactile::bench::errors;
@@ -315,7 +315,7 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
             .truth(optics.width, optics.height, optics.px_per_mm)
             .depth;
         let e = errors(&r.depth_mm, &truth);
-        output::write_all(&out.join(name), &r, px_per_mm)?;
+        output::write_all(&out.join(name), &r, px_per_mm, None)?;
         println!(
             "{:<11} {:>10} {:>10} | {:>9.3} {:>9.3} {:>9.4} | {:>8.2}",
             name,
@@ -354,7 +354,7 @@ fn stereo(out: &Path) -> Result<()> {
     let config = StereoConfig::default();
     let mut pipeline = StereoPipeline::new(rig.calibration(), config)?;
     let frame = pipeline.process(&left, &right)?;
-    let summary = write_outputs(&dir, &pipeline, &frame, &config)?;
+    let summary = write_outputs(&dir, &pipeline, &frame, &config, OutputOptions::default())?;
     let t = &frame.timings;
     println!(
         "depth at the centre {:.1} mm (true {STEREO_DISTANCE_MM}), {:.1} % of pixels valid, {} points; \

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use stereotac::out_dir::{OutDir, Replace};
+use stereotac::picture::RangeChoice;
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::images::{load_references, load_rgb};
 use stereotac::tactile::model::{ModelKind, TactileModel};
@@ -49,6 +50,15 @@ pub struct Args {
     /// Gradient model: lut (default) or mlp.
     #[arg(long = "model-kind", default_value = "lut")]
     pub model_kind: ModelKind,
+    /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:
+    /// flat skin to the deepest point, at least 0.5 mm). The range is in the picture's
+    /// legend and summary.json.
+    #[arg(long, value_name = "auto|LO,HI", value_parser = RangeChoice::parse)]
+    pub colour_range: Option<RangeChoice>,
+    /// Also write the depth map as a mesh (depth_mesh.ply: triangles between
+    /// neighbouring pixels).
+    #[arg(long)]
+    pub mesh: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -92,7 +102,12 @@ pub fn run(a: Args) -> Result<()> {
         a.dy.display(),
         r.unlit_fraction * 100.0
     );
-    let summary = output::write_all(out.path(), &r, px_per_mm)?;
+    // `auto` is the tactile default (percentiles of a mostly flat map would show nothing).
+    let range = a.colour_range.filter(|c| *c != RangeChoice::AUTO);
+    let summary = output::write_all(out.path(), &r, px_per_mm, range)?;
+    if a.mesh {
+        output::write_mesh(&out.path().join("depth_mesh.ply"), &r.depth_mm, px_per_mm)?;
+    }
     out.keep();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);

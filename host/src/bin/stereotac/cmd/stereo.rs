@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use stereotac::out_dir::{OutDir, Replace};
 use stereotac::output::{read_grey, write_grey_png};
+use stereotac::picture::RangeChoice;
 use stereotac::stereo::LengthUnit;
 use stereotac::stereo::outliers::OutlierParams;
-use stereotac::stereo::output::{StereoSummary, write_outputs};
+use stereotac::stereo::output::{OutputOptions, PictureRange, StereoSummary, write_outputs};
 use stereotac::stereo::pipeline::{StereoConfig, StereoPipeline};
 use stereotac::stereo::postfilter::HoleFill;
 use stereotac::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
@@ -60,6 +61,15 @@ pub struct Args {
     /// sparser and loses points (4 % of a plane tilted 17° in the built-in capture).
     #[arg(long)]
     pub outliers: bool,
+    /// Range of depth_colour.png and disparity_colour.png: `auto` (the data's 2nd to 98th
+    /// percentiles), `searched` (--near-mm to --far-mm, and the disparities searched) or
+    /// `LO,HI` in mm (depth; disparity automatic). Stated in each legend and summary.json.
+    #[arg(long, value_name = "auto|searched|LO,HI", default_value = "auto", value_parser = parse_picture_range)]
+    pub colour_range: PictureRange,
+    /// Also write the point cloud as a mesh (mesh.ply: neighbouring pixels joined in
+    /// triangles, not across depth steps over 5 %).
+    #[arg(long)]
+    pub mesh: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -109,7 +119,11 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut pipeline = StereoPipeline::new(&calib, config)?;
     let frame = pipeline.process(&left, &right)?;
-    let summary = write_outputs(out.path(), &pipeline, &frame, &config)?;
+    let options = OutputOptions {
+        colour_range: a.colour_range,
+        mesh: a.mesh,
+    };
+    let summary = write_outputs(out.path(), &pipeline, &frame, &config, options)?;
     out.keep();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
@@ -165,4 +179,16 @@ fn print_summary(dir: &Path, s: &StereoSummary) {
         t.rectify_ms, t.match_ms, t.filter_ms, t.reproject_ms, t.outliers_ms, t.total_ms
     );
     println!("wrote {} into {}", s.files.join(", "), dir.display());
+}
+
+/// `--colour-range`: `auto`, `searched` or `LO,HI` (mm).
+fn parse_picture_range(text: &str) -> Result<PictureRange, String> {
+    if text.trim().eq_ignore_ascii_case("searched") {
+        return Ok(PictureRange::Searched);
+    }
+    match RangeChoice::parse(text) {
+        Ok(RangeChoice::Fixed { lo, hi }) => Ok(PictureRange::DepthMm(lo, hi)),
+        Ok(_) => Ok(PictureRange::Auto),
+        Err(e) => Err(format!("{e}, or `searched`")),
+    }
 }
