@@ -69,6 +69,22 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
             .contains(&Value::from("mesh.ply"))
     );
     assert!(out.join("mesh.ply").is_file());
+    // The matcher is chosen on the command line and named in the summary; both put the
+    // plane's centre at 150 mm (the built-in capture is tilted: the median is near it).
+    let (_, bm) = run("bm", &[]);
+    let (_, sgm) = run("sgm", &["--matcher", "sgm"]);
+    assert_eq!(
+        (bm["matcher"].as_str(), sgm["matcher"].as_str()),
+        (Some("bm"), Some("sgm"))
+    );
+    let median = |s: &Value| s["depth_mm"][1].as_f64().unwrap();
+    assert!(
+        (median(&sgm) - median(&bm)).abs() < 1.5,
+        "{} against {}",
+        median(&sgm),
+        median(&bm)
+    );
+    assert!(sgm["fill_rate"].as_f64().unwrap() >= bm["fill_rate"].as_f64().unwrap() - 0.01);
     let (ok, _, err) = stereotac(&[
         "stereo",
         "--synthetic",

@@ -10,12 +10,13 @@ use serde::Serialize;
 use super::block_match::{BlockMatchParams, BlockMatcher, Kernel, MatchError};
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::rectify::{Rectification, RectifyError};
+use super::sgm::{Paths, SemiGlobalMatcher, SgmParams};
 use super::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
 use crate::grid::Grid;
 use crate::output::{OutputError, read_npy, write_grey_png};
 use crate::timing::median_ms;
 
-/// The script that times OpenCV's StereoBM (run with `python3`).
+/// The script that times OpenCV's StereoBM and StereoSGBM (run with `python3`).
 const OPENCV_SCRIPT: &str = include_str!("../../benches/opencv_stereobm.py");
 
 /// Why the benchmark could not run.
@@ -75,7 +76,7 @@ pub struct BenchReport {
 }
 
 /// Steps `run` reports through its `step` callback.
-pub const STEPS: u64 = 6;
+pub const STEPS: u64 = 8;
 
 /// Runs the benchmark on a built-in 640×480 capture; `step` is called after each of
 /// [`STEPS`] steps.
@@ -155,7 +156,10 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
 
     // OpenCV's StereoBM on the same images, same parameters, one thread.
     if options.opencv {
-        match run_opencv(&left, &right, &truth, &params, repeats) {
+        let reference = OpenCvMatcher::Bm {
+            block: params.block_size,
+        };
+        match run_opencv(&left, &right, &truth, &params, reference, repeats) {
             Ok(cv) => {
                 let mut r = row("OpenCV StereoBM (64 d, 9×9)", 1, cv.median_ms, None);
                 r.bad_1px_pct = Some(cv.bad_1px_pct);
@@ -173,6 +177,63 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
     }
     step();
 
+    // Semi-global matching, 64 disparities: 8 and 4 paths on one thread, 8 on two;
+    // OpenCV's StereoSGBM (3-way, 5×5) on the same images.
+    let mut sgm_ms = None;
+    for (paths, threads, pool) in [
+        (Paths::Eight, 1, &one),
+        (Paths::Four, 1, &one),
+        (Paths::Eight, 2, &two),
+    ] {
+        let m = SemiGlobalMatcher::new(SgmParams {
+            min_disparity: params.min_disparity,
+            num_disparities: params.num_disparities,
+            paths,
+            ..SgmParams::default()
+        })?;
+        let mut last = None;
+        let ms = pool.install(|| {
+            median_ms(repeats, || {
+                last = Some(m.compute(&left, &right).expect("same size"))
+            })
+        });
+        let what = format!(
+            "match, SGM {} paths, {:?} (64 d)",
+            paths.count(),
+            m.kernel()
+        );
+        let mut r = row(&what, threads, ms, None);
+        if let Some(d) = last {
+            let (bad, valid) = quality(&d.disparity, &truth);
+            r.bad_1px_pct = Some(bad);
+            r.valid_pct = Some(valid);
+        }
+        rows.push(r);
+        sgm_ms.get_or_insert(ms);
+    }
+    if options.opencv && opencv_skipped.is_none() {
+        let reference = OpenCvMatcher::Sgbm { block: 5 };
+        match run_opencv(&left, &right, &truth, &params, reference, repeats) {
+            Ok(cv) => {
+                let mut r = row("OpenCV StereoSGBM 3-way (64 d, 5×5)", 1, cv.median_ms, None);
+                r.bad_1px_pct = Some(cv.bad_1px_pct);
+                r.valid_pct = Some(cv.valid_pct);
+                rows.push(r);
+                if let Some(ms) = sgm_ms {
+                    rows.push(row(
+                        "match, SGM 8 paths vs OpenCV StereoSGBM",
+                        1,
+                        ms,
+                        Some(("OpenCV StereoSGBM", cv.median_ms)),
+                    ));
+                }
+            }
+            Err(why) => opencv_skipped = Some(why),
+        }
+    }
+    step();
+    step();
+
     // The whole vision frame at the sensor's range (5–60 cm), on 1 and 2 threads.
     for (threads, pool) in [(1, &one), (2, &two)] {
         let config = StereoConfig {
@@ -185,7 +246,7 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
                 drop(p.process(&left, &right).expect("sizes match"))
             })
         });
-        let n = p.matcher().params().num_disparities;
+        let n = p.matcher().num_disparities();
         rows.push(row(
             &format!("whole frame: rectify both, match ({n} d), reproject"),
             threads,
@@ -245,6 +306,15 @@ fn quality(disparity: &Grid<f32>, truth: &Grid<f32>) -> (f64, f64) {
     )
 }
 
+/// Which OpenCV matcher the script runs.
+#[derive(Debug, Clone, Copy)]
+enum OpenCvMatcher {
+    /// StereoBM with our block matcher's settings.
+    Bm { block: u32 },
+    /// StereoSGBM, 3-way, P1 = 8·block², P2 = 32·block².
+    Sgbm { block: u32 },
+}
+
 struct OpenCvResult {
     median_ms: f64,
     bad_1px_pct: f64,
@@ -259,10 +329,11 @@ fn run_opencv(
     right: &Grid<u8>,
     truth: &Grid<f32>,
     params: &BlockMatchParams,
+    matcher: OpenCvMatcher,
     repeats: usize,
 ) -> Result<OpenCvResult, String> {
     let dir = std::env::temp_dir().join(format!("stereotac-bench-{}", std::process::id()));
-    let result = opencv_in(&dir, left, right, truth, params, repeats);
+    let result = opencv_in(&dir, left, right, truth, params, matcher, repeats);
     let _ = std::fs::remove_dir_all(&dir);
     result
 }
@@ -273,8 +344,13 @@ fn opencv_in(
     right: &Grid<u8>,
     truth: &Grid<f32>,
     params: &BlockMatchParams,
+    matcher: OpenCvMatcher,
     repeats: usize,
 ) -> Result<OpenCvResult, String> {
+    let (mode, block) = match matcher {
+        OpenCvMatcher::Bm { block } => ("bm", block),
+        OpenCvMatcher::Sgbm { block } => ("sgbm", block),
+    };
     let text = |e: OutputError| e.to_string();
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let (l, r, d, script) = (
@@ -291,9 +367,10 @@ fn opencv_in(
         .args([&l, &r, &d])
         .args([
             params.num_disparities.to_string(),
-            params.block_size.to_string(),
+            block.to_string(),
             params.min_disparity.to_string(),
             repeats.to_string(),
+            mode.to_string(),
         ])
         .output()
         .map_err(|e| format!("running python3: {e}"))?;

@@ -218,9 +218,39 @@ pub enum MatchError {
         /// Far limit.
         far_mm: f64,
     },
+    /// A cost volume larger than the matcher may allocate.
+    #[error(
+        "{width}×{height} px over {disparities} disparities needs {mib} MiB of cost volume \
+         (at most {limit_mib} MiB): search fewer disparities (--near-mm/--far-mm) or use \
+         --matcher bm"
+    )]
+    TooLarge {
+        /// Image width.
+        width: usize,
+        /// Image height.
+        height: usize,
+        /// Disparities searched.
+        disparities: usize,
+        /// What it would need, MiB.
+        mib: usize,
+        /// The bound, MiB.
+        limit_mib: usize,
+    },
     /// The kernel asked for does not run on this CPU.
     #[error("the {0:?} kernel is not available on this CPU")]
     KernelUnavailable(Kernel),
+}
+
+/// The common size of a pair, or why they differ.
+pub(super) fn pair_size(left: &Grid<u8>, right: &Grid<u8>) -> Result<(usize, usize), MatchError> {
+    let size = |g: &Grid<u8>| (g.width(), g.height());
+    if size(left) != size(right) {
+        return Err(MatchError::SizeMismatch {
+            left: size(left),
+            right: size(right),
+        });
+    }
+    Ok(size(left))
 }
 
 /// Which compiled variant of the inner loops runs.
@@ -242,6 +272,15 @@ impl Kernel {
         }
     }
 
+    /// This kernel, or why it cannot run here.
+    pub fn checked(self) -> Result<Self, MatchError> {
+        if self.is_available() {
+            Ok(self)
+        } else {
+            Err(MatchError::KernelUnavailable(self))
+        }
+    }
+
     /// The fastest available kernel.
     pub fn best() -> Self {
         if Kernel::Avx2.is_available() {
@@ -253,7 +292,7 @@ impl Kernel {
 }
 
 #[cfg(target_arch = "x86_64")]
-fn avx2_detected() -> bool {
+pub(super) fn avx2_detected() -> bool {
     std::is_x86_feature_detected!("avx2")
         && std::is_x86_feature_detected!("bmi1")
         && std::is_x86_feature_detected!("bmi2")
@@ -262,7 +301,7 @@ fn avx2_detected() -> bool {
 }
 
 #[cfg(not(target_arch = "x86_64"))]
-fn avx2_detected() -> bool {
+pub(super) fn avx2_detected() -> bool {
     false
 }
 
@@ -286,7 +325,19 @@ pub struct MatchStats {
 }
 
 impl MatchStats {
-    fn add(mut self, o: Self) -> Self {
+    /// Sets `valid` from `disparity` and `border` to the pixels no other count explains.
+    pub(super) fn count_valid_and_border(&mut self, disparity: &Grid<f32>) {
+        self.valid = disparity
+            .as_slice()
+            .iter()
+            .filter(|v| v.is_finite())
+            .count();
+        let rejected =
+            self.low_texture + self.not_unique + self.range_edge + self.left_right + self.speckle;
+        self.border = disparity.as_slice().len() - self.valid - rejected;
+    }
+
+    pub(super) fn add(mut self, o: Self) -> Self {
         self.valid += o.valid;
         self.border += o.border;
         self.low_texture += o.low_texture;
@@ -326,10 +377,7 @@ impl BlockMatcher {
 
     /// Uses `kernel` instead (benchmarks and tests).
     pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self, MatchError> {
-        if !kernel.is_available() {
-            return Err(MatchError::KernelUnavailable(kernel));
-        }
-        self.kernel = kernel;
+        self.kernel = kernel.checked()?;
         Ok(self)
     }
 
@@ -347,15 +395,8 @@ impl BlockMatcher {
     /// pool. Images smaller than one window plus the disparity range come out all
     /// invalid.
     pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
-        let size = |g: &Grid<u8>| (g.width(), g.height());
-        if size(left) != size(right) {
-            return Err(MatchError::SizeMismatch {
-                left: size(left),
-                right: size(right),
-            });
-        }
+        let (w, h) = pair_size(left, right)?;
         let p = &self.params;
-        let (w, h) = size(left);
         let r = (p.block_size / 2) as usize;
         let d_max = p.max_disparity() as usize;
         let mut disparity = Grid::filled(w, h, f32::NAN);
@@ -396,17 +437,7 @@ impl BlockMatcher {
                 .reduce(MatchStats::default, MatchStats::add);
         }
         stats.speckle = filter_speckles(&mut disparity, p.speckle_window as usize, p.speckle_range);
-        stats.valid = disparity
-            .as_slice()
-            .iter()
-            .filter(|v| v.is_finite())
-            .count();
-        let rejected = stats.low_texture
-            + stats.not_unique
-            + stats.range_edge
-            + stats.left_right
-            + stats.speckle;
-        stats.border = w * h - stats.valid - rejected;
+        stats.count_valid_and_border(&disparity);
         Ok(DisparityMap { disparity, stats })
     }
 }
@@ -594,7 +625,7 @@ fn slide_lanes(acc: &mut [u16], new: &[u16], old: &[u16]) -> u16 {
 /// Both are reductions over whole lanes (min of masked indices, sum of compares), so
 /// they vectorise; `index` holds `0, 1, 2, …`.
 #[inline(always)]
-fn locate(cost: &[u16], index: &[u16], best: u16, t: u16) -> (usize, usize) {
+pub(super) fn locate(cost: &[u16], index: &[u16], best: u16, t: u16) -> (usize, usize) {
     let mut first = u16::MAX;
     let mut within = 0u16;
     for (&c, &i) in cost.iter().zip(index) {
@@ -607,7 +638,7 @@ fn locate(cost: &[u16], index: &[u16], best: u16, t: u16) -> (usize, usize) {
 /// Offset in (−0.5, 0.5) of the true minimum from `d`, from the costs at `d − 1`, `d`
 /// and `d + 1` (`d` the smallest of the three). 0 when the three are equal.
 #[inline(always)]
-fn subpixel_offset(fit: SubpixelFit, below: u16, c: u16, above: u16) -> f32 {
+pub(super) fn subpixel_offset(fit: SubpixelFit, below: u16, c: u16, above: u16) -> f32 {
     let (a, c, b) = (f32::from(below), f32::from(c), f32::from(above));
     let denom = match fit {
         SubpixelFit::Parabola => 2.0 * (a + b - 2.0 * c),

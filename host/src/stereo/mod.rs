@@ -11,6 +11,8 @@
 //!   from checkerboard images.
 //! - [`rectify`]: Bouguet rectification and fixed-point remap tables.
 //! - [`prefilter`], [`block_match`], [`speckle`]: disparity by block matching.
+//! - [`matcher`]: the one a pipeline runs, block matching or semi-global.
+//! - [`sgm`]: disparity by semi-global matching (census costs, 4 or 8 paths).
 //! - [`postfilter`]: spatial, temporal and hole-filling filters on disparity.
 //! - [`reproject`], [`outliers`]: depth, point clouds, statistical outlier removal.
 //! - [`pipeline`]: the whole frame, raw views to point cloud, with timings.
@@ -30,6 +32,7 @@ pub mod board_calibration;
 pub mod calibration;
 pub mod camera;
 pub mod eval;
+pub mod matcher;
 pub mod outliers;
 pub mod output;
 pub mod pipeline;
@@ -39,6 +42,7 @@ pub mod rectify;
 pub mod reproject;
 pub mod ros_info;
 pub mod scene;
+pub mod sgm;
 pub mod speckle;
 pub mod synthetic;
 pub mod warnings;
@@ -47,5 +51,7 @@ pub mod yaml;
 pub use block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
 pub use calibration::{CalibError, LengthUnit, StereoCalibration};
 pub use camera::{Camera, Distortion};
+pub use matcher::{Matcher, MatcherKind};
 pub use pipeline::{StereoConfig, StereoError, StereoFrame, StereoPipeline};
 pub use rectify::{Rectification, RectifyError, RemapTable};
+pub use sgm::{Paths, SemiGlobalMatcher, SgmParams};

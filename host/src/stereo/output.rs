@@ -7,6 +7,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use super::block_match::{Kernel, MatchStats};
+use super::matcher::MatcherKind;
 use super::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
 use crate::output::{OutputError, io, write_grey_png, write_npy, write_png16, write_points_ply};
 use crate::picture::{self, ColourRange, RangeChoice};
@@ -37,6 +38,8 @@ pub struct StereoSummary {
     pub baseline_mm: f64,
     /// Disparities searched, px (inclusive).
     pub disparity_range_px: [u32; 2],
+    /// The matcher that ran: `bm` or `sgm`.
+    pub matcher: MatcherKind,
     /// The matching kernel that ran.
     pub kernel: Kernel,
     /// Why pixels were rejected.
@@ -137,7 +140,7 @@ pub fn write_outputs(
     options: OutputOptions,
 ) -> Result<StereoSummary, OutputError> {
     let rect = pipeline.rectification();
-    let params = pipeline.matcher().params();
+    let (d_lo, d_hi) = pipeline.matcher().disparity_range();
     write_grey_png(&dir.join("left_rect.png"), &frame.left)?;
     write_grey_png(&dir.join("right_rect.png"), &frame.right)?;
     write_npy(&dir.join("disparity.npy"), &frame.disparity)?;
@@ -150,8 +153,8 @@ pub fn write_outputs(
             hi: config.far_mm as f32,
         },
         RangeChoice::Fixed {
-            lo: params.min_disparity as f32,
-            hi: params.max_disparity() as f32,
+            lo: d_lo as f32,
+            hi: d_hi as f32,
         },
     );
     let (depth_choice, disparity_choice) = match options.colour_range {
@@ -199,7 +202,8 @@ pub fn write_outputs(
         height: h,
         focal_px: rect.focal(),
         baseline_mm: rect.baseline(),
-        disparity_range_px: [params.min_disparity, params.max_disparity()],
+        disparity_range_px: [d_lo, d_hi],
+        matcher: pipeline.matcher().kind(),
         kernel: pipeline.matcher().kernel(),
         stats: frame.stats,
         fill_rate: depths.len() as f64 / (w * h).max(1) as f64,

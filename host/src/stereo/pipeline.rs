@@ -6,8 +6,9 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::block_match::{BlockMatchParams, BlockMatcher, MatchError, MatchStats};
+use super::block_match::{BlockMatchParams, MatchError, MatchStats};
 use super::calibration::StereoCalibration;
+use super::matcher::{Matcher, MatcherKind};
 use super::outliers::{OutlierParams, grid_inliers};
 use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
 use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
@@ -25,7 +26,9 @@ pub struct StereoConfig {
     pub near_mm: f64,
     /// Farthest depth searched, mm.
     pub far_mm: f64,
-    /// Matcher window side (odd).
+    /// Which matcher: block matching (default) or semi-global.
+    pub matcher: MatcherKind,
+    /// Block matcher window side (odd).
     pub block_size: u32,
     /// Matcher uniqueness ratio, percent.
     pub uniqueness_ratio: u32,
@@ -48,6 +51,7 @@ impl Default for StereoConfig {
             rectify_scale: 1.0,
             near_mm: 50.0,
             far_mm: 600.0,
+            matcher: MatcherKind::Bm,
             block_size: m.block_size,
             uniqueness_ratio: m.uniqueness_ratio,
             texture_threshold: m.texture_threshold,
@@ -83,7 +87,7 @@ pub enum StereoError {
 pub struct StereoTimings {
     /// Rectifying both views.
     pub rectify_ms: f64,
-    /// Block matching (prefilter, costs, checks, speckles).
+    /// Matching (costs, checks, speckles).
     pub match_ms: f64,
     /// Post-filters.
     pub filter_ms: f64,
@@ -139,7 +143,7 @@ pub struct StereoPipeline {
     config: StereoConfig,
     rectification: Rectification,
     maps: (RemapTable, RemapTable),
-    matcher: BlockMatcher,
+    matcher: Matcher,
     temporal: Option<TemporalFilter>,
 }
 
@@ -158,7 +162,7 @@ impl StereoPipeline {
                 config.far_mm,
             )?
         };
-        let matcher = BlockMatcher::new(params)?;
+        let matcher = Matcher::new(config.matcher, params)?;
         Ok(Self {
             config,
             maps: rectification.maps(calib),
@@ -174,7 +178,7 @@ impl StereoPipeline {
     }
 
     /// The matcher in use.
-    pub fn matcher(&self) -> &BlockMatcher {
+    pub fn matcher(&self) -> &Matcher {
         &self.matcher
     }
 

@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use stereotac::clock::HostMicros;
 use stereotac::device::Sensor;
-use stereotac::stereo::StereoConfig;
+use stereotac::stereo::{MatcherKind, StereoConfig};
 use stereotac_protocol::Mode;
 
 /// Lighting modes on the command line.
@@ -123,9 +123,32 @@ pub struct PipelineArgs {
     /// lens's field of view).
     #[arg(long, default_value_t = StereoConfig::default().rectify_scale)]
     pub scale: f64,
-    /// Matching window side (odd).
+    /// Matching window side (odd; block matching).
     #[arg(long, default_value_t = StereoConfig::default().block_size)]
     pub block_size: u32,
+    /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census
+    /// costs along 8 paths and sub-pixel refinement; fewer wrong pixels on slanted and
+    /// weakly textured surfaces, several times block matching's time).
+    #[arg(long, value_enum, default_value_t = MatcherArg::Bm)]
+    pub matcher: MatcherArg,
+}
+
+/// `--matcher`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MatcherArg {
+    /// Block matching.
+    Bm,
+    /// Semi-global matching.
+    Sgm,
+}
+
+impl From<MatcherArg> for MatcherKind {
+    fn from(m: MatcherArg) -> Self {
+        match m {
+            MatcherArg::Bm => MatcherKind::Bm,
+            MatcherArg::Sgm => MatcherKind::Sgm,
+        }
+    }
 }
 
 impl Default for PipelineArgs {
@@ -136,6 +159,7 @@ impl Default for PipelineArgs {
             far_mm: c.far_mm,
             scale: c.rectify_scale,
             block_size: c.block_size,
+            matcher: MatcherArg::Bm,
         }
     }
 }
@@ -148,6 +172,7 @@ impl PipelineArgs {
             far_mm: self.far_mm,
             rectify_scale: self.scale,
             block_size: self.block_size,
+            matcher: self.matcher.into(),
             ..StereoConfig::default()
         }
     }

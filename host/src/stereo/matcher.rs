@@ -1,0 +1,82 @@
+//! The disparity matcher a pipeline runs: block matching (fast, the default) or
+//! semi-global matching (fills weak texture and slanted surfaces, slower), behind one
+//! `compute`.
+
+use serde::Serialize;
+
+use super::block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
+use super::sgm::{SemiGlobalMatcher, SgmParams};
+use crate::grid::Grid;
+
+/// Which matcher.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MatcherKind {
+    /// Block matching ([`super::block_match`]).
+    #[default]
+    Bm,
+    /// Semi-global matching ([`super::sgm`]).
+    Sgm,
+}
+
+/// A matcher, built once and reused for every frame.
+#[derive(Debug, Clone)]
+pub enum Matcher {
+    /// Block matching.
+    Block(BlockMatcher),
+    /// Semi-global matching.
+    SemiGlobal(SemiGlobalMatcher),
+}
+
+impl Matcher {
+    /// A matcher of `kind` over the disparities of `range` (its other block-matching
+    /// settings are used by `bm` only; `sgm` takes its defaults).
+    pub fn new(kind: MatcherKind, range: BlockMatchParams) -> Result<Self, MatchError> {
+        Ok(match kind {
+            MatcherKind::Bm => Self::Block(BlockMatcher::new(range)?),
+            MatcherKind::Sgm => Self::SemiGlobal(SemiGlobalMatcher::new(SgmParams {
+                min_disparity: range.min_disparity,
+                num_disparities: range.num_disparities,
+                ..SgmParams::default()
+            })?),
+        })
+    }
+
+    /// Matches a rectified pair.
+    pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
+        match self {
+            Self::Block(m) => m.compute(left, right),
+            Self::SemiGlobal(m) => m.compute(left, right),
+        }
+    }
+
+    /// Which matcher this is.
+    pub fn kind(&self) -> MatcherKind {
+        match self {
+            Self::Block(_) => MatcherKind::Bm,
+            Self::SemiGlobal(_) => MatcherKind::Sgm,
+        }
+    }
+
+    /// The compiled variant in use.
+    pub fn kernel(&self) -> Kernel {
+        match self {
+            Self::Block(m) => m.kernel(),
+            Self::SemiGlobal(m) => m.kernel(),
+        }
+    }
+
+    /// Smallest and largest disparity searched (px).
+    pub fn disparity_range(&self) -> (u32, u32) {
+        match self {
+            Self::Block(m) => (m.params().min_disparity, m.params().max_disparity()),
+            Self::SemiGlobal(m) => (m.params().min_disparity, m.params().max_disparity()),
+        }
+    }
+
+    /// Number of disparities searched.
+    pub fn num_disparities(&self) -> u32 {
+        let (lo, hi) = self.disparity_range();
+        hi - lo + 1
+    }
+}

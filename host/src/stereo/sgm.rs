@@ -1,0 +1,1056 @@
+//! Semi-global matching (Hirschmüller, 2008) on rectified pairs: census costs,
+//! aggregation along 4 or 8 image paths, winner-takes-all with a uniqueness ratio,
+//! sub-pixel fit, left–right check and speckle removal.
+//!
+//! Block matching decides each pixel from its window alone; here every pixel's cost at
+//! disparity `d` is the sum, over paths arriving from several directions, of the
+//! cheapest way to reach it with small penalties for disparity steps of one pixel
+//! (`p1`, slanted surfaces) and larger ones for jumps (`p2`, object edges). Weak or
+//! repeated texture borrows the answer of its neighbours along the paths.
+//!
+//! - **Cost**: Hamming distance of 7×7 census signatures (48 bits, borders clamped): a
+//!   comparison of each pixel with its neighbours, so it does not care about the gain
+//!   and offset a hazy skin adds to one view.
+//! - **Layout**: as the block matcher's, the disparities of one pixel contiguous
+//!   (`[y][x][k]`, `d = min_disparity + k`), so every path step is a straight run over
+//!   `u16` lanes the compiler vectorises; compiled portable and for AVX2, chosen at run
+//!   time.
+//! - **Passes**: the paths that come from above (left→right, down, and for 8 paths the
+//!   two downward diagonals) are one pass over the rows, the paths from below the
+//!   other; the two run in parallel (rayon) into their own sums.
+//! - **Boundaries**: a path starts afresh at the image edge (its first value is the
+//!   pixel's cost). Candidates that fall off the right image cost the most a census
+//!   can; as with block matching, the `max disparity` leftmost columns are invalid.
+//!
+//! Output: disparity in pixels (`x_left − x_right`, f32, NaN where invalid).
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::block_match::{
+    DisparityMap, Kernel, MatchError, MatchStats, SubpixelFit, avx2_detected, locate, pair_size,
+    subpixel_offset,
+};
+use super::speckle::filter_speckles;
+use crate::grid::Grid;
+
+/// Census window radius: 7×7, 48 comparisons.
+const CENSUS_RADIUS: usize = 3;
+/// Largest census cost (every comparison differs); also the cost of a candidate off the
+/// right image.
+const CENSUS_BITS: u8 = 48;
+/// Largest cost volume the matcher allocates (census costs and the two path sums).
+const MAX_VOLUME_MIB: usize = 2048;
+
+/// Image paths the costs are aggregated along.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Paths {
+    /// Horizontal and vertical: faster.
+    Four,
+    /// With the diagonals: fewer streaks along rows and columns.
+    Eight,
+}
+
+impl Paths {
+    /// How many.
+    pub fn count(self) -> usize {
+        match self {
+            Paths::Four => 4,
+            Paths::Eight => 8,
+        }
+    }
+}
+
+/// Semi-global matching parameters. [`Default`]: 64 disparities, 8 paths, penalties
+/// for the 48-bit census cost.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SgmParams {
+    /// Smallest disparity searched (pixels).
+    pub min_disparity: u32,
+    /// Number of disparities searched: a positive multiple of 16.
+    pub num_disparities: u32,
+    /// Penalty for a disparity step of one pixel between neighbours along a path.
+    pub p1: u16,
+    /// Penalty for a larger step (> `p1`).
+    pub p2: u16,
+    /// Paths aggregated.
+    pub paths: Paths,
+    /// Percent by which the best aggregated cost must beat every other (not adjacent)
+    /// candidate.
+    pub uniqueness_ratio: u32,
+    /// Largest disagreement (pixels) between the left→right and right→left matches;
+    /// `None` turns the check off.
+    pub lr_max_diff: Option<u32>,
+    /// Regions of at most this many pixels are removed as speckles (0: off).
+    pub speckle_window: u32,
+    /// Largest disparity step (pixels) inside one speckle region.
+    pub speckle_range: f32,
+    /// Sub-pixel fit on the aggregated costs.
+    pub subpixel: SubpixelFit,
+    /// Then refine each disparity on the images themselves: the least-squares shift
+    /// that lines up a 7×7 window of the left view with the right view (one Gauss–
+    /// Newton step from the nearest whole pixel). Aggregated census costs place the
+    /// minimum only to about 0.15 px.
+    pub refine: bool,
+}
+
+impl Default for SgmParams {
+    fn default() -> Self {
+        Self {
+            min_disparity: 0,
+            num_disparities: 64,
+            p1: 8,
+            p2: 96,
+            paths: Paths::Eight,
+            uniqueness_ratio: 10,
+            lr_max_diff: Some(1),
+            speckle_window: 100,
+            speckle_range: 1.0,
+            subpixel: SubpixelFit::Equiangular,
+            refine: true,
+        }
+    }
+}
+
+impl SgmParams {
+    /// The largest disparity searched.
+    pub fn max_disparity(&self) -> u32 {
+        self.min_disparity + self.num_disparities - 1
+    }
+
+    /// Checks every field; the matcher refuses parameters that fail.
+    pub fn validate(&self) -> Result<(), MatchError> {
+        let bad = |name, value: String, why| Err(MatchError::InvalidParam { name, value, why });
+        let n = self.num_disparities;
+        if n == 0 || !n.is_multiple_of(16) || n > 1024 {
+            return bad(
+                "num_disparities",
+                n.to_string(),
+                "a multiple of 16, 16..=1024",
+            );
+        }
+        if self.min_disparity + n > 4096 {
+            return bad(
+                "min_disparity",
+                self.min_disparity.to_string(),
+                "the largest disparity searched must be below 4096",
+            );
+        }
+        if self.p1 == 0 || self.p2 <= self.p1 || self.p2 > 1024 {
+            return bad(
+                "p2",
+                format!("{} (p1 = {})", self.p2, self.p1),
+                "penalties 0 < p1 < p2 <= 1024",
+            );
+        }
+        if self.uniqueness_ratio >= 100 {
+            return bad(
+                "uniqueness_ratio",
+                self.uniqueness_ratio.to_string(),
+                "a percentage below 100",
+            );
+        }
+        if !(self.speckle_range.is_finite() && self.speckle_range >= 0.0) {
+            return bad(
+                "speckle_range",
+                self.speckle_range.to_string(),
+                "a finite, non-negative number of pixels",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// A semi-global matcher: validated parameters and a kernel, reused for every frame
+/// (with its cost volumes).
+#[derive(Debug, Clone)]
+pub struct SemiGlobalMatcher {
+    params: SgmParams,
+    kernel: Kernel,
+    scratch: Scratch,
+}
+
+/// The cost volume and the two passes' sums.
+#[derive(Default)]
+struct Volumes {
+    cost: Vec<u8>,
+    down: Vec<u16>,
+    up: Vec<u16>,
+}
+
+impl Volumes {
+    /// At least `cells` of each (contents are overwritten before they are read).
+    fn fit(&mut self, cells: usize) {
+        if self.cost.len() < cells {
+            self.cost.resize(cells, 0);
+            self.down.resize(cells, 0);
+            self.up.resize(cells, 0);
+        }
+    }
+}
+
+/// Volumes kept between frames; a clone starts without.
+#[derive(Default)]
+struct Scratch(std::sync::Mutex<Volumes>);
+
+impl Clone for Scratch {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl std::fmt::Debug for Scratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Scratch")
+    }
+}
+
+impl SemiGlobalMatcher {
+    /// A matcher with the fastest kernel this CPU runs.
+    pub fn new(params: SgmParams) -> Result<Self, MatchError> {
+        params.validate()?;
+        Ok(Self {
+            params,
+            kernel: Kernel::best(),
+            scratch: Scratch::default(),
+        })
+    }
+
+    /// Uses `kernel` instead (benchmarks and tests).
+    pub fn with_kernel(mut self, kernel: Kernel) -> Result<Self, MatchError> {
+        self.kernel = kernel.checked()?;
+        Ok(self)
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &SgmParams {
+        &self.params
+    }
+
+    /// The kernel in use.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
+    /// Matches a rectified pair (8-bit grey, same size) on rayon's current pool. Images
+    /// narrower than the disparity range plus a census window come out all invalid;
+    /// a cost volume over 2 GiB is refused.
+    pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
+        let (w, h) = pair_size(left, right)?;
+        let p = &self.params;
+        let nd = p.num_disparities as usize;
+        let d_max = p.max_disparity() as usize;
+        let mut disparity = Grid::filled(w, h, f32::NAN);
+        let mut stats = MatchStats::default();
+        if w > d_max + 2 * CENSUS_RADIUS && h > 2 * CENSUS_RADIUS {
+            let cells = w.saturating_mul(h).saturating_mul(nd);
+            let mib = cells.saturating_mul(5) >> 20;
+            if mib > MAX_VOLUME_MIB {
+                return Err(MatchError::TooLarge {
+                    width: w,
+                    height: h,
+                    disparities: nd,
+                    mib,
+                    limit_mib: MAX_VOLUME_MIB,
+                });
+            }
+            let (cl, cr) = rayon::join(|| census(self.kernel, left), || census(self.kernel, right));
+            let shape = Shape {
+                w,
+                h,
+                nd,
+                d_min: p.min_disparity as usize,
+            };
+            // The volumes are kept between frames (a fresh 100 MB per frame costs page
+            // faults and TLB flushes); a matcher shared by several threads at once
+            // takes fresh ones.
+            let mut kept = self.scratch.0.try_lock().ok();
+            let mut fresh = Volumes::default();
+            let v: &mut Volumes = kept.as_deref_mut().unwrap_or(&mut fresh);
+            v.fit(cells);
+            let (cost, down, up) = (
+                &mut v.cost[..cells],
+                &mut v.down[..cells],
+                &mut v.up[..cells],
+            );
+            let kernel = self.kernel;
+            cost.par_chunks_mut(w * nd)
+                .enumerate()
+                .for_each(|(y, row)| run_costs(kernel, &shape, cl.row(y), cr.row(y), row));
+            let cost = &*cost;
+            rayon::join(
+                || run_pass(kernel, &shape, p, cost, Pass::Down, down),
+                || run_pass(kernel, &shape, p, cost, Pass::Up, up),
+            );
+            stats = down
+                .par_chunks(w * nd)
+                .zip(up.par_chunks(w * nd))
+                .zip(disparity.as_mut_slice().par_chunks_mut(w))
+                .map(|((sum, other), out)| run_select(kernel, &shape, p, sum, other, out))
+                .reduce(MatchStats::default, MatchStats::add);
+        }
+        if p.refine {
+            refine(left, right, &mut disparity);
+        }
+        stats.speckle = filter_speckles(&mut disparity, p.speckle_window as usize, p.speckle_range);
+        stats.count_valid_and_border(&disparity);
+        Ok(DisparityMap { disparity, stats })
+    }
+}
+
+/// Sizes every stage shares.
+struct Shape {
+    w: usize,
+    h: usize,
+    nd: usize,
+    d_min: usize,
+}
+
+/// 7×7 census signatures: bit set where the neighbour is brighter than the centre
+/// (neighbours outside the image are read at the nearest edge pixel). Rows in parallel.
+fn census(kernel: Kernel, img: &Grid<u8>) -> Grid<u64> {
+    let (w, h) = (img.width(), img.height());
+    let mut out = Grid::filled(w, h, 0u64);
+    out.as_mut_slice()
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, bits)| run_census_row(kernel, img, y, bits));
+    out
+}
+
+#[allow(unsafe_code)]
+fn run_census_row(kernel: Kernel, img: &Grid<u8>, y: usize, bits: &mut [u64]) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && avx2_detected() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { census_row_avx2(img, y, bits) };
+    }
+    let _ = kernel;
+    census_row(img, y, bits)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn census_row_avx2(img: &Grid<u8>, y: usize, bits: &mut [u64]) {
+    census_row(img, y, bits)
+}
+
+/// One row of census signatures. One comparison of every pixel at a time, eight of
+/// them gathered in byte lanes before they join the 64-bit signature, so the work runs
+/// in vector lanes.
+#[inline(always)]
+fn census_row(img: &Grid<u8>, y: usize, bits: &mut [u64]) {
+    let (w, h) = (img.width(), img.height());
+    let r = CENSUS_RADIUS;
+    let centre = img.row(y);
+    let mut shifted = vec![0u8; w];
+    let mut byte = vec![0u8; w];
+    let mut taken = 0u32;
+    for dy in 0..=2 * r {
+        let src = img.row((y + dy).saturating_sub(r).min(h - 1));
+        for dx in 0..=2 * r {
+            if dx == r && dy == r {
+                continue;
+            }
+            shift_clamped(src, dx as isize - r as isize, &mut shifted);
+            for ((b, &n), &c) in byte.iter_mut().zip(&shifted).zip(centre) {
+                *b = (*b << 1) | u8::from(n > c);
+            }
+            taken += 1;
+            if taken.is_multiple_of(8) {
+                for (o, &b) in bits.iter_mut().zip(&byte) {
+                    *o = (*o << 8) | u64::from(b);
+                }
+            }
+        }
+    }
+}
+
+/// `out[x] = src[x + shift]`, indices clamped to the row.
+fn shift_clamped(src: &[u8], shift: isize, out: &mut [u8]) {
+    let w = src.len();
+    let s = shift.unsigned_abs();
+    if s >= w {
+        for (x, v) in out.iter_mut().enumerate() {
+            *v = src[(x as isize + shift).clamp(0, w as isize - 1) as usize];
+        }
+    } else if shift >= 0 {
+        out[..w - s].copy_from_slice(&src[s..]);
+        out[w - s..].fill(src[w - 1]);
+    } else {
+        out[s..].copy_from_slice(&src[..w - s]);
+        out[..s].fill(src[0]);
+    }
+}
+
+#[allow(unsafe_code)]
+fn run_costs(kernel: Kernel, s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && avx2_detected() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { costs_avx2(s, left, right, out) };
+    }
+    let _ = kernel;
+    costs(s, left, right, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn costs_avx2(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+    costs(s, left, right, out)
+}
+
+/// One row of census costs: `out[x·nd + k]` compares left `x` with right `x − d`.
+#[inline(always)]
+fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+    for (x, (&l, cell)) in left.iter().zip(out.chunks_exact_mut(s.nd)).enumerate() {
+        let first = x as isize - s.d_min as isize; // right x for k = 0
+        if first - s.nd as isize + 1 >= 0 {
+            // Every candidate inside the right image: k walks the right row backwards.
+            let from = first as usize + 1 - s.nd;
+            for (c, &r) in cell
+                .iter_mut()
+                .zip(right[from..=first as usize].iter().rev())
+            {
+                *c = (l ^ r).count_ones() as u8;
+            }
+        } else {
+            for (k, c) in cell.iter_mut().enumerate() {
+                let xr = first - k as isize;
+                *c = if xr >= 0 {
+                    (l ^ right[xr as usize]).count_ones() as u8
+                } else {
+                    CENSUS_BITS
+                };
+            }
+        }
+    }
+}
+
+/// Which half of the paths a pass follows.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    /// Rows top to bottom: left→right, down, and the two downward diagonals.
+    Down,
+    /// Rows bottom to top: right→left, up, and the two upward diagonals.
+    Up,
+}
+
+#[allow(unsafe_code)]
+fn run_pass(kernel: Kernel, s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && avx2_detected() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { pass_avx2(s, p, cost, pass, sum) };
+    }
+    let _ = kernel;
+    aggregate(s, p, cost, pass, sum)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn pass_avx2(s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
+    aggregate(s, p, cost, pass, sum)
+}
+
+/// Padding either side of a pixel's path costs: `step` reads `d − 1` and `d + 1` for
+/// every `d` without edge cases. Large, so `+ p1` never wins, and far from overflow.
+const PAD: u16 = 0x3fff;
+
+/// Path costs of one row for every pixel (stride `nd + 2`, padded) and their minima.
+struct PathRow {
+    cost: Vec<u16>,
+    min: Vec<u16>,
+}
+
+impl PathRow {
+    fn new(w: usize, nd: usize) -> Self {
+        Self {
+            cost: vec![PAD; w * (nd + 2)],
+            min: vec![0; w],
+        }
+    }
+}
+
+/// Writes into `sum` the sum over this pass's paths of every pixel's path costs
+/// (`[y][x][k]`; the first path writes, the others add).
+#[inline(always)]
+fn aggregate(s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
+    let (w, h, nd) = (s.w, s.h, s.nd);
+    let stride = nd + 2;
+    let used = if p.paths == Paths::Eight { 3 } else { 1 };
+    // Vertical and the two diagonal paths: the previous row's values and this row's.
+    let mut prev: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    let mut cur: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    let mut along = vec![PAD; stride];
+    let mut along_next = vec![PAD; stride];
+    for i in 0..h {
+        let y = if pass == Pass::Down { i } else { h - 1 - i };
+        let row_cost = &cost[y * w * nd..][..w * nd];
+        let row_sum = &mut sum[y * w * nd..][..w * nd];
+        let mut along_min = 0u16;
+        for j in 0..w {
+            // `behind` is the column the horizontal path comes from, `ahead` the other
+            // side.
+            let (x, behind, ahead) = if pass == Pass::Down {
+                (j, j.checked_sub(1), (j + 1 < w).then_some(j + 1))
+            } else {
+                (
+                    w - 1 - j,
+                    (j > 0).then_some(w - j),
+                    (w - 1 - j).checked_sub(1),
+                )
+            };
+            let c = &row_cost[x * nd..][..nd];
+            let out_sum = &mut row_sum[x * nd..][..nd];
+            // Along the row.
+            along_min = if j == 0 {
+                start::<true>(c, &mut along_next[1..=nd], out_sum)
+            } else {
+                step::<true>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
+            };
+            std::mem::swap(&mut along, &mut along_next);
+            // Down (or up) the column, then the diagonals from `behind` and `ahead`.
+            let sources = [Some(x), behind, ahead];
+            for (path, source) in sources.iter().enumerate().take(used) {
+                let out = &mut cur[path].cost[x * stride + 1..][..nd];
+                let least = match *source {
+                    Some(sx) if i > 0 => {
+                        let from = &prev[path].cost[sx * stride..][..stride];
+                        step::<false>(c, from, prev[path].min[sx], p, out, out_sum)
+                    }
+                    _ => start::<false>(c, out, out_sum),
+                };
+                cur[path].min[x] = least;
+            }
+        }
+        std::mem::swap(&mut prev, &mut cur);
+    }
+}
+
+/// A path's first pixel: its costs. Adds them to `sum` (or writes them, `SET`);
+/// returns their minimum.
+#[inline(always)]
+fn start<const SET: bool>(cost: &[u8], out: &mut [u16], sum: &mut [u16]) -> u16 {
+    let mut least = u16::MAX;
+    for ((o, s), &c) in out.iter_mut().zip(sum.iter_mut()).zip(cost) {
+        *o = u16::from(c);
+        *s = if SET { *o } else { *s + *o };
+        least = least.min(*o);
+    }
+    least
+}
+
+/// One step along a path: `L(d) = C(d) + min(L'(d), L'(d ± 1) + p1, min L' + p2) − min L'`
+/// with `L'` the previous pixel's values (`prev`, padded: `prev[d + 1]` is `L'(d)`,
+/// minimum `prev_min`). Writes `L` into `out`, adds it to `sum` (or writes it, `SET`),
+/// returns its minimum. Values stay below `CENSUS_BITS + p2`.
+#[inline(always)]
+fn step<const SET: bool>(
+    cost: &[u8],
+    prev: &[u16],
+    prev_min: u16,
+    p: &SgmParams,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
+    let n = out.len();
+    let (p1, jump) = (p.p1, prev_min + p.p2);
+    let (below, here, above) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
+    let mut least = u16::MAX;
+    let lanes = out
+        .iter_mut()
+        .zip(sum.iter_mut())
+        .zip(cost)
+        .zip(below.iter().zip(here).zip(above));
+    for (((o, s), &c), ((&b, &m), &a)) in lanes {
+        let best = m.min(b.min(a) + p1).min(jump);
+        *o = u16::from(c) + best - prev_min;
+        *s = if SET { *o } else { *s + *o };
+        least = least.min(*o);
+    }
+    least
+}
+
+#[allow(unsafe_code)]
+fn run_select(
+    kernel: Kernel,
+    s: &Shape,
+    p: &SgmParams,
+    sum: &[u16],
+    other: &[u16],
+    out: &mut [f32],
+) -> MatchStats {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && avx2_detected() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { select_avx2(s, p, sum, other, out) };
+    }
+    let _ = kernel;
+    select(s, p, sum, other, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn select_avx2(
+    s: &Shape,
+    p: &SgmParams,
+    sum: &[u16],
+    other: &[u16],
+    out: &mut [f32],
+) -> MatchStats {
+    select(s, p, sum, other, out)
+}
+
+/// One row's disparities from the two passes' sums: winner takes all, uniqueness,
+/// sub-pixel fit, left–right check.
+#[inline(always)]
+fn select(s: &Shape, p: &SgmParams, sum: &[u16], other: &[u16], out: &mut [f32]) -> MatchStats {
+    let (w, nd) = (s.w, s.nd);
+    let mut stats = MatchStats::default();
+    let mut total = vec![0u16; nd];
+    let mut packed = vec![0u32; nd];
+    let index: Vec<u16> = (0..nd as u16).collect();
+    // The right image's best match per column, as `cost << 16 | k` so one `min` keeps
+    // both (ties: the smaller k), stored by `j = w − 1 − right column`: the candidates
+    // k of left column x are then the contiguous run `j = w − 1 − x + d_min + k`.
+    let check = p.lr_max_diff.is_some();
+    let mut right = vec![u32::MAX; w];
+    let d_max = s.d_min + nd - 1;
+    let mut best_k = vec![u16::MAX; w];
+    for x in 0..w {
+        let (a, b) = (&sum[x * nd..][..nd], &other[x * nd..][..nd]);
+        for ((((t, q), &a), &b), &k) in total.iter_mut().zip(&mut packed).zip(a).zip(b).zip(&index)
+        {
+            *t = a + b;
+            *q = (u32::from(*t) << 16) | u32::from(k);
+        }
+        let cell = &total[..];
+        if check && x >= s.d_min {
+            // Candidates whose right column is inside the image.
+            let n = (x - s.d_min).min(nd - 1) + 1;
+            let j = w - 1 - (x - s.d_min);
+            for (r, &q) in right[j..j + n].iter_mut().zip(&packed[..n]) {
+                *r = (*r).min(q);
+            }
+        }
+        if x < d_max {
+            continue; // candidates off the right image: the invalid band
+        }
+        let best = cell.iter().copied().fold(u16::MAX, u16::min);
+        // Not unique: another candidate, not next to the best, within the ratio.
+        let limit = (u32::from(best) * 100).saturating_sub(1) / (100 - p.uniqueness_ratio);
+        let t = limit.min(u32::from(u16::MAX)) as u16;
+        let (k, within) = locate(cell, &index, best, t);
+        let near = (k.saturating_sub(1)..=(k + 1).min(nd - 1))
+            .filter(|&i| cell[i] <= t)
+            .count();
+        if k == 0 || k == nd - 1 {
+            stats.range_edge += 1;
+            continue;
+        }
+        if within > near {
+            stats.not_unique += 1;
+            continue;
+        }
+        best_k[x] = k as u16;
+        let offset = subpixel_offset(p.subpixel, cell[k - 1], best, cell[k + 1]);
+        out[x] = (s.d_min + k) as f32 + offset;
+    }
+    if let Some(max_diff) = p.lr_max_diff {
+        for x in d_max..w {
+            let k = best_k[x];
+            if k == u16::MAX {
+                continue;
+            }
+            let xr = x - s.d_min - usize::from(k);
+            let right_k = (right[w - 1 - xr] & 0xffff) as usize;
+            if right_k.abs_diff(usize::from(k)) > max_diff as usize {
+                out[x] = f32::NAN;
+                stats.left_right += 1;
+            }
+        }
+    }
+    stats
+}
+
+/// Window radius of [`refine`].
+const REFINE_RADIUS: usize = 4;
+
+/// Gauss–Newton steps of [`refine`].
+const REFINE_STEPS: usize = 2;
+
+/// Window sums [`refine`] needs at one whole-pixel shift `b`: with `i = x − b` the
+/// right-view column of left column `x`, `A = R[i+1] − R[i−1]`, `B = R[i+2] − R[i]`,
+/// `E = L[x] − R[i]`, `F = L[x] − R[i+1]`, the sums of `AE, AF, BE, BF, AA, AB, BB`.
+#[derive(Clone, Copy, Default)]
+struct RefineSums([i32; 7]);
+
+impl RefineSums {
+    /// One window column (`rows` of left column `x`, right column `x − b`).
+    #[inline(always)]
+    fn column(left: &Grid<u8>, right: &Grid<u8>, rows: Range<usize>, x: usize, i: usize) -> Self {
+        let mut s = [0i32; 7];
+        for y in rows {
+            let (l, r) = (i32::from(left.row(y)[x]), &right.row(y)[i - 1..i + 3]);
+            let r: [i32; 4] = [r[0].into(), r[1].into(), r[2].into(), r[3].into()];
+            let (a, b, e, f) = (r[2] - r[0], r[3] - r[1], l - r[1], l - r[2]);
+            s[0] += a * e;
+            s[1] += a * f;
+            s[2] += b * e;
+            s[3] += b * f;
+            s[4] += a * a;
+            s[5] += a * b;
+            s[6] += b * b;
+        }
+        Self(s)
+    }
+
+    fn add(&mut self, o: Self, sign: i32) {
+        for (a, b) in self.0.iter_mut().zip(o.0) {
+            *a += sign * b;
+        }
+    }
+
+    /// `(Σ g·e, Σ g²)` for the right view read at `x − b + t`: linear interpolation
+    /// between the whole-pixel columns makes `g = ((1−t)A + tB)/2`, `e = (1−t)E + tF`.
+    fn at(&self, t: f32) -> (f32, f32) {
+        let [ae, af, be, bf, aa, ab, bb] = self.0.map(|v| v as f32);
+        let u = 1.0 - t;
+        let num = 0.5 * (u * u * ae + t * u * (af + be) + t * t * bf);
+        let den = 0.25 * (u * u * aa + 2.0 * t * u * ab + t * t * bb);
+        (num, den)
+    }
+}
+
+/// Least-squares sub-pixel refinement (Lucas–Kanade along the row, 9×9 window). For a
+/// valid disparity `D`, `L(x) ≈ R(x − D) − δ·R′(x − D)` gives the update
+/// `δ = −Σ R′·(L − R(x − D)) / Σ R′²`, with `R` read between pixels by linear
+/// interpolation and `R′` its central difference; two steps from the aggregated-cost
+/// estimate. Each step reads the right view between the whole pixels around its
+/// estimate; the window sums for those are slid from the previous pixel's when it used
+/// the same shift, so a pixel usually costs two window columns. Kept only when it
+/// stays within 0.75 px of the nearest whole pixel and the window has gradient;
+/// otherwise the aggregated-cost estimate stays, as it does where the window (and the
+/// right-view pixels it reads) would leave the image.
+fn refine(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
+    const R: usize = REFINE_RADIUS;
+    let (w, h) = (left.width(), left.height());
+    if h < 2 * R + 1 || w < 2 * R + 4 {
+        return;
+    }
+    disparity
+        .as_mut_slice()
+        .par_chunks_mut(w)
+        .enumerate()
+        .filter(|(y, _)| *y >= R && *y + R < h)
+        .for_each(|(y, row)| {
+            let rows = y - R..y + R + 1;
+            // Column sums entered lately, by column: a column that leaves the window
+            // entered it 2R + 1 pixels earlier, usually at the same shift.
+            const RING: usize = 2 * R + 2;
+            let mut ring: [(usize, usize, RefineSums); RING] =
+                [(usize::MAX, 0, RefineSums::default()); RING];
+            let mut column = |x: usize, b: usize| {
+                let slot = &mut ring[x % RING];
+                if slot.0 == x && slot.1 == b {
+                    return slot.2;
+                }
+                let s = RefineSums::column(left, right, rows.clone(), x, x - b);
+                *slot = (x, b, s);
+                s
+            };
+            // Window sums by shift: this pixel's, and the previous pixel's (column x − 1),
+            // which slide to this one by two columns.
+            let mut prev: Vec<(usize, RefineSums)> = Vec::new();
+            let mut here: Vec<(usize, RefineSums)> = Vec::new();
+            let mut prev_x = usize::MAX;
+            for (x, v) in row.iter_mut().enumerate().take(w - R).skip(R) {
+                if !v.is_finite() {
+                    continue;
+                }
+                if prev_x.wrapping_add(1) != x {
+                    prev.clear();
+                }
+                here.clear();
+                let whole = v.round();
+                let mut d = *v;
+                let mut ok = true;
+                for _ in 0..REFINE_STEPS {
+                    let b = d.ceil();
+                    // Right columns x − R − b − 1 ..= x + R − b + 2 must exist.
+                    if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
+                        ok = false;
+                        break;
+                    }
+                    let b = b as usize;
+                    let sums = if let Some(&(_, s)) = here.iter().find(|(k, _)| *k == b) {
+                        s
+                    } else {
+                        let s = match prev.iter().find(|(k, _)| *k == b) {
+                            Some(&(_, mut s)) => {
+                                s.add(column(x + R, b), 1);
+                                s.add(column(x - R - 1, b), -1);
+                                s
+                            }
+                            None => {
+                                let mut s = RefineSums::default();
+                                for xx in x - R..=x + R {
+                                    s.add(column(xx, b), 1);
+                                }
+                                s
+                            }
+                        };
+                        here.push((b, s));
+                        s
+                    };
+                    let (num, den) = sums.at(b as f32 - d);
+                    if den <= 1.0 {
+                        ok = false;
+                        break;
+                    }
+                    d -= num / den;
+                    if (d - whole).abs() > 0.75 {
+                        ok = false;
+                        break;
+                    }
+                }
+                if ok {
+                    *v = d;
+                }
+                std::mem::swap(&mut prev, &mut here);
+                prev_x = x;
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stereo::block_match::{BlockMatchParams, BlockMatcher};
+    use crate::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+
+    /// Random texture, smoothed a little so sub-pixel shifts interpolate.
+    fn texture(w: usize, h: usize, seed: u64) -> Grid<f32> {
+        let mut state = seed;
+        let noise = Grid::from_fn(w, h, |_, _| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        });
+        Grid::from_fn(w, h, |x, y| {
+            let mut acc = 0.0;
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                acc += noise.get((x + dx).min(w - 1), (y + dy).min(h - 1));
+            }
+            acc / 4.0
+        })
+    }
+
+    /// A pair whose disparity is `d(x, y)` everywhere: the right view samples the left
+    /// scene at `x + d` (linear interpolation).
+    fn shifted_pair(w: usize, h: usize, d: impl Fn(usize, usize) -> f32) -> (Grid<u8>, Grid<u8>) {
+        let scene = texture(w + 200, h, 7);
+        let sample = |x: f32, y: usize| {
+            let x0 = x.floor().max(0.0) as usize;
+            let t = x - x0 as f32;
+            let a = scene.get(x0.min(w + 199), y);
+            let b = scene.get((x0 + 1).min(w + 199), y);
+            ((a * (1.0 - t) + b * t) * 255.0).round() as u8
+        };
+        let left = Grid::from_fn(w, h, |x, y| sample(x as f32 + 100.0, y));
+        let right = Grid::from_fn(w, h, |x, y| sample(x as f32 + 100.0 + d(x, y), y));
+        (left, right)
+    }
+
+    fn matcher(paths: Paths, kernel: Kernel) -> SemiGlobalMatcher {
+        SemiGlobalMatcher::new(SgmParams {
+            paths,
+            ..SgmParams::default()
+        })
+        .unwrap()
+        .with_kernel(kernel)
+        .unwrap()
+    }
+
+    #[test]
+    fn a_constant_shift_is_found_exactly_by_every_variant() {
+        let (l, r) = shifted_pair(160, 60, |_, _| 23.0);
+        for paths in [Paths::Four, Paths::Eight] {
+            for kernel in [Kernel::Portable, Kernel::Avx2]
+                .into_iter()
+                .filter(|k| k.is_available())
+            {
+                let m = matcher(paths, kernel).compute(&l, &r).unwrap();
+                let valid: Vec<f32> = m
+                    .disparity
+                    .as_slice()
+                    .iter()
+                    .copied()
+                    .filter(|v| v.is_finite())
+                    .collect();
+                // Everything right of the invalid band (63 columns) is found.
+                assert!(
+                    valid.len() >= (160 - 63 - 4) * 56,
+                    "{paths:?} {kernel:?}: {}",
+                    valid.len()
+                );
+                // Whole pixels exactly; the sub-pixel fit on aggregated costs scatters
+                // around them (its RMS is the figure to improve).
+                let worst = valid.iter().map(|v| (v - 23.0).abs()).fold(0.0, f32::max);
+                let rms = (valid.iter().map(|v| (v - 23.0).powi(2)).sum::<f32>()
+                    / valid.len() as f32)
+                    .sqrt();
+                assert!(
+                    worst < 0.5 && rms < 0.12,
+                    "{paths:?} {kernel:?}: worst {worst}, RMS {rms}"
+                );
+                // Nothing in the invalid band.
+                assert!((0..60).all(|y| (0..63).all(|x| m.disparity.get(x, y).is_nan())));
+            }
+        }
+    }
+
+    #[test]
+    fn a_slanted_surface_has_sub_pixel_disparity() {
+        // The right view's column xr shows the scene 20 + 0.05·xr px further on, so left
+        // column x has disparity D = (20 + 0.05·x) / 1.05: sub-pixel steps everywhere.
+        let (l, r) = shifted_pair(200, 60, |x, _| 20.0 + x as f32 * 0.05);
+        let truth = |x: usize| (20.0 + x as f32 * 0.05) / 1.05;
+        let m = matcher(Paths::Eight, Kernel::best())
+            .compute(&l, &r)
+            .unwrap();
+        let mut errors = Vec::new();
+        for y in 5..55 {
+            for x in 70..195 {
+                let v = m.disparity.get(x, y);
+                if v.is_finite() {
+                    errors.push((v - truth(x)).abs());
+                }
+            }
+        }
+        assert!(errors.len() > 50 * 110, "{} valid", errors.len());
+        let rms = (errors.iter().map(|e| e * e).sum::<f32>() / errors.len() as f32).sqrt();
+        let mut sorted = errors.clone();
+        sorted.sort_by(f32::total_cmp);
+        let q = |f: f64| sorted[((sorted.len() - 1) as f64 * f) as usize];
+        // A stretched view resampled by linear interpolation of noise-like texture: the
+        // views differ beyond a shift, so no exact answer; whole pixels would give 0.29.
+        assert!(
+            rms < 0.15 && q(0.5) < 0.07,
+            "RMS {rms} px, median {} p90 {} p99 {} max {}",
+            q(0.5),
+            q(0.9),
+            q(0.99),
+            q(1.0)
+        );
+        assert!(errors.iter().all(|&e| e < 1.0), "a pixel over 1 px off");
+    }
+
+    #[test]
+    fn through_the_skin_it_finds_at_least_what_block_matching_finds() {
+        let rig = StereoRig::sensor();
+        let plane = Plane {
+            z_mm: 120.0,
+            tilt_x: 0.3,
+            tilt_y: 0.1,
+        };
+        let (l, r) = render_pair(&rig, &plane, &Membrane::sensor(), 1);
+        let truth = rig.true_disparity(&plane);
+        let score = |d: &Grid<f32>| {
+            let (mut good, mut bad) = (0usize, 0usize);
+            for (v, t) in d.as_slice().iter().zip(truth.as_slice()) {
+                if v.is_finite() && t.is_finite() {
+                    if (v - t).abs() > 1.0 {
+                        bad += 1
+                    } else {
+                        good += 1
+                    }
+                }
+            }
+            (good, bad)
+        };
+        let sgm = matcher(Paths::Eight, Kernel::best())
+            .compute(&l, &r)
+            .unwrap();
+        let bm = BlockMatcher::new(BlockMatchParams::default())
+            .unwrap()
+            .compute(&l, &r)
+            .unwrap();
+        let (sg, sb) = score(&sgm.disparity);
+        let (bg, bb) = score(&bm.disparity);
+        assert!(sg >= bg, "SGM {sg} good against BM {bg}");
+        assert!(sb * 1000 <= sg, "SGM: {sb} bad of {}", sg + sb);
+        let _ = bb;
+    }
+
+    #[test]
+    fn odd_sizes_and_parameters_are_handled() {
+        let m = SemiGlobalMatcher::new(SgmParams::default()).unwrap();
+        for (w, h) in [(0, 0), (1, 1), (70, 7), (64, 100), (71, 6)] {
+            let g = Grid::filled(w, h, 9u8);
+            let d = m.compute(&g, &g).unwrap();
+            assert_eq!(
+                d.stats.valid
+                    + d.stats.border
+                    + d.stats.not_unique
+                    + d.stats.range_edge
+                    + d.stats.left_right
+                    + d.stats.speckle,
+                w * h
+            );
+        }
+        // A flat grey pair: nothing is unique, nothing is claimed.
+        let g = Grid::filled(200, 40, 128u8);
+        assert_eq!(m.compute(&g, &g).unwrap().stats.valid, 0);
+        assert!(matches!(
+            m.compute(&Grid::filled(10, 10, 0u8), &Grid::filled(11, 10, 0u8)),
+            Err(MatchError::SizeMismatch { .. })
+        ));
+        for bad in [
+            SgmParams {
+                num_disparities: 0,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                num_disparities: 40,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                p1: 10,
+                p2: 10,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                uniqueness_ratio: 100,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                speckle_range: f32::NAN,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                min_disparity: 4090,
+                ..SgmParams::default()
+            },
+        ] {
+            assert!(matches!(
+                SemiGlobalMatcher::new(bad),
+                Err(MatchError::InvalidParam { .. })
+            ));
+        }
+        let huge = SemiGlobalMatcher::new(SgmParams {
+            num_disparities: 1024,
+            ..SgmParams::default()
+        })
+        .unwrap();
+        let big = Grid::filled(8192, 100, 0u8);
+        assert!(matches!(
+            huge.compute(&big, &big),
+            Err(MatchError::TooLarge { .. })
+        ));
+    }
+}
