@@ -90,9 +90,9 @@ pub struct SgmParams {
     /// Sub-pixel fit on the aggregated costs.
     pub subpixel: SubpixelFit,
     /// Then refine each disparity on the images themselves: the least-squares shift
-    /// that lines up a 7×7 window of the left view with the right view (one Gauss–
-    /// Newton step from the nearest whole pixel). Aggregated census costs place the
-    /// minimum only to about 0.15 px.
+    /// that lines up a 9×9 window of the left view with the right view (two Gauss–
+    /// Newton steps from the aggregated-cost estimate). Aggregated census costs place
+    /// the minimum only to about 0.15 px.
     pub refine: bool,
 }
 
@@ -131,7 +131,7 @@ impl SgmParams {
                 "a multiple of 16, 16..=1024",
             );
         }
-        if self.min_disparity + n > 4096 {
+        if u64::from(self.min_disparity) + u64::from(n) > 4096 {
             return bad(
                 "min_disparity",
                 self.min_disparity.to_string(),
@@ -266,7 +266,13 @@ impl SemiGlobalMatcher {
             // The volumes are kept between frames (a fresh 100 MB per frame costs page
             // faults and TLB flushes); a matcher shared by several threads at once
             // takes fresh ones.
-            let mut kept = self.scratch.0.try_lock().ok();
+            let mut kept = match self.scratch.0.try_lock() {
+                Ok(v) => Some(v),
+                // A frame that panicked while holding them: the volumes are overwritten
+                // before they are read, so they are still good.
+                Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+                Err(std::sync::TryLockError::WouldBlock) => None,
+            };
             let mut fresh = Volumes::default();
             let v: &mut Volumes = kept.as_deref_mut().unwrap_or(&mut fresh);
             v.fit(cells);
@@ -546,7 +552,8 @@ fn start<const SET: bool>(cost: &[u8], out: &mut [u16], sum: &mut [u16]) -> u16 
 /// One step along a path: `L(d) = C(d) + min(L'(d), L'(d ± 1) + p1, min L' + p2) − min L'`
 /// with `L'` the previous pixel's values (`prev`, padded: `prev[d + 1]` is `L'(d)`,
 /// minimum `prev_min`). Writes `L` into `out`, adds it to `sum` (or writes it, `SET`),
-/// returns its minimum. Values stay below `CENSUS_BITS + p2`.
+/// returns its minimum. Values are at most `CENSUS_BITS + p2` (≤ 1072), so eight paths
+/// sum to at most 8576.
 #[inline(always)]
 fn step<const SET: bool>(
     cost: &[u8],
@@ -640,7 +647,8 @@ fn select(s: &Shape, p: &SgmParams, sum: &[u16], other: &[u16], out: &mut [f32])
             continue; // candidates off the right image: the invalid band
         }
         let best = cell.iter().copied().fold(u16::MAX, u16::min);
-        // Not unique: another candidate, not next to the best, within the ratio.
+        // Not unique: another candidate, not next to the best, within the ratio. A best
+        // cost of 0 tied elsewhere counts as not unique (OpenCV's strict test keeps it).
         let limit = (u32::from(best) * 100).saturating_sub(1) / (100 - p.uniqueness_ratio);
         let t = limit.min(u32::from(u16::MAX)) as u16;
         let (k, within) = locate(cell, &index, best, t);
@@ -1034,6 +1042,10 @@ mod tests {
             },
             SgmParams {
                 min_disparity: 4090,
+                ..SgmParams::default()
+            },
+            SgmParams {
+                min_disparity: u32::MAX - 10,
                 ..SgmParams::default()
             },
         ] {
