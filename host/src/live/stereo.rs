@@ -55,7 +55,9 @@ impl StereoStage {
         let ready_us = now_us();
         let left_end = pair.left.frame.stamp.exposure_end_us(self.stamp_refs[0]);
         let right_end = pair.right.frame.stamp.exposure_end_us(self.stamp_refs[1]);
-        let valid = frame.sorted_valid_depths();
+        // Unsorted: the median is found in linear time (a sort of 300k depths took
+        // a quarter of the stage's time).
+        let mut valid = frame.valid_depths();
         let config = self.pipeline.config();
         let warnings = warnings::of(
             &frame.stats,
@@ -73,7 +75,7 @@ impl StereoStage {
             exposure_end_us: left_end,
             fill: valid.len() as f64 / frame.depth_mm.as_slice().len().max(1) as f64,
             points: frame.cloud.len(),
-            median_depth_mm: valid.get(valid.len() / 2).copied(),
+            median_depth_mm: median(&mut valid),
             stage_ms: frame.timings,
             latency_ms: ready_us.map(|t| (t - left_end.max(right_end)) / 1000.0),
             frames_dropped,
@@ -83,6 +85,16 @@ impl StereoStage {
         self.frames += 1;
         Ok((frame, record))
     }
+}
+
+/// The upper median (the middle value of an odd count, the upper of the two middle ones
+/// of an even count: the sorted `v[len / 2]`), reordering `v`; `None` when empty.
+fn median(v: &mut [f32]) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    Some(*v.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
 #[cfg(test)]
@@ -109,6 +121,19 @@ mod tests {
 
     /// Live records carry the same warnings as `stereo`'s summary: none for the
     /// simulated board in range, some when the working range ends before the board.
+    /// The median found without sorting is the sorted slice's middle (upper) value.
+    #[test]
+    fn median_is_the_sorted_middle() {
+        assert_eq!(median(&mut []), None);
+        let mut rng = crate::rng::Rng::new(5);
+        for n in [1usize, 2, 3, 10, 101, 1000] {
+            let v: Vec<f32> = (0..n).map(|_| (rng.uniform() * 500.0) as f32).collect();
+            let mut sorted = v.clone();
+            sorted.sort_by(f32::total_cmp);
+            assert_eq!(median(&mut v.clone()), Some(sorted[n / 2]), "n = {n}");
+        }
+    }
+
     #[test]
     fn records_warn_when_the_working_range_cuts_the_scene() {
         let rig = SimStereo::new(320, 240);

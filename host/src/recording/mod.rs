@@ -8,6 +8,7 @@
 //! - [`writer`]: the [`Recorder`](writer::Recorder): a bounded queue and a writer
 //!   thread, so a slow disk or viewer never blocks capture (what it drops is counted).
 //! - [`metadata`]: the header records (what ran, which sensor).
+//! - [`decoded`]: messages decoded by topic (depth, points in mm; JSON; log lines).
 //! - [`reader`]: reads a recording back, streaming, and recovers what a killed writer
 //!   left (everything up to the last complete chunk).
 //!
@@ -16,6 +17,7 @@
 //! which the `stereotac` metadata record keeps (`clock_origin_unix_ns`). The JSON
 //! messages carry the host µs themselves, so nothing is lost to the conversion.
 
+pub mod decoded;
 pub mod messages;
 pub mod metadata;
 pub mod reader;

@@ -398,6 +398,95 @@ pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
     Ok(header)
 }
 
+/// What [`stream`] hands on.
+#[derive(Debug)]
+enum Fed {
+    Content(Box<Content>),
+    End(Option<String>),
+    Failed(RecordingError),
+}
+
+/// [`frames`] as an iterator (pull instead of push), for callers that take one item at a
+/// time (the Python package): a thread reads ahead by at most `ahead` items; dropping
+/// the iterator stops it.
+pub struct ContentStream {
+    rx: std::sync::mpsc::Receiver<Fed>,
+    truncated: Option<String>,
+    done: bool,
+}
+
+impl std::fmt::Debug for ContentStream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ContentStream")
+            .field("done", &self.done)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Streams `path`'s contents in file order (see [`frames`]); opening errors come as the
+/// first item.
+pub fn stream(path: &Path, ahead: usize) -> ContentStream {
+    let (tx, rx) = std::sync::mpsc::sync_channel(ahead.max(1));
+    let path = path.to_path_buf();
+    std::thread::spawn(move || {
+        let read = frames::<RecordingError>(&path, |content, _| {
+            Ok(match tx.send(Fed::Content(Box::new(content))) {
+                Ok(()) => ControlFlow::Continue(()),
+                Err(_) => ControlFlow::Break(()),
+            })
+        });
+        // The receiver may be gone: nothing left to tell.
+        let _ = tx.send(match read {
+            Ok((_, truncated)) => Fed::End(truncated),
+            Err(e) => Fed::Failed(e),
+        });
+    });
+    ContentStream {
+        rx,
+        truncated: None,
+        done: false,
+    }
+}
+
+impl ContentStream {
+    /// Why the file ended early, once the stream has ended (see
+    /// [`RecordingReader::truncated`]).
+    pub fn truncated(&self) -> Option<&str> {
+        self.truncated.as_deref()
+    }
+}
+
+impl Iterator for ContentStream {
+    type Item = Result<Content, RecordingError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        match self.rx.recv() {
+            Ok(Fed::Content(c)) => Some(Ok(*c)),
+            Ok(Fed::Failed(e)) => {
+                self.done = true;
+                Some(Err(e))
+            }
+            Ok(Fed::End(truncated)) => {
+                self.done = true;
+                self.truncated = truncated;
+                None
+            }
+            // The reading thread panicked: say so rather than end quietly.
+            Err(_) => {
+                self.done = true;
+                Some(Err(RecordingError::Format {
+                    path: PathBuf::new(),
+                    message: "the reading thread stopped unexpectedly (a bug: please report it)"
+                        .into(),
+                }))
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeMap;
@@ -437,5 +526,63 @@ mod tests {
         assert!(e.contains("without their images"), "{e}");
         assert_eq!(frames_seen, 0);
         let _ = std::fs::remove_file(&path);
+    }
+
+    /// A recording of `n` JSON messages on the LED phase topic, log times 0..n.
+    fn json_recording(name: &str, n: u64) -> PathBuf {
+        let path =
+            std::env::temp_dir().join(format!("stereotac-{name}-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new().create(file).unwrap();
+        let channel = w
+            .add_channel(0, topics::LED_PHASE, "json", &BTreeMap::new())
+            .unwrap();
+        for i in 0..n {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, format!("{{\"i\": {i}}}").as_bytes())
+                .unwrap();
+        }
+        w.finish().unwrap();
+        path
+    }
+
+    /// The stream gives what `frames` gives, in order; a missing file is its first item;
+    /// a file cut short ends the stream and says so.
+    #[test]
+    fn stream_pulls_in_file_order() {
+        let path = json_recording("stream", 50);
+        let times: Vec<u64> = stream(&path, 4)
+            .map(|c| match c.unwrap() {
+                Content::Other(Record::Message { log_time_ns, .. }) => log_time_ns,
+                other => panic!("unexpected {other:?}"),
+            })
+            .collect();
+        assert_eq!(times, (0..50).collect::<Vec<_>>());
+        // Dropped after two items: the reading thread stops (the test would hang on a
+        // full channel otherwise only if the thread blocked forever; it must not).
+        let mut s = stream(&path, 1);
+        assert!(s.next().unwrap().is_ok());
+        drop(s);
+        let bytes = std::fs::read(&path).unwrap();
+        let cut = path.with_extension("cut.mcap");
+        std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+        let mut s = stream(&cut, 4);
+        for item in s.by_ref() {
+            item.unwrap();
+        }
+        assert!(s.truncated().is_some(), "a cut file is reported");
+        let e = stream(&path.with_extension("missing.mcap"), 4)
+            .next()
+            .unwrap()
+            .unwrap_err();
+        assert!(matches!(e, RecordingError::Io { .. }), "{e}");
+        for p in [path, cut] {
+            let _ = std::fs::remove_file(p);
+        }
     }
 }

@@ -123,17 +123,30 @@ pub struct StereoFrame {
 }
 
 impl StereoFrame {
-    /// The valid depths (mm), sorted: for medians, percentiles and fill rates.
-    pub fn sorted_valid_depths(&self) -> Vec<f32> {
-        let mut v: Vec<f32> = self
-            .depth_mm
+    /// The valid depths (mm), in pixel order: for counts and fill rates (a median needs
+    /// only `select_nth_unstable_by`, not a sort).
+    pub fn valid_depths(&self) -> Vec<f32> {
+        self.depth_mm
             .as_slice()
             .iter()
             .copied()
             .filter(|v| v.is_finite())
-            .collect();
+            .collect()
+    }
+
+    /// The valid depths (mm), sorted: for percentiles.
+    pub fn sorted_valid_depths(&self) -> Vec<f32> {
+        let mut v = self.valid_depths();
         v.sort_by(f32::total_cmp);
         v
+    }
+
+    /// What this result should make its user look twice at (see [`super::warnings`]),
+    /// for the `config` it was processed with.
+    pub fn warnings(&self, config: &StereoConfig) -> Vec<String> {
+        let pixels = self.disparity.width() * self.disparity.height();
+        let depths = self.valid_depths();
+        super::warnings::of(&self.stats, &depths, pixels, config.near_mm, config.far_mm)
     }
 }
 

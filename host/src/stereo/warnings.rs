@@ -14,8 +14,8 @@ pub const MAX_RANGE_EDGE_FRACTION: f64 = 0.10;
 /// cuts the scene.
 pub const MAX_AT_LIMIT_FRACTION: f64 = 0.20;
 
-/// The warnings of one result: `stats` of the matcher, `depths` the valid depths sorted
-/// (mm), over `pixels` pixels, searched between `near_mm` and `far_mm`.
+/// The warnings of one result: `stats` of the matcher, `depths` the valid depths in any
+/// order (mm), over `pixels` pixels, searched between `near_mm` and `far_mm`.
 pub fn of(
     stats: &MatchStats,
     depths: &[f32],

@@ -106,6 +106,16 @@ pub enum ReconstructError {
         /// Pixel row.
         y: usize,
     },
+    /// Most of the frame shows no usable LED light: not a lit dx/dy pair, so "no contact"
+    /// would mean nothing (see [`Reconstruction::require_lit`]).
+    #[error(
+        "{percent:.0}% of the frame shows no usable LED light (black, white, overexposed, \
+         or taken with the LEDs off): not a lit dx/dy pair"
+    )]
+    Unlit {
+        /// Share of the frame without usable LED light (%).
+        percent: f32,
+    },
     /// The model's stored ambient light does not cover its own frame size.
     #[error(
         "the model's ambient estimate ({blocks:?} blocks) does not cover its {width}x{height} \
@@ -166,7 +176,10 @@ impl ReconstructError {
     pub fn refuses_this_pair_only(&self) -> bool {
         matches!(
             self,
-            Self::DepthBeyondSkin { .. } | Self::NonFiniteDepth { .. } | Self::FramePair(_)
+            Self::DepthBeyondSkin { .. }
+                | Self::NonFiniteDepth { .. }
+                | Self::FramePair(_)
+                | Self::Unlit { .. }
         )
     }
 }
@@ -181,6 +194,17 @@ impl Reconstruction {
     /// or unlit frames): the result says nothing about contact.
     pub fn unlit(&self) -> bool {
         self.unlit_fraction > 1.0 - phase_check::MIN_LIT_FRACTION
+    }
+
+    /// The reconstruction, or [`ReconstructError::Unlit`] when it says nothing about
+    /// contact ([`Self::unlit`]): for callers that hand one result on (files, Python).
+    pub fn require_lit(self) -> Result<Self, ReconstructError> {
+        if self.unlit() {
+            return Err(ReconstructError::Unlit {
+                percent: self.unlit_fraction * 100.0,
+            });
+        }
+        Ok(self)
     }
 }
 

@@ -309,6 +309,19 @@ pub struct Calibration {
     pub report: CalibrationReport,
 }
 
+impl Calibration {
+    /// The report as JSON: the presses used, those set aside with their reasons, the
+    /// report and the model's fit (what `calibrate --report` writes, what Python gets).
+    pub fn report_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "presses": self.presses,
+            "rejected": self.rejected,
+            "report": self.report,
+            "fit": self.model.fit,
+        })
+    }
+}
+
 /// Deepest plausible press, as a fraction of the ball's radius.
 const MAX_DEPTH_OF_RADIUS: f64 = 0.6;
 

@@ -206,13 +206,7 @@ pub fn run(a: Args) -> Result<()> {
         dir.keep();
     }
     if let Some(path) = &a.report {
-        let json = serde_json::json!({
-            "presses": cal.presses,
-            "rejected": cal.rejected,
-            "report": cal.report,
-            "fit": cal.model.fit,
-        });
-        std::fs::write(path, serde_json::to_vec_pretty(&json)?)
+        std::fs::write(path, serde_json::to_vec_pretty(&cal.report_json())?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
     cal.model.save(&a.out)?;

@@ -94,14 +94,8 @@ pub fn run(a: Args) -> Result<()> {
             dy: &dy,
             dark: dark.as_ref(),
         })
+        .and_then(|r| r.require_lit())
         .with_context(|| format!("{} / {}: nothing written", a.dx.display(), a.dy.display()))?;
-    anyhow::ensure!(
-        !r.unlit(),
-        "{} / {}: {:.0}% of the frame shows no usable LED light (black, white, overexposed, or taken with the LEDs off): not a lit dx/dy pair, nothing written",
-        a.dx.display(),
-        a.dy.display(),
-        r.unlit_fraction * 100.0
-    );
     // `auto` is the tactile default (percentiles of a mostly flat map would show nothing).
     let range = a.colour_range.filter(|c| *c != RangeChoice::AUTO);
     let summary = output::write_all(out.path(), &r, px_per_mm, range)?;

@@ -1,0 +1,165 @@
+"""Type stubs of the native module (the Rust layer)."""
+
+import os
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+_Path = Union[str, "os.PathLike[str]"]
+_Rgb = npt.NDArray[np.uint8]  # (height, width, 3)
+_Frames = Union[Tuple[_Rgb, _Rgb], Tuple[_Rgb, _Rgb, _Rgb]]  # (dx, dy) or (dx, dy, dark)
+
+class TactileResult:
+    """The depth of one dx/dy pair and the numbers about it."""
+
+    depth: npt.NDArray[np.float32]
+    """Depth (mm, height × width), positive where pressed in, 0 off the imprint."""
+    contact_mask: npt.NDArray[np.bool_]
+    """Touched pixels (height × width)."""
+    contact: bool
+    area_mm2: float
+    centroid_mm: Optional[Tuple[float, float]]
+    max_depth_mm: float
+    max_depth_at_px: Tuple[int, int]
+    volume_mm3: float
+    regions: List[Tuple[int, int, int, int]]
+    """Regions integrated: (x, y, width, height) in px."""
+    ambient: str
+    sanitized_slopes: int
+    @property
+    def timings(self) -> Dict[str, float]:
+        """Milliseconds per stage: detect_ms, colour_ms, model_ms, solve_ms, total_ms."""
+    def summary_json(self) -> str:
+        """The summary as JSON (what `stereotac reconstruct --json` prints)."""
+
+class Reconstructor:
+    """A model with its reference frames prepared, for a stream of pairs."""
+
+    def reconstruct(
+        self, dx: _Rgb, dy: _Rgb, dark: Optional[_Rgb] = None
+    ) -> TactileResult: ...
+
+class TactileModel:
+    """A tactile model: colour to slope at the size and scale it was calibrated at."""
+
+    width: int
+    height: int
+    px_per_mm: float
+    skin_thickness_mm: float
+    @staticmethod
+    def load(path: _Path) -> "TactileModel": ...
+    def save(self, path: _Path) -> None: ...
+    def reconstruct(
+        self,
+        dx: _Rgb,
+        dy: _Rgb,
+        ref: Optional[_Frames] = None,
+        dark: Optional[_Rgb] = None,
+        kind: str = "lut",
+        solver: str = "dct",
+    ) -> TactileResult:
+        """Depth of one pair; kind "lut" or "mlp", solver "dct" (Neumann) or "dst"."""
+    def reconstructor(
+        self, ref: Optional[_Frames] = None, kind: str = "lut", solver: str = "dct"
+    ) -> Reconstructor: ...
+
+def calibrate(
+    presses: Sequence[_Frames],
+    ball_diameter_mm: float,
+    px_per_mm: float = 15.0,
+    ref: Optional[_Frames] = None,
+    skin_thickness_mm: float = 3.0,
+    min_presses: int = 5,
+) -> Tuple[TactileModel, Dict[str, Any]]:
+    """A model from ball presses, and the calibration report."""
+
+def load_rgb(path: _Path) -> npt.NDArray[np.uint8]:
+    """An 8-bit image file as RGB (height, width, 3), read as the CLI reads it."""
+
+def load_grey(path: _Path) -> npt.NDArray[np.uint8]:
+    """An 8-bit image file as grey (height, width), converted as the CLI converts it."""
+
+class StereoResult:
+    """The depth of one stereo pair (rectified views)."""
+
+    disparity: npt.NDArray[np.float32]
+    depth: npt.NDArray[np.float32]
+    points: npt.NDArray[np.float32]
+    """N × 3, mm, rectified left camera frame (X right, Y down, Z forward)."""
+    colors: npt.NDArray[np.uint8]
+    """N × 3: each point's grey value in the rectified left view."""
+    pixels: npt.NDArray[np.uint32]
+    left_rect: npt.NDArray[np.uint8]
+    right_rect: npt.NDArray[np.uint8]
+    fill_rate: float
+    warnings: List[str]
+    @property
+    def timings(self) -> Dict[str, float]: ...
+
+class StereoRig:
+    """A calibrated camera pair with its rectification maps and matcher."""
+
+    focal_px: float
+    baseline_mm: float
+    disparity_range_px: Tuple[int, int]
+    @staticmethod
+    def load(
+        source: Union[_Path, Tuple[_Path, _Path]],
+        units: str = "mm",
+        matcher: str = "bm",
+        near_mm: Optional[float] = None,
+        far_mm: Optional[float] = None,
+        scale: Optional[float] = None,
+        block_size: Optional[int] = None,
+        spatial: bool = True,
+        fill_holes: int = 0,
+        outliers: bool = False,
+    ) -> "StereoRig": ...
+    def compute(self, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> StereoResult: ...
+
+class Frame:
+    """A recorded camera frame with its LED phase label."""
+
+    camera: int
+    sequence: int
+    timestamp_us: float
+    stamp_ref: str
+    exposure_us: float
+    label: str
+    """The matcher's verdict: phase, straddles, event_missing, no_trigger, unresolved."""
+    phase: Optional[str]
+    """dark, all, dx or dy (label "phase")."""
+    index: Optional[int]
+    trigger: Optional[int]
+    image: npt.NDArray[np.uint8]
+    """(height, width, 3), RGB."""
+
+class Message:
+    """A recorded message, decoded: depth (float32 H×W, mm) and points (float32 N×3,
+    mm) as arrays, JSON messages as dicts, log lines as {"level", "message"}, else bytes."""
+
+    topic: str
+    log_time_ns: int
+    value: Any
+
+class RecordingItems:
+    def __iter__(self) -> "RecordingItems": ...
+    def __next__(self) -> Union[Frame, Message]: ...
+
+class Recording:
+    """An MCAP recording (`stereotac run`, `record`, `process`, the demo)."""
+
+    def __init__(self, path: _Path) -> None: ...
+    @property
+    def metadata(self) -> Dict[str, Dict[str, str]]: ...
+    @property
+    def attachments(self) -> Dict[str, bytes]: ...
+    def model(self) -> Optional[TactileModel]:
+        """The tactile model the recording holds, or None."""
+    def __iter__(self) -> RecordingItems:
+        """Every frame and message in file order."""
+    def frames(self) -> RecordingItems:
+        """The camera frames only."""

@@ -1,0 +1,147 @@
+"""Tactile depth from Python against the CLI, and what bad input gives."""
+
+import json
+
+import numpy as np
+import pytest
+
+import stereotac
+from conftest import run
+
+
+def contact_pair(scene_pairs):
+    """A pair of the demo scene with something pressed in (the skin at rest comes first,
+    then the objects, then the skin at rest again)."""
+    return scene_pairs[1]
+
+
+def frames(pair):
+    _, dx, dy, dark = pair
+    return (
+        stereotac.load_rgb(dx),
+        stereotac.load_rgb(dy),
+        None if dark is None else stereotac.load_rgb(dark),
+    )
+
+
+@pytest.mark.parametrize("which", ["rest", "contact"])
+def test_reconstruct_equals_cli(cli, model_path, scene_pairs, tmp_path, which):
+    pair = scene_pairs[0] if which == "rest" else contact_pair(scene_pairs)
+    _, dx, dy, dark = pair
+    args = ["reconstruct", "--model", model_path, "--dx", dx, "--dy", dy, "--out-dir", tmp_path / "o", "--json"]
+    if dark is not None:
+        args += ["--dark", dark]
+    summary = json.loads(run(cli, *args))
+    expected = np.load(tmp_path / "o" / "depth.npy")
+
+    model = stereotac.TactileModel.load(model_path)
+    dx_img, dy_img, dark_img = frames(pair)
+    r = model.reconstruct(dx_img, dy_img, dark=dark_img)
+
+    assert r.depth.dtype == np.float32 and r.depth.shape == (model.height, model.width)
+    np.testing.assert_array_equal(r.depth, expected)
+    assert r.contact == (not summary["no_contact"])
+    assert np.float32(r.max_depth_mm) == np.float32(summary["max_depth_mm"])  # f32 in JSON
+    assert r.area_mm2 == pytest.approx(summary["contact_area_mm2"])
+    assert r.volume_mm3 == pytest.approx(summary["volume_mm3"])
+    assert r.contact_mask.dtype == np.bool_ and r.contact_mask.shape == r.depth.shape
+    assert set(r.timings) == {"detect_ms", "colour_ms", "model_ms", "solve_ms", "total_ms"}
+    if which == "contact":
+        assert r.contact and r.max_depth_mm > 0.2 and r.centroid_mm is not None
+        assert r.regions, "a contact has regions"
+    else:
+        assert not r.contact and r.centroid_mm is None
+
+
+def test_reconstructor_and_model_agree(model_path, scene_pairs):
+    model = stereotac.TactileModel.load(model_path)
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    rec = model.reconstructor()
+    a = rec.reconstruct(dx, dy, dark=dark)
+    b = rec.reconstruct(dx, dy, dark=dark)  # buffers reused: the same result
+    c = model.reconstruct(dx, dy, dark=dark)
+    np.testing.assert_array_equal(a.depth, b.depth)
+    np.testing.assert_array_equal(a.depth, c.depth)
+    # The references given as frames of the skin at rest: still a contact, same place.
+    rx, ry, rd = frames(scene_pairs[0])
+    ref = (rx, ry) if rd is None else (rx, ry, rd)
+    d = model.reconstruct(dx, dy, ref=ref, dark=dark)
+    assert d.contact
+    assert abs(d.max_depth_at_px[0] - a.max_depth_at_px[0]) < 20
+    assert abs(d.max_depth_at_px[1] - a.max_depth_at_px[1]) < 20
+
+
+def test_any_memory_layout_is_read_in_order(model_path, scene_pairs):
+    model = stereotac.TactileModel.load(model_path)
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    want = model.reconstruct(dx, dy, dark=dark).depth
+    # Fortran order, and every other pixel of a frame twice the size: other strides.
+    fortran = [None if a is None else np.asfortranarray(a) for a in (dx, dy, dark)]
+    big = [None if a is None else np.repeat(np.repeat(a, 2, axis=0), 2, axis=1) for a in (dx, dy, dark)]
+    strided = [None if a is None else a[::2, ::2] for a in big]
+    assert not strided[0].flags["C_CONTIGUOUS"]
+    for dx2, dy2, dark2 in (fortran, strided):
+        np.testing.assert_array_equal(model.reconstruct(dx2, dy2, dark=dark2).depth, want)
+
+
+def test_bad_inputs_raise_clearly(model_path, scene_pairs):
+    model = stereotac.TactileModel.load(model_path)
+    dx, dy, _ = frames(scene_pairs[0])
+    cases = [
+        (dx.astype(np.float32), dy, "uint8"),
+        (dx[:, :, 0], dy, "(height, width, 3)"),
+        (np.dstack([dx, dx[:, :, :1]]), dy, "(height, width, 3)"),
+        (dx[:240, :320], dy[:240, :320], "calibrated at"),
+        (dx, dy[:240], "same size"),
+        (np.zeros_like(dx), np.zeros_like(dy), "no usable LED light"),
+        ("dx.png", dy, "uint8"),
+        (np.zeros((0, 0, 3), np.uint8), dy, "1 to"),
+    ]
+    for a, b, words in cases:
+        with pytest.raises(stereotac.BadInputError, match=None) as e:
+            model.reconstruct(a, b)
+        assert words in str(e.value), f"{words!r} not in {e.value}"
+        assert isinstance(e.value, ValueError) and isinstance(e.value, stereotac.StereotacError)
+    with pytest.raises(stereotac.BadInputError, match="kind"):
+        model.reconstruct(dx, dy, kind="cnn")
+    with pytest.raises(stereotac.BadInputError, match="solver"):
+        model.reconstruct(dx, dy, solver="fft")
+    with pytest.raises(stereotac.BadInputError, match="ref"):
+        model.reconstruct(dx, dy, ref=(dx,))
+
+
+def test_model_files(model_path, tmp_path, scene_pairs):
+    with pytest.raises(stereotac.IoError) as e:
+        stereotac.TactileModel.load(tmp_path / "missing.json")
+    assert isinstance(e.value, OSError) and "missing.json" in str(e.value)
+    junk = tmp_path / "junk.json"
+    junk.write_text("{\"not\": \"a model\"}")
+    with pytest.raises(stereotac.BadInputError, match="junk.json"):
+        stereotac.TactileModel.load(junk)
+    model = stereotac.TactileModel.load(model_path)
+    copy = tmp_path / "copy.json"
+    model.save(copy)
+    again = stereotac.TactileModel.load(copy)
+    assert (again.width, again.height, again.px_per_mm) == (model.width, model.height, model.px_per_mm)
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    np.testing.assert_array_equal(
+        again.reconstruct(dx, dy, dark=dark).depth, model.reconstruct(dx, dy, dark=dark).depth
+    )
+
+
+def test_calibrate_equals_cli(cli, press_pairs, scene_pairs, tmp_path):
+    folder, pairs = press_pairs
+    run(cli, "calibrate", folder, "--ball-diameter-mm", "6", "--out", tmp_path / "cli.json")
+    cli_model = stereotac.TactileModel.load(tmp_path / "cli.json")
+    presses = [tuple(a for a in frames(p) if a is not None) for p in pairs]
+    model, report = stereotac.calibrate(presses, 6.0)
+    assert isinstance(report, dict) and {"presses", "rejected", "report", "fit"} <= set(report)
+    assert len(report["presses"]) + len(report["rejected"]) == len(pairs)
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    np.testing.assert_array_equal(
+        model.reconstruct(dx, dy, dark=dark).depth, cli_model.reconstruct(dx, dy, dark=dark).depth
+    )
+    with pytest.raises(stereotac.BadInputError, match="ball diameter"):
+        stereotac.calibrate(presses, -1.0)
+    with pytest.raises(stereotac.BadInputError, match="no calibration pairs"):
+        stereotac.calibrate([], 6.0)
