@@ -7,7 +7,8 @@ use stereotac_protocol::{
     Config, Mode, Request, Response, Rgb, Settings, Status, StripSettings, Timing,
 };
 
-use crate::device::SensorError;
+use crate::device::{Sensor, SensorError, SensorEvent, firmware_version, serial_number};
+use crate::matcher::phase_str;
 
 /// A mode as the CLI's `--mode` names it.
 pub fn mode(mode: Mode) -> &'static str {
@@ -18,6 +19,19 @@ pub fn mode(mode: Mode) -> &'static str {
         Mode::Gradient => "gradient",
         Mode::Interleaved => "interleaved",
     }
+}
+
+/// The mode `name` names (as [`mode`] writes it), if any.
+pub fn mode_named(name: &str) -> Option<Mode> {
+    [
+        Mode::Off,
+        Mode::Vision,
+        Mode::ContactShape,
+        Mode::Gradient,
+        Mode::Interleaved,
+    ]
+    .into_iter()
+    .find(|m| mode(*m).eq_ignore_ascii_case(name.trim()))
 }
 
 /// `#rrggbb`.
@@ -132,6 +146,57 @@ fn on_off(on: bool) -> &'static str {
     if on { "on" } else { "off" }
 }
 
+/// One sensor's identity, configuration, counters and clock sync as JSON (what
+/// `stereotac info --json` prints); asks the sensor for its status and configuration.
+pub fn sensor_json(sensor: &mut Sensor) -> Result<Value, SensorError> {
+    let info = *sensor.info();
+    let status = sensor.status()?;
+    let config = sensor.config()?;
+    let fit = sensor.clock_fit().copied();
+    Ok(json!({
+        "serial": serial_number(&info.board_id),
+        "protocol": info.protocol_version,
+        "firmware": firmware_version(&info),
+        "leds_per_strip": info.leds_per_strip,
+        "max_leds_per_strip": info.max_leds_per_strip,
+        "capabilities": info.capabilities.0,
+        "status": status_json(&status),
+        "config": config_json(&config),
+        "clock": fit.map(|f| json!({
+            "drift_ppm": f.drift_ppm(), "uncertainty_us": f.uncertainty_us,
+            "min_rtt_us": f.min_rtt_us, "pings": f.samples })),
+        "host_counters": sensor.counters(),
+    }))
+}
+
+/// One sensor event as JSON (what `stereotac stream --json` prints), `lost_events` the
+/// link's count of lost events so far; `None` for the probe's readings.
+pub fn event_json(event: &SensorEvent, lost_events: u64) -> Option<Value> {
+    use stereotac_protocol::TriggerOutcome;
+    match event {
+        SensorEvent::Phase(p) => {
+            let (trigger, dev) = match p.event.trigger {
+                TriggerOutcome::Fired { index, edge_us } => (Some(index), Some(edge_us)),
+                TriggerOutcome::Overrun { .. } => (None, None),
+            };
+            Some(json!({"event": "phase", "index": p.event.index,
+                "phase": phase_str(p.event.phase), "trigger": trigger,
+                "trigger_device_us": dev, "trigger_host_us": p.trigger.map(|t| t.1),
+                "latched_host_us": p.latched_us, "sync_uncertainty_us": p.uncertainty_us,
+                "lost_events": lost_events}))
+        }
+        SensorEvent::Heartbeat(s) => Some(json!({"event": "heartbeat", "phases": s.phases,
+            "triggers": s.triggers, "overruns": s.overruns,
+            "events_dropped": s.events_dropped})),
+        SensorEvent::Fault(f, at) => Some(json!({"event": "fault",
+            "kind": format!("{:?}", f.kind), "host_us": at})),
+        SensorEvent::Reconnected { attempts } => {
+            Some(json!({"event": "reconnected", "attempts": attempts}))
+        }
+        SensorEvent::Probe(_) => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,5 +242,20 @@ mod tests {
         assert_eq!(v["strips"][2]["side"], "x+");
         assert_eq!(v["strips"][0]["colour"], "#0000ff");
         assert!(!config_line(&c).contains('{'), "{}", config_line(&c));
+    }
+
+    #[test]
+    fn modes_are_read_back_by_name() {
+        for m in [
+            Mode::Off,
+            Mode::Vision,
+            Mode::ContactShape,
+            Mode::Gradient,
+            Mode::Interleaved,
+        ] {
+            assert_eq!(mode_named(mode(m)), Some(m));
+        }
+        assert_eq!(mode_named(" Gradient "), Some(Mode::Gradient));
+        assert_eq!(mode_named("strobe"), None);
     }
 }

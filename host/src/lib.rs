@@ -25,6 +25,7 @@
 //!   point clouds, evaluation).
 //! * [`sim`]: the simulated sensor, its USB link and its cameras, one place: test
 //!   inputs and the demo's data, reached through the same code paths as hardware.
+//!   [`sensors`]: which sensor (USB by serial, or the simulated one) and opening it.
 //! * [`recording`]: MCAP recordings and the Foxglove live view (topics, messages, the
 //!   recorder, the streaming reader).
 //! * [`live`]: the live pipeline (router, tactile and stereo stages on their threads,
@@ -48,6 +49,7 @@ pub mod picture;
 pub mod recording;
 pub mod rng;
 pub mod selftest;
+pub mod sensors;
 pub mod sim;
 pub mod stereo;
 pub mod tactile;

@@ -18,6 +18,8 @@ pub enum Kind {
     BadInput,
     /// Files that could not be read or written (`stereotac.IoError`, an `OSError`).
     Io,
+    /// The sensor could not be reached, or answered wrongly (`stereotac.DeviceError`).
+    Device,
 }
 
 impl Kind {
@@ -25,6 +27,7 @@ impl Kind {
         match self {
             Kind::BadInput => "BadInputError",
             Kind::Io => "IoError",
+            Kind::Device => "DeviceError",
         }
     }
 }
@@ -99,4 +102,15 @@ impl IntoPyErr for CalibError {
 /// `result` with its error as the Python exception of its kind.
 pub fn py_result<T, E: IntoPyErr>(result: Result<T, E>) -> PyResult<T> {
     result.map_err(IntoPyErr::into_py_err)
+}
+
+/// A `UserWarning` with `message` (what the CLI prints as `warning: …`).
+pub fn warn(py: Python<'_>, message: &str) -> PyResult<()> {
+    let text = std::ffi::CString::new(message.replace('\0', " ")).unwrap_or_default();
+    PyErr::warn(
+        py,
+        &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+        &text,
+        1,
+    )
 }

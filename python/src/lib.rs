@@ -5,7 +5,9 @@
 mod arrays;
 mod errors;
 mod files;
+mod json;
 mod recording;
+mod sensor;
 mod stereo;
 mod tactile;
 
@@ -27,5 +29,8 @@ fn _stereotac(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<recording::PyRecordingItems>()?;
     m.add_class::<recording::PyFrame>()?;
     m.add_class::<recording::PyMessage>()?;
+    m.add_class::<sensor::PySensor>()?;
+    m.add_class::<sensor::PyEvents>()?;
+    m.add_class::<sensor::PyLiveRun>()?;
     Ok(())
 }

@@ -145,12 +145,7 @@ impl PyRecordingItems {
                             "{}: the recording ends early ({why}); read up to there",
                             self.path.display()
                         );
-                        PyErr::warn(
-                            py,
-                            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
-                            &std::ffi::CString::new(message).unwrap_or_default(),
-                            1,
-                        )?;
+                        crate::errors::warn(py, &message)?;
                     }
                     return Ok(None);
                 }
@@ -192,10 +187,7 @@ fn decoded_value(py: Python<'_>, value: Decoded) -> PyResult<Py<PyAny>> {
     Ok(match value {
         Decoded::DepthMm(grid) => grid_array(py, grid).into_any().unbind(),
         Decoded::PointsMm(points) => rows_array(py, points).into_any().unbind(),
-        Decoded::Json(v) => py
-            .import("json")?
-            .call_method1("loads", (v.to_string(),))?
-            .unbind(),
+        Decoded::Json(v) => crate::json::value_to_python(py, &v)?,
         Decoded::Log { level, message } => {
             let d = PyDict::new(py);
             d.set_item("level", level)?;
@@ -252,7 +244,8 @@ fn name_of(value: &impl serde::Serialize) -> String {
 }
 
 impl PyFrame {
-    fn new(py: Python<'_>, f: RecordedFrame) -> Self {
+    /// A frame for Python.
+    pub fn new(py: Python<'_>, f: RecordedFrame) -> Self {
         let (w, h) = (f.image.width() as usize, f.image.height() as usize);
         let image = Array3::from_shape_vec((h, w, 3), f.image.into_raw())
             .expect("h × w × 3 values")

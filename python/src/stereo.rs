@@ -88,12 +88,7 @@ impl PyStereoRig {
         };
         let (calib, notes) = py_result(StereoCalibration::load_noting(&files, unit))?;
         for note in notes {
-            PyErr::warn(
-                py,
-                &py.get_type::<pyo3::exceptions::PyUserWarning>(),
-                &std::ffi::CString::new(note).unwrap_or_default(),
-                1,
-            )?;
+            crate::errors::warn(py, &note)?;
         }
         let d = StereoConfig::default();
         let config = StereoConfig {
@@ -226,10 +221,29 @@ pub struct PyStereoResult {
     /// What to look at twice (almost nothing matched, a scene outside the range searched).
     #[pyo3(get)]
     warnings: Vec<String>,
+    /// Live results: when the left exposure ended, host µs; `None` offline.
+    #[pyo3(get)]
+    timestamp_us: Option<f64>,
+    /// Live results: the frame's summary record (sequence, fill, median depth, latency,
+    /// frames dropped, …) as a dict; `None` offline.
+    #[pyo3(get)]
+    record: Option<Py<PyAny>>,
     timings: StereoTimings,
 }
 
 impl PyStereoResult {
+    /// A live result: with its record and the time its left exposure ended.
+    pub fn live(
+        py: Python<'_>,
+        frame: StereoFrame,
+        record: &stereotac::recording::messages::StereoRecord,
+    ) -> PyResult<Self> {
+        let mut out = Self::new(py, frame, record.warnings.clone());
+        out.timestamp_us = Some(record.exposure_end_us);
+        out.record = Some(crate::json::to_python(py, record)?);
+        Ok(out)
+    }
+
     fn new(py: Python<'_>, frame: StereoFrame, warnings: Vec<String>) -> Self {
         let StereoFrame {
             left,
@@ -252,6 +266,8 @@ impl PyStereoResult {
             right_rect: grid_array(py, right).unbind(),
             fill_rate: valid as f64 / pixels_total as f64,
             warnings,
+            timestamp_us: None,
+            record: None,
             timings,
         }
     }

@@ -234,6 +234,11 @@ impl PyTactileModel {
 }
 
 impl PyTactileModel {
+    /// The model.
+    pub fn model(&self) -> &TactileModel {
+        &self.model
+    }
+
     /// Wraps a model (from a recording, for instance).
     pub fn from_model(model: TactileModel) -> Self {
         Self {
@@ -353,10 +358,30 @@ pub struct PyTactileResult {
     /// Slopes the sanitiser replaced or clamped.
     #[pyo3(get)]
     sanitized_slopes: usize,
+    /// Live results: when the pair's second (dy) exposure ended, host µs; `None` offline.
+    #[pyo3(get)]
+    timestamp_us: Option<f64>,
+    /// Live results: the record `stereotac run --jsonl` prints for this pair (sequence,
+    /// exposure ends, latency, frames dropped, …) as a dict; `None` offline.
+    #[pyo3(get)]
+    record: Option<Py<PyAny>>,
     summary: Summary,
 }
 
 impl PyTactileResult {
+    /// A live result: with its record and the time its exposures ended.
+    pub fn live(
+        py: Python<'_>,
+        r: Reconstruction,
+        s: Summary,
+        record: &stereotac::recording::messages::TactileRecord,
+    ) -> PyResult<Self> {
+        let mut out = Self::new(py, r, s);
+        out.timestamp_us = Some(record.exposure_end_us[1]);
+        out.record = Some(crate::json::to_python(py, record)?);
+        Ok(out)
+    }
+
     fn new(py: Python<'_>, r: Reconstruction, s: Summary) -> Self {
         Self {
             depth: grid_array(py, r.depth_mm).unbind(),
@@ -374,6 +399,8 @@ impl PyTactileResult {
                 .collect(),
             ambient: r.ambient.name().to_string(),
             sanitized_slopes: s.sanitized_slopes,
+            timestamp_us: None,
+            record: None,
             summary: s,
         }
     }
@@ -464,8 +491,6 @@ pub fn calibrate<'py>(
         )
     });
     let calibration = py_result(result)?;
-    let report = py
-        .import("json")?
-        .call_method1("loads", (calibration.report_json().to_string(),))?;
+    let report = crate::json::value_to_python(py, &calibration.report_json())?.into_bound(py);
     Ok((PyTactileModel::from_model(calibration.model), report))
 }

@@ -24,6 +24,12 @@ Recordings (MCAP, from ``stereotac run``/``record``/``process``)::
         if isinstance(item, stereotac.Message) and item.topic == "/stereotac/tactile/depth":
             depth_mm = item.value   # float32 (H, W)
 
+The sensor (``sim=True``: the built-in simulated one), live results on the host clock::
+
+    with stereotac.Sensor(sim=True) as sensor:
+        for r in sensor.run(cameras=["sim", "sim"], mode="interleaved", duration_s=5):
+            print(r.timestamp_us, r)          # TactileResult or StereoResult
+
 Errors: every exception is a ``StereotacError``; ``BadInputError`` is also a
 ``ValueError``, ``IoError`` an ``OSError``; ``DeviceError`` is about the sensor.
 """
@@ -34,6 +40,7 @@ from ._stereotac import (
     Message,
     Reconstructor,
     Recording,
+    Sensor,
     StereoResult,
     StereoRig,
     TactileModel,
@@ -52,6 +59,7 @@ __all__ = [
     "Message",
     "Reconstructor",
     "Recording",
+    "Sensor",
     "StereoResult",
     "StereoRig",
     "StereotacError",

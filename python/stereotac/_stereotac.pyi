@@ -29,6 +29,10 @@ class TactileResult:
     """Regions integrated: (x, y, width, height) in px."""
     ambient: str
     sanitized_slopes: int
+    timestamp_us: Optional[float]
+    """Live results: end of the dy exposure, host µs (None offline)."""
+    record: Optional[Dict[str, Any]]
+    """Live results: the record `stereotac run --jsonl` prints (None offline)."""
     @property
     def timings(self) -> Dict[str, float]:
         """Milliseconds per stage: detect_ms, colour_ms, model_ms, solve_ms, total_ms."""
@@ -96,6 +100,10 @@ class StereoResult:
     right_rect: npt.NDArray[np.uint8]
     fill_rate: float
     warnings: List[str]
+    timestamp_us: Optional[float]
+    """Live results: end of the left exposure, host µs (None offline)."""
+    record: Optional[Dict[str, Any]]
+    """Live results: the frame's summary record (None offline)."""
     @property
     def timings(self) -> Dict[str, float]: ...
 
@@ -163,3 +171,51 @@ class Recording:
         """Every frame and message in file order."""
     def frames(self) -> RecordingItems:
         """The camera frames only."""
+
+class Events:
+    """LED phase events of a running sequence, as dicts on the host clock."""
+
+    def __iter__(self) -> "Events": ...
+    def __next__(self) -> Dict[str, Any]: ...
+    def close(self) -> None: ...
+
+class LiveRun:
+    """A live session's results as they come (`Sensor.run`)."""
+
+    def __iter__(self) -> "LiveRun": ...
+    def __next__(self) -> Union[TactileResult, StereoResult, Frame]: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> "LiveRun": ...
+    def __exit__(self, *args: Any) -> bool: ...
+
+class Sensor:
+    """A sensor: USB hardware (by serial) or the built-in simulated one (sim=True)."""
+
+    def __init__(self, sim: bool = False, serial: Optional[str] = None) -> None: ...
+    def __enter__(self) -> "Sensor": ...
+    def __exit__(self, *args: Any) -> bool: ...
+    def close(self) -> None: ...
+    def info(self) -> Dict[str, Any]:
+        """Identity, configuration, counters, clock sync (`stereotac info --json`)."""
+    def set(
+        self,
+        period_ms: Optional[int] = None,
+        pulse_us: Optional[int] = None,
+        settle_us: Optional[int] = None,
+    ) -> None: ...
+    def events(
+        self, mode: str = "gradient", period_ms: int = 250, duration_s: Optional[float] = None
+    ) -> Events: ...
+    def run(
+        self,
+        cameras: Sequence[str] = ("sim",),
+        mode: str = "gradient",
+        model: Optional[Union[_Path, TactileModel]] = None,
+        calib: Optional[Union[_Path, Tuple[_Path, _Path]]] = None,
+        units: str = "mm",
+        duration_s: Optional[float] = None,
+        period_ms: int = 250,
+        frames: bool = False,
+        kind: str = "lut",
+    ) -> LiveRun:
+        """The live pipeline of `stereotac run`: results with host timestamps."""

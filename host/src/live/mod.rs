@@ -7,12 +7,14 @@
 //!   [`stereo::StereoStage`] (stereo depth and point cloud).
 //!
 //! Routing depends only on the labelled frames and their order, so a recording fed in
-//! file order gives `process` exactly the pairs `run` reconstructed. [`session`] is the
+//! file order gives `process` exactly the pairs `run` reconstructed. [`cameras`] opens
+//! the cameras (simulated or V4L2); [`session`] is the
 //! live source (a sensor, its cameras and the recorder), [`runner`] the live loop and
 //! [`workers`] the stages' threads; [`replay`] reads pairs back from a recording,
 //! [`scripted`] records simulated sessions, [`bench`] measures the loop under load.
 
 pub mod bench;
+pub mod cameras;
 pub mod replay;
 pub mod runner;
 pub mod scripted;

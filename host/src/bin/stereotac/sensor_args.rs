@@ -2,16 +2,9 @@
 //! and the sensor they open: over USB (nusb, or libusb when built with it), or the
 //! built-in simulated sensor in real time.
 
-use std::sync::{Arc, Mutex};
-
 use anyhow::{Context, Result, bail};
-use stereotac::clock::{HostClock, MonotonicClock};
-use stereotac::device::{Sensor, SensorConfig};
-use stereotac::sim::link::{LedTimeline, LoopbackConfig};
-use stereotac::transport::{Connector, UsbSensor, usb};
-
-/// Board id of the simulated sensor.
-const SIM_BOARD: [u8; 8] = *b"SIMSENSR";
+use stereotac::sensors::{self, SensorChoice};
+use stereotac::transport::{UsbSensor, usb};
 
 /// Which sensor to talk to.
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -63,37 +56,22 @@ impl DeviceArgs {
 }
 
 /// An open sensor, plus the simulation's LED truth when it is simulated.
-pub struct Opened {
-    /// The connected sensor.
-    pub sensor: Sensor,
-    /// What the simulated LEDs showed (with `--sim`), for simulated cameras.
-    pub timeline: Option<Arc<Mutex<LedTimeline>>>,
+pub use stereotac::sensors::OpenedSensor as Opened;
+
+impl DeviceArgs {
+    /// The sensor these options name.
+    pub fn choice(&self) -> SensorChoice {
+        SensorChoice {
+            serial: self.serial.clone(),
+            sim: self.sim,
+            libusb: self.libusb,
+        }
+    }
 }
 
 /// Connects to the sensor `device` names.
 pub fn open(device: &DeviceArgs) -> Result<Opened> {
-    let clock: Arc<dyn HostClock> = Arc::new(MonotonicClock::new());
-    if device.sim {
-        let now = clock.now_us();
-        let link = LoopbackConfig {
-            drift_ppm: 25.0,
-            boot_at_us: now,
-            seed: now,
-            ..LoopbackConfig::default()
-        };
-        let rig =
-            stereotac::sim::connect(SIM_BOARD, clock, link).context("connecting to the sensor")?;
-        return Ok(Opened {
-            sensor: rig.sensor,
-            timeline: Some(rig.timeline),
-        });
-    }
-    let sensor = Sensor::connect(usb_connector(device)?, clock, SensorConfig::default())
-        .context("connecting to the sensor")?;
-    Ok(Opened {
-        sensor,
-        timeline: None,
-    })
+    Ok(sensors::open(&device.choice())?)
 }
 
 /// The sensors on the bus, through the backend `--libusb` asks for.
@@ -105,26 +83,6 @@ pub fn list_sensors(device: &DeviceArgs) -> Result<Vec<UsbSensor>> {
         bail!(NO_LIBUSB);
     }
     usb::list().context("listing USB devices")
-}
-
-/// The connector `--serial`/`--libusb` ask for.
-fn usb_connector(device: &DeviceArgs) -> Result<Connector> {
-    if device.libusb {
-        return libusb_connector(device.serial.clone());
-    }
-    Ok(Box::new(usb::UsbConnector::new(device.serial.clone())))
-}
-
-#[cfg(feature = "libusb")]
-fn libusb_connector(serial: Option<String>) -> Result<Connector> {
-    Ok(Box::new(
-        stereotac::transport::libusb::LibusbConnector::new(serial),
-    ))
-}
-
-#[cfg(not(feature = "libusb"))]
-fn libusb_connector(_serial: Option<String>) -> Result<Connector> {
-    bail!(NO_LIBUSB)
 }
 
 #[cfg(not(feature = "libusb"))]

@@ -20,28 +20,17 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let mut opened = open(&a.device)?;
     let sensor = &mut opened.sensor;
+    if a.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&describe::sensor_json(sensor)?)?
+        );
+        return Ok(());
+    }
     let info = *sensor.info();
     let status = sensor.status()?;
     let config = sensor.config()?;
     let fit = sensor.clock_fit().copied();
-    if a.json {
-        let value = serde_json::json!({
-            "serial": serial_number(&info.board_id),
-            "protocol": info.protocol_version,
-            "firmware": firmware_version(&info),
-            "leds_per_strip": info.leds_per_strip,
-            "max_leds_per_strip": info.max_leds_per_strip,
-            "capabilities": info.capabilities.0,
-            "status": describe::status_json(&status),
-            "config": describe::config_json(&config),
-            "clock": fit.map(|f| serde_json::json!({
-                "drift_ppm": f.drift_ppm(), "uncertainty_us": f.uncertainty_us,
-                "min_rtt_us": f.min_rtt_us, "pings": f.samples })),
-            "host_counters": sensor.counters(),
-        });
-        println!("{}", serde_json::to_string_pretty(&value)?);
-        return Ok(());
-    }
     println!(
         "sensor {}: protocol v{}, firmware {}, {} strips x {} LEDs (max {}), timer {} Hz, capabilities {:#x}",
         serial_number(&info.board_id),

@@ -5,6 +5,7 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::Result;
+use stereotac::describe;
 use stereotac::device::{SensorEvent, status_line};
 use stereotac::matcher::phase_str;
 use stereotac_protocol::{Request, TriggerOutcome};
@@ -40,41 +41,30 @@ pub fn run(a: Args) -> Result<()> {
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
         for event in sensor.poll(Duration::from_millis(50))? {
             let lost = sensor.counters().link.lost_events;
-            let shown = match event {
+            let shown = match &event {
+                SensorEvent::Phase(_) | SensorEvent::Heartbeat(_) if a.json => {
+                    match describe::event_json(&event, lost) {
+                        Some(line) => emit(format_args!("{line}")),
+                        None => true,
+                    }
+                }
                 SensorEvent::Phase(p) => {
                     let (trigger, dev) = match p.event.trigger {
                         TriggerOutcome::Fired { index, edge_us } => (Some(index), Some(edge_us)),
                         TriggerOutcome::Overrun { .. } => (None, None),
                     };
                     let host = p.trigger.map(|t| t.1);
-                    if a.json {
-                        emit(format_args!(
-                            "{}",
-                            serde_json::json!({"event": "phase", "index": p.event.index,
-                            "phase": phase_str(p.event.phase), "trigger": trigger,
-                            "trigger_device_us": dev, "trigger_host_us": host,
-                            "latched_host_us": p.latched_us, "sync_uncertainty_us": p.uncertainty_us,
-                            "lost_events": lost})
-                        ))
-                    } else {
-                        emit(format_args!(
-                            "{:>6} {:>5} {:>16} {:>16} {:>8} {:>10.1} {:>7}",
-                            p.event.index,
-                            phase_str(p.event.phase),
-                            host.map_or("overrun".into(), |h| format!("{h:.1}")),
-                            dev.map_or("-".into(), |d| d.to_string()),
-                            trigger.map_or("-".into(), |t| t.to_string()),
-                            p.uncertainty_us,
-                            lost
-                        ))
-                    }
+                    emit(format_args!(
+                        "{:>6} {:>5} {:>16} {:>16} {:>8} {:>10.1} {:>7}",
+                        p.event.index,
+                        phase_str(p.event.phase),
+                        host.map_or("overrun".into(), |h| format!("{h:.1}")),
+                        dev.map_or("-".into(), |d| d.to_string()),
+                        trigger.map_or("-".into(), |t| t.to_string()),
+                        p.uncertainty_us,
+                        lost
+                    ))
                 }
-                SensorEvent::Heartbeat(s) if a.json => emit(format_args!(
-                    "{}",
-                    serde_json::json!({"event": "heartbeat", "phases": s.phases,
-                        "triggers": s.triggers, "overruns": s.overruns,
-                        "events_dropped": s.events_dropped})
-                )),
                 SensorEvent::Heartbeat(_) | SensorEvent::Probe(_) => true,
                 SensorEvent::Fault(f, at) => {
                     eprintln!("fault {:?} at host {at:.0} µs", f.kind);
