@@ -50,6 +50,8 @@ def main():
     ap.add_argument("--stereo", type=Path, required=True, help="a `stereo --synthetic` output folder")
     ap.add_argument("--rounds", type=int, default=15)
     a = ap.parse_args()
+    if len(a.pair) not in (2, 3):
+        ap.error(f"--pair takes DX.png DY.png [DARK.png], got {len(a.pair)} file(s)")
 
     model = stereotac.TactileModel.load(a.model)
     frames = [stereotac.load_rgb(p) for p in a.pair]

@@ -130,17 +130,20 @@ impl PyRecordingItems {
     }
 
     fn __next__(&self, py: Python<'_>) -> PyResult<Option<Py<PyAny>>> {
-        let mut stream = self
-            .stream
-            .lock()
-            .map_err(|_| bad_input("the recording's iterator failed before"))?;
         loop {
-            let stream = &mut *stream;
-            let next = py.detach(|| stream.next());
+            // The lock is taken with the GIL released (another thread on this iterator
+            // may hold it while it waits), and given back before the GIL is taken again.
+            let stream = &self.stream;
+            let (next, truncated) = py.detach(|| {
+                let mut stream = stream.lock().unwrap_or_else(|p| p.into_inner());
+                let next = stream.next();
+                let truncated = stream.truncated().map(str::to_string);
+                (next, truncated)
+            });
             let content = match next {
                 Some(c) => c.map_err(recording_error)?,
                 None => {
-                    if let Some(why) = stream.truncated() {
+                    if let Some(why) = truncated {
                         let message = format!(
                             "{}: the recording ends early ({why}); read up to there",
                             self.path.display()

@@ -150,6 +150,11 @@ impl PySensor {
     #[new]
     #[pyo3(signature = (sim = false, serial = None))]
     fn new(py: Python<'_>, sim: bool, serial: Option<String>) -> PyResult<Self> {
+        if sim && serial.is_some() {
+            return Err(bad_input(
+                "serial= names a USB sensor: it does not go with sim=True",
+            ));
+        }
         let choice = SensorChoice {
             serial,
             sim,
@@ -168,14 +173,14 @@ impl PySensor {
     }
 
     #[pyo3(signature = (*_args))]
-    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
-        self.close(py);
-        false
+    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, pyo3::types::PyTuple>) -> PyResult<bool> {
+        self.close(py)?;
+        Ok(false)
     }
 
     /// Stops a live session and the LED sequence, and disconnects (also at the end of a
     /// `with` block).
-    fn close(&self, py: Python<'_>) {
+    fn close(&self, py: Python<'_>) -> PyResult<()> {
         if let Some(stop) = self
             .run_stop
             .lock()
@@ -184,7 +189,11 @@ impl PySensor {
         {
             stop.store(true, Ordering::SeqCst);
         }
-        self.settle(py);
+        if !self.settle(py) {
+            return Err(device_error(
+                "the live session did not stop within 10 s; the sensor is left to it",
+            ));
+        }
         let opened = Arc::clone(&self.opened);
         py.detach(move || {
             let taken = opened.lock().unwrap_or_else(|p| p.into_inner()).take();
@@ -193,6 +202,7 @@ impl PySensor {
                 let _ = o.sensor.request(Request::Stop);
             }
         });
+        Ok(())
     }
 
     /// Identity, configuration, counters and clock sync (what `stereotac info --json`
@@ -245,6 +255,7 @@ impl PySensor {
         let end_us = deadline(now, duration_s)?;
         slf.with(py, move |o| o.sensor.start_sequence(mode, period))?;
         Ok(PyEvents {
+            opened: Arc::clone(&slf.opened),
             sensor: slf.into(),
             end_us,
             pending: std::collections::VecDeque::new(),
@@ -278,6 +289,20 @@ impl PySensor {
     ) -> PyResult<PyLiveRun> {
         let mode = mode_named(mode)?;
         let period = period_us(period_ms)?;
+        deadline(0, duration_s)?;
+        if !slf.settle(py) {
+            return Err(device_error(
+                "the sensor is already running a live session: close it first",
+            ));
+        }
+        if slf
+            .opened
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .is_none()
+        {
+            return Err(device_error("the sensor is closed"));
+        }
         let kind: ModelKind = kind
             .parse()
             .map_err(|e| bad_input(format!("kind={kind:?}: {e}")))?;
@@ -333,7 +358,11 @@ impl PySensor {
                         .parse()
                         .map_err(|e| bad_input(format!("units={units:?}: {e}")))?;
                     let files = calib_files(c)?;
-                    py_result(StereoCalibration::load_noting(&files, unit))?.0
+                    let (calib, notes) = py_result(StereoCalibration::load_noting(&files, unit))?;
+                    for note in notes {
+                        crate::errors::warn(py, &note)?;
+                    }
+                    calib
                 }
                 None => match (sim_sensor, setup.sim_stereo()) {
                     (true, Some(sim)) => sim.calibration(),
@@ -384,22 +413,36 @@ impl PySensor {
         let thread = std::thread::spawn(move || job.run(tx));
         // Setup errors (a camera that does not open, a model of another size) are raised
         // here, not at the first item.
-        let (first, rx) = py.detach(move || (rx.recv(), rx));
         let run = PyLiveRun {
             rx: Mutex::new(rx),
             thread: Mutex::new(Some(thread)),
             stop,
         };
-        match first {
-            Ok(LiveItem::Ready) => Ok(run),
-            Ok(LiveItem::SetupFailed(why)) => {
-                run.finish(py)?;
-                Err(bad_input(why))
-            }
-            _ => {
-                run.finish(py)?;
-                Err(device_error("the live session ended before it started"))
-            }
+        loop {
+            let rx = &run.rx;
+            let first = py.detach(|| {
+                let rx = rx.lock().unwrap_or_else(|p| p.into_inner());
+                rx.recv_timeout(Duration::from_millis(100))
+            });
+            return match first {
+                Ok(LiveItem::Ready) => Ok(run),
+                Ok(LiveItem::SetupFailed(kind, why)) => {
+                    run.finish(py)?;
+                    Err(error(kind, why))
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                    // Ctrl-C reaches Python while the cameras open.
+                    if let Err(e) = py.check_signals() {
+                        run.finish(py)?;
+                        return Err(e);
+                    }
+                    continue;
+                }
+                _ => {
+                    run.finish(py)?;
+                    Err(device_error("the live session ended before it started"))
+                }
+            };
         }
     }
 
@@ -444,6 +487,8 @@ fn calib_files(obj: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
 /// The events of a running sequence.
 #[pyclass(module = "stereotac._stereotac", name = "Events")]
 pub struct PyEvents {
+    /// The sensor, for stopping the sequence when the iterator is dropped.
+    opened: Arc<Mutex<Option<OpenedSensor>>>,
     sensor: Py<PySensor>,
     end_us: Option<u64>,
     pending: std::collections::VecDeque<serde_json::Value>,
@@ -489,7 +534,8 @@ impl PyEvents {
         }
     }
 
-    /// Stops the sequence (also when the events run out).
+    /// Stops the sequence (also when the events run out, at the end of a `with` block,
+    /// and when the iterator is dropped).
     fn close(&mut self, py: Python<'_>) -> PyResult<()> {
         if !self.done {
             self.done = true;
@@ -498,6 +544,35 @@ impl PyEvents {
                 .with(py, |o| o.sensor.request(Request::Stop).map(|_| ()))?;
         }
         Ok(())
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_args))]
+    fn __exit__(
+        &mut self,
+        py: Python<'_>,
+        _args: &Bound<'_, pyo3::types::PyTuple>,
+    ) -> PyResult<bool> {
+        self.close(py)?;
+        Ok(false)
+    }
+}
+
+impl Drop for PyEvents {
+    fn drop(&mut self) {
+        // Left mid-way (a `break`, an exception): the LEDs stop all the same.
+        if !self.done
+            && let Some(o) = self
+                .opened
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .as_mut()
+        {
+            let _ = o.sensor.request(Request::Stop);
+        }
     }
 }
 
@@ -511,7 +586,7 @@ type TactileInputs = (
 /// What the live thread hands on.
 enum LiveItem {
     Ready,
-    SetupFailed(String),
+    SetupFailed(Kind, String),
     Frame(Box<RecordedFrame>),
     Tactile(Box<(Reconstruction, Summary, TactileRecord)>),
     Stereo(Box<(StereoFrame, StereoRecord)>),
@@ -575,6 +650,27 @@ struct QueueHooks {
     frames: bool,
     stamp_refs: Vec<StampRef>,
     px_per_mm: f64,
+    stop: Arc<AtomicBool>,
+}
+
+impl QueueHooks {
+    /// Queues `item`, waiting while the queue is full unless the session is told to
+    /// stop; `false` when it was not queued (stopping, or the caller gone).
+    fn put(&self, mut item: LiveItem) -> bool {
+        loop {
+            match self.tx.try_send(item) {
+                Ok(()) => return true,
+                Err(std::sync::mpsc::TrySendError::Full(back)) => {
+                    if self.stop.load(Ordering::SeqCst) {
+                        return false;
+                    }
+                    item = back;
+                    std::thread::sleep(Duration::from_millis(2));
+                }
+                Err(std::sync::mpsc::TrySendError::Disconnected(_)) => return false,
+            }
+        }
+    }
 }
 
 impl Hooks for QueueHooks {
@@ -589,8 +685,9 @@ impl Hooks for QueueHooks {
                 label: frame.label,
                 image: frame.frame.image.clone(),
             };
-            // A caller that is gone stops the loop at the next output.
-            let _ = self.tx.send(LiveItem::Frame(Box::new(item)));
+            // A frame the caller has no room for is dropped (results are not): capture
+            // never waits on a slow caller for frames.
+            let _ = self.tx.try_send(LiveItem::Frame(Box::new(item)));
         }
         Ok(())
     }
@@ -609,11 +706,11 @@ impl Hooks for QueueHooks {
                 LiveItem::Stereo(Box::new((frame.clone(), record.clone())))
             }
         };
-        Ok(self.tx.send(item).is_ok())
+        Ok(self.put(item))
     }
 
     fn warning(&mut self, message: String) {
-        let _ = self.tx.send(LiveItem::Warning(message));
+        let _ = self.put(LiveItem::Warning(message));
     }
 }
 
@@ -627,9 +724,16 @@ impl LiveJob {
             home,
             running,
         } = self;
+        // However this thread ends (a panic included), the sensor is no longer away.
+        struct Back(Arc<AtomicBool>);
+        impl Drop for Back {
+            fn drop(&mut self) {
+                self.0.store(false, Ordering::SeqCst);
+            }
+        }
+        let _back = Back(running);
         run_loop(&mut opened, settings, &stop, &tx);
         *home.lock().unwrap_or_else(|p| p.into_inner()) = Some(opened);
-        running.store(false, Ordering::SeqCst);
     }
 }
 
@@ -638,7 +742,7 @@ impl LiveJob {
 fn run_loop(
     opened: &mut OpenedSensor,
     settings: LiveSettings,
-    stop: &AtomicBool,
+    stop: &Arc<AtomicBool>,
     tx: &SyncSender<LiveItem>,
 ) {
     let LiveSettings {
@@ -650,17 +754,25 @@ fn run_loop(
         stereo,
         frames,
     } = settings;
-    let (mut session, mut pipeline, recorder, stamp_refs, px_per_mm) =
-        match prepare(opened, &setup, tactile, stereo) {
-            Ok(p) => p,
-            Err(why) => {
-                let _ = tx.send(LiveItem::SetupFailed(why));
-                return;
-            }
-        };
+    let Prepared {
+        mut session,
+        mut pipeline,
+        recorder,
+        stamp_refs,
+        px_per_mm,
+    } = match prepare(opened, &setup, tactile, stereo) {
+        Ok(p) => p,
+        Err((kind, why)) => {
+            let _ = tx.send(LiveItem::SetupFailed(kind, why));
+            return;
+        }
+    };
     let sensor = &mut opened.sensor;
     if let Err(e) = sensor.start_sequence(mode, period) {
-        let _ = tx.send(LiveItem::SetupFailed(format!("starting the sequence: {e}")));
+        let _ = tx.send(LiveItem::SetupFailed(
+            Kind::Device,
+            format!("starting the sequence: {e}"),
+        ));
         return;
     }
     let end_us = duration_s.map(|s| sensor.clock().now_us().saturating_add((s * 1e6) as u64));
@@ -673,6 +785,7 @@ fn run_loop(
         frames,
         stamp_refs,
         px_per_mm,
+        stop: Arc::clone(stop),
     };
     let stopped = runner::run(
         &mut session,
@@ -682,7 +795,18 @@ fn run_loop(
         Until { flag: stop, end_us },
         &mut hooks,
     );
-    let _ = tx.send(LiveItem::End(stopped));
+    // Through the queue like the results: a caller that stopped reading and closed the
+    // session does not keep this thread waiting.
+    hooks.put(LiveItem::End(stopped));
+}
+
+/// What the loop runs with.
+struct Prepared {
+    session: Session,
+    pipeline: Pipeline,
+    recorder: Recorder,
+    stamp_refs: Vec<StampRef>,
+    px_per_mm: f64,
 }
 
 /// Cameras, session, stages and an inactive recorder for the loop.
@@ -691,25 +815,32 @@ fn prepare(
     setup: &CameraSetup,
     tactile: Option<TactileInputs>,
     stereo: Option<StereoCalibration>,
-) -> Result<(Session, Pipeline, Recorder, Vec<StampRef>, f64), String> {
-    let sources = setup.open_all(opened).map_err(|e| e.to_string())?;
+) -> Result<Prepared, (Kind, String)> {
+    let bad = |why: String| (Kind::BadInput, why);
+    let sources = setup.open_all(opened).map_err(|e| {
+        let kind = match e {
+            stereotac::live::cameras::CameraSetupError::Open(_) => Kind::Device,
+            _ => Kind::BadInput,
+        };
+        (kind, e.to_string())
+    })?;
     let size_of = |i: usize| sources.get(i).and_then(|s| s.frame_size());
     if let (Some((model, ..)), Some(size)) = (&tactile, size_of(0)) {
         let m = (model.width as u32, model.height as u32);
         if m != size {
-            return Err(format!(
+            return Err(bad(format!(
                 "the tactile model was calibrated at {}×{} but camera 0 gives {}×{} frames",
                 m.0, m.1, size.0, size.1
-            ));
+            )));
         }
     }
     if let Some(c) = &stereo {
         for (i, cam) in [&c.left, &c.right].into_iter().enumerate() {
             if let Some(size) = size_of(i).filter(|s| *s != (cam.width, cam.height)) {
-                return Err(format!(
+                return Err(bad(format!(
                     "the stereo calibration's camera {i} is {}×{} but camera {i} gives {}×{} frames",
                     cam.width, cam.height, size.0, size.1
-                ));
+                )));
             }
         }
     }
@@ -731,7 +862,7 @@ fn prepare(
                 SolverKind::Dct,
                 references.as_ref().map(|(dx, dy)| (dx, dy).into()),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| bad(e.to_string()))?;
             Some(TactileStage::new(rec, px_per_mm, stamp_refs[0]))
         }
         None => None,
@@ -739,7 +870,7 @@ fn prepare(
     let stereo_stage = match stereo {
         Some(calib) => {
             let pipeline = StereoPipeline::new(&calib, StereoConfig::default())
-                .map_err(|e| format!("setting up the stereo pipeline: {e}"))?;
+                .map_err(|e| bad(format!("setting up the stereo pipeline: {e}")))?;
             Some(StereoStage::new(pipeline, [stamp_refs[0], stamp_refs[1]]))
         }
         None => None,
@@ -751,14 +882,14 @@ fn prepare(
         wait_when_full: false,
         clock_origin_unix_ns: clock_origin_unix_ns(opened.sensor.clock().now_us()),
     })
-    .map_err(|e| e.to_string())?;
-    Ok((
+    .map_err(|e| (Kind::Io, e.to_string()))?;
+    Ok(Prepared {
         session,
-        Pipeline::new(tactile_stage, stereo_stage),
+        pipeline: Pipeline::new(tactile_stage, stereo_stage),
         recorder,
         stamp_refs,
         px_per_mm,
-    ))
+    })
 }
 
 /// A live session's results, as they come.
@@ -845,7 +976,7 @@ impl PyLiveRun {
                         _ => Ok(None),
                     }
                 }
-                LiveItem::Ready | LiveItem::SetupFailed(_) => continue,
+                LiveItem::Ready | LiveItem::SetupFailed(..) => continue,
             };
         }
     }

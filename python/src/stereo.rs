@@ -282,11 +282,15 @@ impl PyStereoResult {
         let left = self.left_rect.bind(py).readonly();
         let left = left.as_slice()?;
         let pixels = self.pixels.bind(py).readonly();
-        let colors: Vec<[u8; 3]> = pixels
+        // `pixels` is a writable array: an index out of the view is refused, not a panic.
+        let colors = pixels
             .as_slice()?
             .iter()
-            .map(|&i| [left[i as usize]; 3])
-            .collect();
+            .map(|&i| left.get(i as usize).map(|&g| [g; 3]))
+            .collect::<Option<Vec<[u8; 3]>>>()
+            .ok_or_else(|| {
+                bad_input("StereoResult.pixels was changed: an index lies outside the view")
+            })?;
         Ok(rows_array(py, colors))
     }
 

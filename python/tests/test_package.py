@@ -14,10 +14,13 @@ def test_help_is_useful():
 
 
 def test_error_classes():
-    assert issubclass(stereotac.BadInputError, (stereotac.StereotacError, ValueError))
-    assert issubclass(stereotac.BadInputError, ValueError)
-    assert issubclass(stereotac.IoError, OSError)
-    assert issubclass(stereotac.DeviceError, stereotac.StereotacError)
+    for kind, builtin in [
+        (stereotac.BadInputError, ValueError),
+        (stereotac.IoError, OSError),
+        (stereotac.DeviceError, Exception),
+    ]:
+        assert issubclass(kind, stereotac.StereotacError), kind
+        assert issubclass(kind, builtin), kind
 
 
 def test_version():

@@ -82,8 +82,10 @@ def test_a_run_stopped_early_gives_the_sensor_back(sensor, model_path):
 def test_bad_runs_are_refused_before_they_start(sensor, model_path, tmp_path):
     with pytest.raises(stereotac.BadInputError, match="model"):
         sensor.run(cameras=["/dev/video99"], mode="gradient")
-    with pytest.raises(stereotac.StereotacError):
+    with pytest.raises(stereotac.DeviceError, match="video99"):
         sensor.run(cameras=["/dev/video99"], mode="gradient", model=model_path)
+    with pytest.raises(stereotac.BadInputError, match="duration_s"):
+        sensor.run(model=model_path, duration_s=0)
     with pytest.raises(stereotac.BadInputError, match="nothing to do"):
         sensor.run(cameras=["sim"], mode="vision")
     with pytest.raises(stereotac.IoError):
@@ -91,8 +93,37 @@ def test_bad_runs_are_refused_before_they_start(sensor, model_path, tmp_path):
     assert sensor.info()["serial"]
 
 
-def test_a_closed_sensor_says_so():
+def test_a_closed_sensor_says_so(model_path):
     s = stereotac.Sensor(sim=True)
     s.close()
     with pytest.raises(stereotac.DeviceError, match="closed"):
         s.info()
+    with pytest.raises(stereotac.DeviceError, match="closed"):
+        s.run(model=model_path)
+    with pytest.raises(stereotac.BadInputError, match="serial"):
+        stereotac.Sensor(sim=True, serial="X")
+
+
+def test_runs_and_events_left_mid_way_stop(sensor, model_path):
+    # Broken out of: the next run starts at once, and the LEDs are off after events.
+    for _ in sensor.run(model=model_path, duration_s=30):
+        break
+    with sensor.run(model=model_path, duration_s=30) as run:
+        assert isinstance(next(iter(run)), stereotac.TactileResult)
+    for _ in sensor.events(period_ms=50):
+        break
+    assert sensor.info()["status"]["running"] is False
+
+
+def test_close_stops_a_run_nobody_reads(model_path):
+    import time
+
+    s = stereotac.Sensor(sim=True)
+    run = s.run(model=model_path, frames=True, duration_s=60)
+    time.sleep(3)  # frames and results pile up unread
+    start = time.monotonic()
+    s.close()
+    assert time.monotonic() - start < 5
+    with pytest.raises(stereotac.DeviceError, match="closed"):
+        s.info()
+    run.close()

@@ -47,6 +47,7 @@ def test_bad_inputs_raise_clearly(stereo_capture, tmp_path):
         (left[:100], right[:100], "frame"),
         (left.astype(np.int16), right, "uint8"),
         (left[:, :, None].repeat(2, axis=2), right, "(height, width)"),
+        (left, np.ascontiguousarray(right[:480, :480]), "calibration"),
     ]:
         with pytest.raises(stereotac.BadInputError) as e:
             rig.compute(a, b)
@@ -77,3 +78,25 @@ def test_metres_need_units(stereo_capture, tmp_path):
         stereotac.StereoRig.load(path)
     rig_m = stereotac.StereoRig.load(path, units="m")
     assert rig_m.baseline_mm == pytest.approx(rig_mm.baseline_mm, rel=1e-6)
+
+
+def test_transposed_frames_are_refused(stereo_capture):
+    rig, left, right = load(stereo_capture)
+    # As many pixels, other sides: refused, not matched into nonsense.
+    with pytest.raises(stereotac.BadInputError, match="calibration"):
+        rig.compute(left.T, right.T)
+
+
+def test_a_ros_pair_gives_the_same_depth(cli, stereo_capture, tmp_path):
+    from conftest import run
+
+    yaml = stereo_capture / "input_calibration.yaml"
+    ros = (tmp_path / "left.yaml", tmp_path / "right.yaml")
+    run(cli, "stereo-convert", "--calib", yaml, "--ros-left", ros[0], "--ros-right", ros[1])
+    rig_ros = stereotac.StereoRig.load(ros)
+    rig, left, right = load(stereo_capture)
+    assert rig_ros.baseline_mm == pytest.approx(rig.baseline_mm, rel=1e-6)
+    a, b = rig.compute(left, right).depth, rig_ros.compute(left, right).depth
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.mean() > 0.5
+    np.testing.assert_allclose(a[both], b[both], rtol=1e-3)

@@ -57,7 +57,8 @@ pub enum CameraSetupError {
     Setting(String),
     /// A simulated camera without the simulated sensor.
     #[error(
-        "camera {0}: the simulated camera renders the simulated sensor's LEDs: use the simulated sensor (--sim)"
+        "camera {0}: the simulated camera renders the simulated sensor's LEDs: use the \
+         simulated sensor (--sim; Sensor(sim=True) in Python)"
     )]
     SimNeedsSimSensor(usize),
     /// A V4L2 camera in a build without V4L2.

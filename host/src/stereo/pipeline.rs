@@ -72,6 +72,20 @@ pub enum StereoError {
     /// Matcher parameters or inputs.
     #[error(transparent)]
     Match(#[from] MatchError),
+    /// A frame whose sides differ from the calibration's (a transposed array, another
+    /// camera mode), even when it has as many pixels.
+    #[error(
+        "{camera} frame is {got:?} (width, height) but the calibration is {want:?}: give \
+         frames of the calibrated size (an array is (height, width))"
+    )]
+    FrameDims {
+        /// "left" or "right".
+        camera: &'static str,
+        /// The frame's size.
+        got: (u32, u32),
+        /// The calibration's.
+        want: (u32, u32),
+    },
     /// A frame of the wrong size.
     #[error("{camera} frame: {source}")]
     FrameSize {
@@ -212,6 +226,14 @@ impl StereoPipeline {
             self.rectification.height as usize,
         );
         let remap = |table: &RemapTable, src: &Grid<u8>, camera| {
+            let got = (src.width() as u32, src.height() as u32);
+            if got != table.source_size() {
+                return Err(StereoError::FrameDims {
+                    camera,
+                    got,
+                    want: table.source_size(),
+                });
+            }
             let mut out = vec![0u8; w * h];
             table
                 .remap(src.as_slice(), &mut out)
@@ -308,11 +330,20 @@ mod tests {
                 .filter(|v| v.is_finite())
                 .count()
         );
-        // Wrong frame size: a typed error naming the camera.
+        // Wrong frame size: a typed error naming the camera; a transposed frame (as many
+        // pixels) too.
         let small = Grid::filled(10, 10, 0u8);
         assert!(matches!(
             p.process(&small, &r),
-            Err(StereoError::FrameSize { camera: "left", .. })
+            Err(StereoError::FrameDims { camera: "left", .. })
+        ));
+        let transposed = Grid::filled(r.height(), r.width(), 0u8);
+        assert!(matches!(
+            p.process(&l, &transposed),
+            Err(StereoError::FrameDims {
+                camera: "right",
+                ..
+            })
         ));
     }
 }

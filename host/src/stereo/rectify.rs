@@ -227,6 +227,11 @@ impl RemapTable {
         mapped as f64 / self.offset.len().max(1) as f64
     }
 
+    /// The frame size the table takes, `(width, height)`.
+    pub fn source_size(&self) -> (u32, u32) {
+        (self.src_width, self.src_height)
+    }
+
     /// Remap one 8-bit frame (row-major, `src_width × src_height`) into `out`.
     pub fn remap(&self, src: &[u8], out: &mut [u8]) -> Result<(), RemapSizeError> {
         let sw = self.src_width as usize;
