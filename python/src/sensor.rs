@@ -20,7 +20,7 @@ use stereotac::frames::capture::{CaptureError, LabelledFrame};
 use stereotac::live::cameras::CameraSetup;
 use stereotac::live::runner::{self, Hooks, Stopped, Until};
 use stereotac::live::session::Session;
-use stereotac::live::{Output, Pipeline, PipelineError, StereoStage, TactileStage};
+use stereotac::live::{Output, Pipeline, PipelineError, StereoStage, TactileStage, stages_of};
 use stereotac::matcher::{MatcherConfig, StampRef};
 use stereotac::recording::messages::{FrameInfo, StereoRecord, TactileRecord};
 use stereotac::recording::reader::RecordedFrame;
@@ -317,12 +317,7 @@ impl PySensor {
                 setup.cameras.len()
             )));
         }
-        let (gradients, dark) = match mode {
-            Mode::Gradient => (true, false),
-            Mode::Vision => (false, true),
-            Mode::Interleaved => (true, true),
-            Mode::Off | Mode::ContactShape => (false, false),
-        };
+        let (gradients, dark) = stages_of(mode);
         let simulated = setup.cameras.iter().all(|c| c == "sim");
         let sim_sensor = {
             let opened = slf.opened.lock().unwrap_or_else(|p| p.into_inner());

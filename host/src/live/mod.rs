@@ -26,13 +26,24 @@ pub mod workers;
 pub use stereo::{DarkPair, StereoRecord, StereoStage};
 pub use tactile::{TactileRecord, TactileStage};
 
-use stereotac_protocol::Phase;
+use stereotac_protocol::{Mode, Phase};
 
 use crate::frames::capture::{GradientPair, GradientPairer, LabelledFrame};
 use crate::matcher::Label;
 use crate::recording::writer::Item;
 use crate::stereo::{StereoError, StereoFrame};
 use crate::tactile::reconstruct::{ReconstructError, Reconstruction};
+
+/// Which stages a sequence mode can feed: `(tactile, stereo)`. Tactile needs dx/dy
+/// phases (gradient, interleaved), stereo dark ones (vision, interleaved).
+pub fn stages_of(mode: Mode) -> (bool, bool) {
+    match mode {
+        Mode::Gradient => (true, false),
+        Mode::Vision => (false, true),
+        Mode::Interleaved => (true, true),
+        Mode::Off | Mode::ContactShape => (false, false),
+    }
+}
 
 /// What a stage produced.
 #[derive(Debug)]

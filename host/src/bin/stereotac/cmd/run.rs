@@ -9,9 +9,9 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use stereotac::frames::capture::LabelledFrame;
 use stereotac::live::runner::{self, Hooks, Stopped, Until};
-use stereotac::live::{Output, Pipeline};
+use stereotac::live::{Output, Pipeline, stages_of};
 
-use crate::args::{ModeArg, PipelineArgs, SequenceArgs};
+use crate::args::{PipelineArgs, SequenceArgs};
 use crate::cameras::CameraArgs;
 use crate::console::interrupt_flag;
 use crate::live_report::Report;
@@ -51,20 +51,10 @@ pub struct Args {
     pub device: DeviceArgs,
 }
 
-/// What the mode lights, so which stages can run.
-fn stages_of(mode: ModeArg) -> (bool, bool) {
-    match mode {
-        ModeArg::Gradient => (true, false),
-        ModeArg::Vision => (false, true),
-        ModeArg::Interleaved => (true, true),
-        ModeArg::Off | ModeArg::Contact => (false, false),
-    }
-}
-
 /// The stages' setups, loaded before the sensor is touched (a bad file is refused
 /// first, and the clock sync is not left unpolled while a built-in model calibrates).
 fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
-    let (gradients, dark) = stages_of(a.sequence.mode);
+    let (gradients, dark) = stages_of(a.sequence.mode.into());
     let all_sim = a.device.sim && a.cameras.cameras.iter().all(|c| c == "sim");
     let tactile = if gradients {
         let setup = match &a.stages.model {
