@@ -1,13 +1,20 @@
 //! Criterion benches of the tactile kernels: Poisson solves (with a real 2-D FFT of the
-//! same size as reference, measured in the same run), gradient models, colour filter.
+//! same size as reference, measured in the same run), gradient models, colour filter,
+//! contact detection and whole reconstructions of built-in scenes (a skin at rest, a
+//! ball, the 13 mm disk) with the built-in calibration.
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use stereotac::rng::Rng;
 use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
+use stereotac::tactile::contact::{block_references, find_regions};
+use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
 use stereotac::tactile::poisson::{PoissonSolver, SolverKind};
+use stereotac::tactile::reconstruct::Reconstructor;
+use stereotac::tactile::render::{Optics, builtin_scenes, render};
+use stereotac::tactile::synthetic::builtin_calibration;
 
 fn poisson(c: &mut Criterion) {
     let mut g = c.benchmark_group("poisson");
@@ -99,5 +106,48 @@ fn colour(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, poisson, models, colour);
+/// Whole reconstructions (LUT, DCT) of built-in scenes at 640×480, and detection alone on
+/// the skin at rest: a frame with no contact should cost a small part of one with contact.
+fn scenes(c: &mut Criterion) {
+    let optics = Optics::resolution(640, 480);
+    let (cal, refs) = builtin_calibration(&optics, 20, |_| {}).expect("built-in calibration");
+    let model = cal.model;
+    let mut g = c.benchmark_group("reconstruct_640x480");
+    let all = builtin_scenes(&optics);
+    for name in ["none", "sphere", "disk"] {
+        let (_, scene) = all
+            .iter()
+            .find(|(n, _)| *n == name)
+            .expect("built-in scene");
+        let pair = render(&optics, scene, 7);
+        let mut rec = Reconstructor::new(
+            model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some((&refs.0, &refs.1).into()),
+        )
+        .expect("sizes match");
+        g.bench_function(name, |b| {
+            b.iter(|| rec.reconstruct(&pair.dx, &pair.dy).expect("valid pair"))
+        });
+        if name == "none" {
+            let block_refs = block_references(&refs.0, &refs.1, model.contact.coarse_step);
+            g.bench_function("detect_none", |b| {
+                b.iter(|| {
+                    find_regions(
+                        &pair.dx,
+                        &pair.dy,
+                        &block_refs,
+                        &model.filter,
+                        &model.contact,
+                        SolverKind::Dct,
+                    )
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, poisson, models, colour, scenes);
 criterion_main!(benches);

@@ -10,7 +10,8 @@
 //!   [`grid`] (row-major 2-D arrays), [`image_file`] (image files read within bounds),
 //!   [`out_dir`] (an output directory per run: nothing replaced without `--force`, no
 //!   folder left by a failed run), [`rng`] (a deterministic random generator),
-//!   [`timing`] (median timings for the benchmarks), [`output`] (NPY, PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
+//!   [`timing`] (median timings for the benchmarks), [`cpu`] (vector instructions
+//!   the kernels may use), [`output`] (NPY, PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
 //!   (firmware ELF to UF2 image, flash and RAM footprint).
 //! * The link: [`transport`] (byte pipes to a sensor: USB through nusb or libusb; owns
 //!   [`transport::Transport`] and the connectors), [`client`] (the protocol client:
@@ -35,6 +36,7 @@
 
 pub mod client;
 pub mod clock;
+pub mod cpu;
 pub mod describe;
 pub mod device;
 pub mod frames;

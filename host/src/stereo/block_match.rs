@@ -268,7 +268,7 @@ impl Kernel {
     pub fn is_available(self) -> bool {
         match self {
             Kernel::Portable => true,
-            Kernel::Avx2 => avx2_detected(),
+            Kernel::Avx2 => crate::cpu::avx2_bmi(),
         }
     }
 
@@ -289,20 +289,6 @@ impl Kernel {
             Kernel::Portable
         }
     }
-}
-
-#[cfg(target_arch = "x86_64")]
-pub(super) fn avx2_detected() -> bool {
-    std::is_x86_feature_detected!("avx2")
-        && std::is_x86_feature_detected!("bmi1")
-        && std::is_x86_feature_detected!("bmi2")
-        && std::is_x86_feature_detected!("popcnt")
-        && std::is_x86_feature_detected!("lzcnt")
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-pub(super) fn avx2_detected() -> bool {
-    false
 }
 
 /// Why pixels were left without a disparity, and how many have one.
@@ -464,7 +450,7 @@ fn run_band(
     out: &mut [f32],
 ) -> MatchStats {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && avx2_detected() {
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: `band_avx2` needs AVX2, BMI1/2, POPCNT and LZCNT, detected just above.
         return unsafe { band_avx2(inputs, rows, out) };
     }

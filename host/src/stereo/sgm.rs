@@ -30,8 +30,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::block_match::{
-    DisparityMap, Kernel, MatchError, MatchStats, SubpixelFit, avx2_detected, locate, pair_size,
-    subpixel_offset,
+    DisparityMap, Kernel, MatchError, MatchStats, SubpixelFit, locate, pair_size, subpixel_offset,
 };
 use super::speckle::filter_speckles;
 use crate::grid::Grid;
@@ -329,7 +328,7 @@ fn census(kernel: Kernel, img: &Grid<u8>) -> Grid<u64> {
 #[allow(unsafe_code)]
 fn run_census_row(kernel: Kernel, img: &Grid<u8>, y: usize, bits: &mut [u64]) {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && avx2_detected() {
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
         return unsafe { census_row_avx2(img, y, bits) };
     }
@@ -394,7 +393,7 @@ fn shift_clamped(src: &[u8], shift: isize, out: &mut [u8]) {
 #[allow(unsafe_code)]
 fn run_costs(kernel: Kernel, s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && avx2_detected() {
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
         return unsafe { costs_avx2(s, left, right, out) };
     }
@@ -447,7 +446,7 @@ enum Pass {
 #[allow(unsafe_code)]
 fn run_pass(kernel: Kernel, s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && avx2_detected() {
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
         return unsafe { pass_avx2(s, p, cost, pass, sum) };
     }
@@ -591,7 +590,7 @@ fn run_select(
     out: &mut [f32],
 ) -> MatchStats {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && avx2_detected() {
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
         return unsafe { select_avx2(s, p, sum, other, out) };
     }

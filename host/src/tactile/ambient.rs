@@ -150,9 +150,9 @@ impl AmbientEstimate {
     /// The mean of `darks`' block means (all the same size); `None` without frames.
     pub fn of(darks: &[&RgbImage]) -> Option<Self> {
         let first = BlockMeans::of(darks.first()?, Self::STEP);
-        let mut sum = first.means.clone();
+        let mut sum = first.means();
         for d in &darks[1..] {
-            for (s, m) in sum.iter_mut().zip(BlockMeans::of(d, Self::STEP).means) {
+            for (s, m) in sum.iter_mut().zip(BlockMeans::of(d, Self::STEP).means()) {
                 for c in 0..3 {
                     s[c] += m[c];
                 }

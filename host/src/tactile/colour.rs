@@ -47,7 +47,48 @@ pub struct Reference {
     inv_red: Vec<f32>,
     inv_blue: Vec<f32>,
     green: Vec<f32>,
-    weights: Vec<(f32, f32)>,
+    weight_red: Vec<f32>,
+    weight_blue: Vec<f32>,
+}
+
+/// The planes of a [`Reference`] over a run of indices, for loops that run in vector
+/// lanes ([`Reference::planes`]).
+#[derive(Debug, Clone, Copy)]
+pub struct ReferencePlanes<'a> {
+    /// `1 / red LED light`.
+    pub inv_red: &'a [f32],
+    /// `1 / blue LED light`.
+    pub inv_blue: &'a [f32],
+    /// Green (non-LED) light.
+    pub green: &'a [f32],
+    /// Weight of the red departure ([`Reference::weights`]).
+    pub weight_red: &'a [f32],
+    /// Weight of the blue departure.
+    pub weight_blue: &'a [f32],
+}
+
+impl ReferencePlanes<'_> {
+    /// What [`Reference::normalise_mean`] gives for `pixel` at index `i` of these planes,
+    /// reduced to its weighted departure from flat skin, `wr·|r − 1| + wb·|b − 1|` (see
+    /// [`Reference::weights`]), and whether the filter accepted it (the departure is 0
+    /// when not). The same arithmetic without branches, so loops over many blocks run in
+    /// vector lanes.
+    #[inline(always)]
+    pub fn departure(&self, filter: &ColourFilter, i: usize, pixel: [f32; 3]) -> (f32, bool) {
+        let saturation = f32::from(filter.saturation);
+        let [r, g, b] = pixel;
+        let (led_r, led_b) = (r - g, b - g);
+        let led = led_r.max(led_b);
+        let accepted = (r < saturation)
+            & (g < saturation)
+            & (b < saturation)
+            & (led >= filter.min_led)
+            & (g <= filter.max_white_ratio * r.max(b))
+            & (g - self.green[i] <= filter.max_green_rise * led);
+        let d = self.weight_red[i] * (led_r.max(0.0) * self.inv_red[i] - 1.0).abs()
+            + self.weight_blue[i] * (led_b.max(0.0) * self.inv_blue[i] - 1.0).abs();
+        (if accepted { d } else { 0.0 }, accepted)
+    }
 }
 
 /// Smallest LED light a reference pixel is assumed to have (keeps ratios bounded).
@@ -91,7 +132,8 @@ impl Reference {
             inv_red: Vec::with_capacity(width * height),
             inv_blue: Vec::with_capacity(width * height),
             green: Vec::with_capacity(width * height),
-            weights: Vec::with_capacity(width * height),
+            weight_red: Vec::with_capacity(width * height),
+            weight_blue: Vec::with_capacity(width * height),
         };
         for [red, blue, green] in planes {
             r.push(red, blue, green);
@@ -109,7 +151,8 @@ impl Reference {
         self.inv_blue.push(ib);
         self.green.push(green);
         let s = 2.0 / (ir + ib);
-        self.weights.push((ib * s, ir * s));
+        self.weight_red.push(ib * s);
+        self.weight_blue.push(ir * s);
     }
 
     /// Width in pixels.
@@ -128,7 +171,18 @@ impl Reference {
     /// is mostly noise.
     #[inline]
     pub fn weights(&self, i: usize) -> (f32, f32) {
-        self.weights[i]
+        (self.weight_red[i], self.weight_blue[i])
+    }
+
+    /// The reference's planes over indices `range` (panics outside the reference).
+    pub fn planes(&self, range: std::ops::Range<usize>) -> ReferencePlanes<'_> {
+        ReferencePlanes {
+            inv_red: &self.inv_red[range.clone()],
+            inv_blue: &self.inv_blue[range.clone()],
+            green: &self.green[range.clone()],
+            weight_red: &self.weight_red[range.clone()],
+            weight_blue: &self.weight_blue[range],
+        }
     }
 
     /// Normalised LED colour `(red, blue)` of `pixel` at index `i`, or `None` when the

@@ -61,7 +61,7 @@ pub fn look(image: &RgbImage, filter: &ColourFilter) -> PhaseLook {
     let sat = f32::from(filter.saturation);
     let mut lit = 0usize;
     let (mut thirds_x, mut thirds_y) = ([(0.0f32, 0usize); 3], [(0.0f32, 0usize); 3]);
-    for (i, &[r, g, bl]) in b.means.iter().enumerate() {
+    for (i, [r, g, bl]) in (0..b.len()).map(|i| (i, b.mean(i))) {
         let (x, y) = (i % b.width, i / b.width);
         if (r - g).max(bl - g) >= filter.min_led && r.max(g).max(bl) < sat {
             lit += 1;
@@ -75,7 +75,7 @@ pub fn look(image: &RgbImage, filter: &ColourFilter) -> PhaseLook {
     }
     let mean = |t: (f32, usize)| if t.1 > 0 { t.0 / t.1 as f32 } else { 0.0 };
     PhaseLook {
-        lit: lit as f32 / b.means.len().max(1) as f32,
+        lit: lit as f32 / b.len().max(1) as f32,
         across: mean(thirds_x[2]) - mean(thirds_x[0]),
         down: mean(thirds_y[2]) - mean(thirds_y[0]),
     }

@@ -8,7 +8,8 @@
 use image::RgbImage;
 
 /// Mean RGB of each `step × step` block of an image (partial blocks at the right and
-/// bottom edges average the pixels they have).
+/// bottom edges average the pixels they have), one plane per channel so loops over the
+/// blocks run in vector lanes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BlockMeans {
     /// Block size (px).
@@ -17,8 +18,12 @@ pub struct BlockMeans {
     pub width: usize,
     /// Blocks down.
     pub height: usize,
-    /// Mean `[R, G, B]` per block, row by row.
-    pub means: Vec<[f32; 3]>,
+    /// Mean red per block, row by row.
+    pub red: Vec<f32>,
+    /// Mean green per block.
+    pub green: Vec<f32>,
+    /// Mean blue per block.
+    pub blue: Vec<f32>,
     /// Per block, how many of its pixel columns' channels reach 255 in some row
     /// (clipped: the light there is unknown); 0 when nothing is clipped.
     pub clipped: Vec<u32>,
@@ -26,7 +31,8 @@ pub struct BlockMeans {
 
 impl BlockMeans {
     /// Block means of `image`. The rows of a block are first summed channel by channel
-    /// (a loop the compiler vectorises), then each block's columns.
+    /// ([`sum_rows`]), then the columns of every block at once ([`sum_blocks_of_four`]
+    /// for the default step of 4), both in vector lanes.
     pub fn of(image: &RgbImage, step: usize) -> Self {
         // u16 row sums hold up to 257 rows of 255.
         let step = step.clamp(1, 256);
@@ -34,28 +40,60 @@ impl BlockMeans {
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let raw = image.as_raw();
         let mut rows = vec![0u16; w * 3];
-        let mut clipped_rows = vec![0u8; w * 3];
-        let mut means = Vec::with_capacity(bw * bh);
-        let mut clipped = Vec::with_capacity(bw * bh);
+        let mut row_max = vec![0u8; w * 3];
+        let mut quads = vec![0u16; w * 3];
+        let mut out = Self {
+            step,
+            width: bw,
+            height: bh,
+            red: Vec::with_capacity(bw * bh),
+            green: Vec::with_capacity(bw * bh),
+            blue: Vec::with_capacity(bw * bh),
+            clipped: Vec::with_capacity(bw * bh),
+        };
         for by in 0..bh {
             let y0 = by * step;
             let n_rows = step.min(h - y0);
-            rows.fill(0);
-            clipped_rows.fill(0);
-            for y in y0..y0 + n_rows {
-                // Cannot overflow (at most 256 rows of 255); wrapping keeps the loop free
-                // of overflow checks so it vectorises in every profile.
-                let row = &raw[y * w * 3..(y + 1) * w * 3];
-                let (sums, clips) = (&mut rows[..row.len()], &mut clipped_rows[..row.len()]);
-                for i in 0..row.len() {
-                    sums[i] = sums[i].wrapping_add(u16::from(row[i]));
-                    clips[i] = clips[i].max(row[i]);
+            // Whole blocks of four pixels (the default step) in vector lanes.
+            let whole = if step == 4 { w / 4 } else { 0 };
+            let any_clipped = sum_rows(
+                &raw[y0 * w * 3..(y0 + n_rows) * w * 3],
+                w * 3,
+                &mut rows,
+                &mut row_max,
+                &mut quads[..(whole * 12).saturating_sub(9)],
+            );
+            let full = 1.0 / (n_rows * step) as f32;
+            if whole > 0 {
+                let at = out.red.len();
+                for plane in [&mut out.red, &mut out.green, &mut out.blue] {
+                    plane.resize(at + whole, 0.0);
+                }
+                let (red, green, blue) = (
+                    &mut out.red[at..],
+                    &mut out.green[at..],
+                    &mut out.blue[at..],
+                );
+                for (j, q) in quads.chunks_exact(12).take(whole - 1).enumerate() {
+                    red[j] = f32::from(q[0]) * full;
+                    green[j] = f32::from(q[1]) * full;
+                    blue[j] = f32::from(q[2]) * full;
+                }
+                // The last block's sums end 9 values before the row does.
+                let q = &quads[12 * (whole - 1)..];
+                red[whole - 1] = f32::from(q[0]) * full;
+                green[whole - 1] = f32::from(q[1]) * full;
+                blue[whole - 1] = f32::from(q[2]) * full;
+                if any_clipped {
+                    out.clipped
+                        .extend(row_max[..whole * 12].chunks_exact(12).map(count_clipped));
+                } else {
+                    out.clipped.resize(at + whole, 0);
                 }
             }
             // Sums of at most 256 × 256 values of 255 fit a u32: wrapping adds keep the
             // loops free of overflow checks.
-            let full = 1.0 / (n_rows * step) as f32;
-            for bx in 0..bw {
+            for bx in whole..bw {
                 let x0 = bx * step;
                 let n_cols = step.min(w - x0);
                 let inv = if n_cols == step {
@@ -70,22 +108,117 @@ impl BlockMeans {
                         s[c] = s[c].wrapping_add(u32::from(px[c]));
                     }
                 }
-                let mut clips = 0u32;
-                for &c in &clipped_rows[span] {
-                    clips += u32::from(c == u8::MAX);
-                }
-                means.push(s.map(|v| v as f32 * inv));
-                clipped.push(clips);
+                out.red.push(s[0] as f32 * inv);
+                out.green.push(s[1] as f32 * inv);
+                out.blue.push(s[2] as f32 * inv);
+                out.clipped.push(count_clipped(&row_max[span]));
             }
         }
-        Self {
-            step,
-            width: bw,
-            height: bh,
-            means,
-            clipped,
+        out
+    }
+
+    /// Number of blocks.
+    pub fn len(&self) -> usize {
+        self.red.len()
+    }
+
+    /// `true` for an image with no pixels.
+    pub fn is_empty(&self) -> bool {
+        self.red.is_empty()
+    }
+
+    /// Mean `[R, G, B]` of block `i`.
+    pub fn mean(&self, i: usize) -> [f32; 3] {
+        [self.red[i], self.green[i], self.blue[i]]
+    }
+
+    /// Every block's mean `[R, G, B]`, row by row.
+    pub fn means(&self) -> Vec<[f32; 3]> {
+        (0..self.len()).map(|i| self.mean(i)).collect()
+    }
+}
+
+/// Channel values at 255 among `maxes`.
+#[inline]
+fn count_clipped(maxes: &[u8]) -> u32 {
+    maxes.iter().map(|&c| u32::from(c == u8::MAX)).sum()
+}
+
+/// `quads[k] = rows[k] + rows[k + 3] + rows[k + 6] + rows[k + 9]`: at `k = 12·j + c` the
+/// sum of channel `c` over the four pixels of block `j` (at most 4 × 1020, a u16).
+#[inline(always)]
+fn sum_blocks_of_four(rows: &[u16], quads: &mut [u16]) {
+    let n = quads.len();
+    let (a, b, c, d) = (
+        &rows[..n],
+        &rows[3..n + 3],
+        &rows[6..n + 6],
+        &rows[9..n + 9],
+    );
+    for k in 0..n {
+        quads[k] = a[k]
+            .wrapping_add(b[k])
+            .wrapping_add(c[k])
+            .wrapping_add(d[k]);
+    }
+}
+
+/// Channel-by-channel sums (`sums`) and maxima (`maxes`) over the rows of `rows` (each
+/// `stride` bytes, at most 257 of them so the u16 sums cannot overflow), then the sums of
+/// blocks of four pixels into `quads` ([`sum_blocks_of_four`]; pass an empty slice for
+/// other block sizes). Says whether any value reached 255. Runs the AVX2 copy of the loops
+/// when the CPU has it.
+#[allow(unsafe_code)]
+fn sum_rows(
+    rows: &[u8],
+    stride: usize,
+    sums: &mut [u16],
+    maxes: &mut [u8],
+    quads: &mut [u16],
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::avx2() {
+        // SAFETY: `sum_rows_avx2` only needs AVX2, detected just above.
+        return unsafe { sum_rows_avx2(rows, stride, sums, maxes, quads) };
+    }
+    sum_rows_portable(rows, stride, sums, maxes, quads)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn sum_rows_avx2(
+    rows: &[u8],
+    stride: usize,
+    sums: &mut [u16],
+    maxes: &mut [u8],
+    quads: &mut [u16],
+) -> bool {
+    sum_rows_portable(rows, stride, sums, maxes, quads)
+}
+
+#[inline(always)]
+fn sum_rows_portable(
+    rows: &[u8],
+    stride: usize,
+    sums: &mut [u16],
+    maxes: &mut [u8],
+    quads: &mut [u16],
+) -> bool {
+    let (sums, maxes) = (&mut sums[..stride], &mut maxes[..stride]);
+    sums.fill(0);
+    maxes.fill(0);
+    for row in rows.chunks_exact(stride) {
+        // Cannot overflow (at most 257 rows of 255); wrapping keeps the loop free of
+        // overflow checks so it vectorises in every profile.
+        for ((s, m), &v) in sums.iter_mut().zip(maxes.iter_mut()).zip(row) {
+            *s = s.wrapping_add(u16::from(v));
+            *m = (*m).max(v);
         }
     }
+    if !quads.is_empty() {
+        sum_blocks_of_four(sums, quads);
+    }
+    maxes.iter().fold(0, |a, &m| a.max(m)) == u8::MAX
 }
 
 /// Bilinear interpolation of per-block values (`width × height` blocks of `step` px, row
@@ -184,19 +317,19 @@ mod tests {
         let img = ramp(10, 6);
         let b = BlockMeans::of(&img, 4);
         assert_eq!((b.width, b.height), (3, 2));
-        assert_eq!(b.means[0], [1.5, 1.5, 3.0]);
+        assert_eq!(b.mean(0), [1.5, 1.5, 3.0]);
         assert!(b.clipped.iter().all(|&c| c == 0));
         let mut bright = img.clone();
         bright.put_pixel(9, 5, image::Rgb([255, 255, 7]));
         assert_eq!(BlockMeans::of(&bright, 4).clipped, [0, 0, 0, 0, 0, 2]);
         // The last column of blocks holds x = 8, 9; the last row y = 4, 5.
-        assert_eq!(b.means[5], [8.5, 4.5, 13.0]);
-        assert_eq!(BlockMeans::of(&img, 0).means.len(), 60);
+        assert_eq!(b.mean(5), [8.5, 4.5, 13.0]);
+        assert_eq!(BlockMeans::of(&img, 0).len(), 60);
         // Blocks larger than the image: one block, the image's mean.
         let whole = BlockMeans::of(&img, 1000);
         assert_eq!((whole.width, whole.height), (1, 1));
-        for (got, want) in whole.means[0].iter().zip([4.5, 2.5, 7.0]) {
-            assert!((got - want).abs() < 1e-5, "{:?}", whole.means[0]);
+        for (got, want) in whole.mean(0).iter().zip([4.5, 2.5, 7.0]) {
+            assert!((got - want).abs() < 1e-5, "{:?}", whole.mean(0));
         }
     }
 

@@ -1,0 +1,33 @@
+//! Which vector instructions this CPU has. Builds target plain x86-64 so the binary runs
+//! anywhere; the hot kernels of the tactile and stereo pipelines are compiled a second
+//! time with AVX2 enabled and pick that copy at run time when the CPU has it. The checks
+//! are cached by the standard library, so asking per call is cheap.
+
+/// AVX2: 256-bit integer and float lanes (the tactile block sums).
+#[cfg(target_arch = "x86_64")]
+pub fn avx2() -> bool {
+    std::is_x86_feature_detected!("avx2")
+}
+
+/// AVX2: 256-bit integer and float lanes (the tactile block sums).
+#[cfg(not(target_arch = "x86_64"))]
+pub fn avx2() -> bool {
+    false
+}
+
+/// AVX2 with the bit-manipulation and counting instructions the stereo matchers' census
+/// and cost kernels use (BMI1/2, POPCNT, LZCNT).
+#[cfg(target_arch = "x86_64")]
+pub fn avx2_bmi() -> bool {
+    avx2()
+        && std::is_x86_feature_detected!("bmi1")
+        && std::is_x86_feature_detected!("bmi2")
+        && std::is_x86_feature_detected!("popcnt")
+        && std::is_x86_feature_detected!("lzcnt")
+}
+
+/// AVX2 with BMI1/2, POPCNT and LZCNT (never on other architectures).
+#[cfg(not(target_arch = "x86_64"))]
+pub fn avx2_bmi() -> bool {
+    false
+}
