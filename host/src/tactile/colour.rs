@@ -68,13 +68,11 @@ pub struct ReferencePlanes<'a> {
 }
 
 impl ReferencePlanes<'_> {
-    /// What [`Reference::normalise_mean`] gives for `pixel` at index `i` of these planes,
-    /// reduced to its weighted departure from flat skin, `wr·|r − 1| + wb·|b − 1|` (see
-    /// [`Reference::weights`]), and whether the filter accepted it (the departure is 0
-    /// when not). The same arithmetic without branches, so loops over many blocks run in
-    /// vector lanes.
+    /// [`Reference::normalise_mean`] at index `i` of these planes without branches:
+    /// the normalised `[red, blue]` and whether the filter accepted the colour (the
+    /// values mean nothing when it did not). The same arithmetic, so the same numbers.
     #[inline(always)]
-    pub fn departure(&self, filter: &ColourFilter, i: usize, pixel: [f32; 3]) -> (f32, bool) {
+    pub fn normalise(&self, filter: &ColourFilter, i: usize, pixel: [f32; 3]) -> ([f32; 2], bool) {
         let saturation = f32::from(filter.saturation);
         let [r, g, b] = pixel;
         let (led_r, led_b) = (r - g, b - g);
@@ -85,8 +83,23 @@ impl ReferencePlanes<'_> {
             & (led >= filter.min_led)
             & (g <= filter.max_white_ratio * r.max(b))
             & (g - self.green[i] <= filter.max_green_rise * led);
-        let d = self.weight_red[i] * (led_r.max(0.0) * self.inv_red[i] - 1.0).abs()
-            + self.weight_blue[i] * (led_b.max(0.0) * self.inv_blue[i] - 1.0).abs();
+        (
+            [
+                led_r.max(0.0) * self.inv_red[i],
+                led_b.max(0.0) * self.inv_blue[i],
+            ],
+            accepted,
+        )
+    }
+
+    /// What [`Reference::normalise_mean`] gives for `pixel` at index `i` of these planes,
+    /// reduced to its weighted departure from flat skin, `wr·|r − 1| + wb·|b − 1|` (see
+    /// [`Reference::weights`]), and whether the filter accepted it (the departure is 0
+    /// when not). Branch-free, so loops over many blocks run in vector lanes.
+    #[inline(always)]
+    pub fn departure(&self, filter: &ColourFilter, i: usize, pixel: [f32; 3]) -> (f32, bool) {
+        let ([r, b], accepted) = self.normalise(filter, i, pixel);
+        let d = self.weight_red[i] * (r - 1.0).abs() + self.weight_blue[i] * (b - 1.0).abs();
         (if accepted { d } else { 0.0 }, accepted)
     }
 }

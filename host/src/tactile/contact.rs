@@ -236,6 +236,56 @@ impl Detection {
         let start = y / self.step.max(1) * self.blocks_across;
         &self.touched[start..start + self.blocks_across]
     }
+
+    /// The pixels of `roi` (row by row) whose block is touched, grown by `grow` pixels
+    /// (square): [`dilate`] of the touched blocks, clipped to the region, built block
+    /// row by block row. Every pixel row of a block row is the same, so each block row is
+    /// grown across once and a pixel row is the union of the few grown block rows
+    /// within `grow` of it.
+    pub fn touched_pixels(&self, roi: &Roi, grow: usize) -> Vec<bool> {
+        let (w, h) = (roi.width, roi.height);
+        let step = self.step.max(1);
+        let mut mask = vec![false; w * h];
+        if w == 0 || h == 0 {
+            return mask;
+        }
+        let (first, last) = (roi.y / step, (roi.y + h - 1) / step);
+        // Each block row's touched pixels across the region, grown by `grow` across.
+        let mut grown = vec![false; (last - first + 1) * w];
+        let mut plain = vec![false; w];
+        for (by, out) in (first..=last).zip(grown.chunks_exact_mut(w)) {
+            let touched = self.touched_row(by * step);
+            for (x, p) in plain.iter_mut().enumerate() {
+                *p = touched[(roi.x + x) / step];
+            }
+            grow_row(&plain, out, grow);
+        }
+        for (ry, row) in mask.chunks_exact_mut(w).enumerate() {
+            let top = roi.y + ry.saturating_sub(grow);
+            let bottom = roi.y + (ry + grow).min(h - 1);
+            for by in top / step..=bottom / step {
+                let src = &grown[(by - first) * w..(by - first + 1) * w];
+                for (m, s) in row.iter_mut().zip(src) {
+                    *m |= *s;
+                }
+            }
+        }
+        mask
+    }
+}
+
+/// `out[x]` is set when any of `row[x − r ..= x + r]` is.
+fn grow_row(row: &[bool], out: &mut [bool], r: usize) {
+    let w = row.len();
+    let mut last_set: Option<usize> = None;
+    for x in 0..(w + r) {
+        if x < w && row[x] {
+            last_set = Some(x);
+        }
+        if x >= r {
+            out[x - r] = matches!(last_set, Some(s) if x - s <= 2 * r);
+        }
+    }
 }
 
 /// Finds the regions of interest around contacts from the images' block means, compared
@@ -395,40 +445,76 @@ pub(crate) fn label_components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, 
 }
 
 /// Sets every unset pixel not 4-connected to the frame border through unset pixels.
+///
+/// Works on runs of unset pixels rather than pixels: the runs of each row are joined to
+/// the runs they overlap in the row above (union–find), a set of runs touching the border
+/// is outside, and the runs of every other set are holes.
 pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
-    let mut outside = vec![false; mask.len()];
-    let mut stack: Vec<usize> = (0..mask.len())
-        .filter(|&i| {
-            let (x, y) = (i % w, i / w);
-            (x == 0 || y == 0 || x == w - 1 || y == h - 1) && !mask[i]
-        })
-        .collect();
-    for &i in &stack {
-        outside[i] = true;
+    if w == 0 || h == 0 {
+        return;
     }
-    while let Some(i) = stack.pop() {
-        let (x, y) = (i % w, i / w);
-        let mut visit = |j: usize| {
-            if !mask[j] && !outside[j] {
-                outside[j] = true;
-                stack.push(j);
+    // Runs `[start, end)` of unset pixels, row by row; `rows[y]..rows[y + 1]` are row y's.
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut rows = Vec::with_capacity(h + 1);
+    for row in mask.chunks_exact(w) {
+        rows.push(runs.len());
+        let mut x = 0;
+        while x < w {
+            while x < w && row[x] {
+                x += 1;
             }
-        };
-        if x > 0 {
-            visit(i - 1);
-        }
-        if x + 1 < w {
-            visit(i + 1);
-        }
-        if y > 0 {
-            visit(i - w);
-        }
-        if y + 1 < h {
-            visit(i + w);
+            let start = x;
+            while x < w && !row[x] {
+                x += 1;
+            }
+            if x > start {
+                runs.push((start, x));
+            }
         }
     }
-    for (m, o) in mask.iter_mut().zip(&outside) {
-        *m = !*o;
+    rows.push(runs.len());
+    let mut parent: Vec<usize> = (0..runs.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for y in 1..h {
+        let (above, here) = (rows[y - 1]..rows[y], rows[y]..rows[y + 1]);
+        let mut a = above.start;
+        for i in here {
+            let (start, end) = runs[i];
+            // Runs above that end before this one starts can touch no later run either.
+            while a < above.end && runs[a].1 <= start {
+                a += 1;
+            }
+            let mut j = a;
+            while j < above.end && runs[j].0 < end {
+                let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
+                parent[ri.max(rj)] = ri.min(rj);
+                j += 1;
+            }
+        }
+    }
+    let mut outside = vec![false; runs.len()];
+    for y in 0..h {
+        let first = rows[y];
+        for (i, &(start, end)) in runs[first..rows[y + 1]].iter().enumerate() {
+            if y == 0 || y + 1 == h || start == 0 || end == w {
+                let r = root(&mut parent, first + i);
+                outside[r] = true;
+            }
+        }
+    }
+    for y in 0..h {
+        for i in rows[y]..rows[y + 1] {
+            if !outside[root(&mut parent, i)] {
+                let (start, end) = runs[i];
+                mask[y * w + start..y * w + end].fill(true);
+            }
+        }
     }
 }
 
@@ -439,21 +525,8 @@ pub fn dilate(mask: &mut [bool], w: usize, h: usize, r: usize) {
     }
     let mut tmp = vec![false; mask.len()];
     // Rows: a pixel is set when any pixel within ±r in its row is.
-    for y in 0..h {
-        let row = &mask[y * w..(y + 1) * w];
-        let out = &mut tmp[y * w..(y + 1) * w];
-        let mut last_set: Option<usize> = None;
-        for x in 0..(w + r) {
-            if x < w && row[x] {
-                last_set = Some(x);
-            }
-            if x >= r
-                && let Some(s) = last_set
-                && x - s <= 2 * r
-            {
-                out[x - r] = true;
-            }
-        }
+    for (row, out) in mask.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        grow_row(row, out, r);
     }
     // Columns, from tmp back into mask.
     for x in 0..w {
@@ -519,6 +592,101 @@ mod tests {
             assert!(fast.iter().any(|d| d.is_nan()) && fast.iter().any(|&d| d > 0.0));
             assert!(unlit > 0 && unlit < fast.len());
         }
+    }
+
+    /// Growing the touched blocks block row by block row gives what building the pixel
+    /// mask and dilating it gives, for regions at odd offsets and sizes.
+    #[test]
+    fn touched_pixels_equal_dilated_blocks() {
+        let mut rng = crate::rng::Rng::new(3);
+        let (bw, bh, step) = (13usize, 9usize, 4usize);
+        let detection = Detection {
+            regions: Vec::new(),
+            step,
+            blocks_across: bw,
+            touched: (0..bw * bh).map(|_| rng.uniform() < 0.15).collect(),
+            unlit_fraction: 0.0,
+        };
+        for (x, y, width, height, grow) in [
+            (0, 0, 52, 36, 6),
+            (3, 5, 41, 27, 6),
+            (7, 2, 30, 33, 0),
+            (1, 1, 50, 34, 9),
+            (10, 30, 5, 6, 2),
+        ] {
+            let roi = Roi {
+                x,
+                y,
+                width,
+                height,
+            };
+            let mut want = vec![false; width * height];
+            for ry in 0..height {
+                for rx in 0..width {
+                    want[ry * width + rx] = detection.touched_row(y + ry)[(x + rx) / step];
+                }
+            }
+            dilate(&mut want, width, height, grow);
+            assert_eq!(
+                detection.touched_pixels(&roi, grow),
+                want,
+                "{roi:?} grow {grow}"
+            );
+        }
+    }
+
+    /// The run-based hole filling equals a pixel flood fill from the border on random
+    /// masks (rings, spirals of holes and bays of every shape come up at these densities).
+    #[test]
+    fn fill_holes_equals_a_flood_fill() {
+        fn flood(mask: &[bool], w: usize, h: usize) -> Vec<bool> {
+            let mut outside = vec![false; mask.len()];
+            let mut stack: Vec<usize> = (0..mask.len())
+                .filter(|&i| {
+                    let (x, y) = (i % w, i / w);
+                    (x == 0 || y == 0 || x == w - 1 || y == h - 1) && !mask[i]
+                })
+                .collect();
+            for &i in &stack {
+                outside[i] = true;
+            }
+            while let Some(i) = stack.pop() {
+                let (x, y) = (i % w, i / w);
+                let mut next = Vec::new();
+                if x > 0 {
+                    next.push(i - 1);
+                }
+                if x + 1 < w {
+                    next.push(i + 1);
+                }
+                if y > 0 {
+                    next.push(i - w);
+                }
+                if y + 1 < h {
+                    next.push(i + w);
+                }
+                for j in next {
+                    if !mask[j] && !outside[j] {
+                        outside[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+            outside.iter().map(|o| !o).collect()
+        }
+        let mut rng = crate::rng::Rng::new(8);
+        let mut holes = 0;
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (2, 2), (17, 13), (40, 31), (64, 64)] {
+            for density in [0.3, 0.5, 0.6, 0.75] {
+                let mask: Vec<bool> = (0..w * h).map(|_| rng.uniform() < density).collect();
+                let want = flood(&mask, w, h);
+                let mut got = mask.clone();
+                fill_holes(&mut got, w, h);
+                assert_eq!(got, want, "{w}x{h} density {density}");
+                holes += got.iter().zip(&mask).filter(|(g, m)| **g && !**m).count();
+            }
+        }
+        assert!(holes > 50, "the masks had holes to fill: {holes}");
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //!
 //! Stages, each in its own module: [`colour`] keeps the LEDs' red and blue light and
 //! normalises it by a no-contact reference; [`contact`] finds touched pixels and the region
-//! of interest (no contact → no further work); [`model`] turns colour into slopes (lookup
+//! of interest (no contact → no further work); [`features`] gathers the touched pixels'
+//! colours as the model's inputs; [`model`] turns colour into slopes (lookup
 //! table or small MLP, trained by [`calibrate`]); [`sanitize`] bounds the slopes;
 //! [`poisson`] integrates them; [`output`] writes NPY/PNG/PLY/JSON. [`render`] is our own
 //! synthetic sensor used by the demo, the benchmark and the tests; [`skins`] draws skins
@@ -15,6 +16,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod colour;
 pub mod contact;
+pub mod features;
 pub mod images;
 pub mod model;
 pub mod output;

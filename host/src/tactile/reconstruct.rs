@@ -9,6 +9,7 @@
 //! detection grid; with contact, only the padded regions around contacts are normalised,
 //! only their touched pixels go through the model, and only the regions are integrated.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use image::RgbImage;
@@ -19,7 +20,8 @@ use super::ambient::{
 };
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
-use super::model::{ModelKind, TactileModel, colour_features, validate};
+use super::features::{Features, Inputs};
+use super::model::{ModelKind, TactileModel, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -223,8 +225,10 @@ pub struct Reconstructor {
     /// The model's ambient estimate at full resolution (models calibrated on LED light).
     ambient: Option<RgbImage>,
     /// Model features and their pixel in the region, per axis.
-    features: [Vec<[f32; 4]>; 2],
-    targets: [Vec<usize>; 2],
+    features: Features,
+    /// The lookup table's position gain at every pixel, per axis (LUT only: computed
+    /// once, so the model does not blend it per pixel), and each feature row's gain.
+    lut_gains: Option<Arc<[Vec<f32>; 2]>>,
     slopes: Vec<f32>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
@@ -244,7 +248,7 @@ impl Reconstructor {
             max_slope: self.max_slope,
             ambient: self.ambient.clone(),
             features: Default::default(),
-            targets: Default::default(),
+            lut_gains: self.lut_gains.clone(),
             slopes: Vec::new(),
             led: Default::default(),
         }
@@ -324,7 +328,18 @@ impl Reconstructor {
                 ),
             ),
         };
+        let lut_gains = match kind {
+            ModelKind::Lut => match (
+                model.dx.lut.gain_plane(model.width, model.height),
+                model.dy.lut.gain_plane(model.width, model.height),
+            ) {
+                (Some(dx), Some(dy)) => Some(Arc::new([dx, dy])),
+                _ => None,
+            },
+            ModelKind::Mlp => None,
+        };
         Ok(Self {
+            lut_gains,
             model,
             kind,
             solver_kind,
@@ -334,7 +349,6 @@ impl Reconstructor {
             max_slope: DEFAULT_MAX_SLOPE,
             ambient,
             features: Default::default(),
-            targets: Default::default(),
             slopes: Vec::new(),
             led: Default::default(),
         })
@@ -461,75 +475,67 @@ impl Reconstructor {
         let (w, h) = (self.model.width, self.model.height);
         let filter = self.model.filter;
         let params = self.model.contact;
-        let n = roi.area();
         // Touched pixels: the touched blocks, grown to take in the faint outer slopes.
-        let mut mask = vec![false; n];
-        let step = detection.step.max(1);
-        let block_of_column: Vec<usize> = (roi.x..roi.x + roi.width).map(|x| x / step).collect();
-        for (ry, row) in mask.chunks_exact_mut(roi.width).enumerate() {
-            let touched = detection.touched_row(roi.y + ry);
-            for (m, &bx) in row.iter_mut().zip(&block_of_column) {
-                *m = touched[bx];
-            }
-        }
-        contact::dilate(&mut mask, roi.width, roi.height, params.dilate_px);
+        let mask = detection.touched_pixels(roi, params.dilate_px);
 
-        // Normalised colours of the touched pixels, as each axis' model features, in one
-        // pass; pixels the colour filter rejects in a phase get no slope on its axis.
-        let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
-        for axis in 0..2 {
-            self.features[axis].clear();
-            self.targets[axis].clear();
-        }
-        let (raw_dx, raw_dy) = (dx.as_raw(), dy.as_raw());
-        for (ry, row) in mask.chunks_exact(roi.width).enumerate() {
-            let y = roi.y + ry;
-            let yn = y as f32 * inv_h;
-            for (rx, _) in row.iter().enumerate().filter(|(_, m)| **m) {
-                let x = roi.x + rx;
-                let i = y * w + x;
-                let at = |raw: &[u8]| {
-                    let px = &raw[3 * i..3 * i + 3];
-                    [f32::from(px[0]), f32::from(px[1]), f32::from(px[2])]
-                };
-                let (c, _) = contact::colours_of(&self.refs, &filter, i, at(raw_dx), at(raw_dy));
-                out.rejected_pixels += usize::from(c[0].is_nan()) + usize::from(c[2].is_nan());
-                let xn = x as f32 * inv_w;
-                for (axis, f) in colour_features(c).into_iter().enumerate() {
-                    if let Some([r, b]) = f {
-                        self.features[axis].push([r, b, xn, yn]);
-                        self.targets[axis].push(ry * roi.width + rx);
-                    }
-                }
-            }
-        }
-        let t1 = Instant::now();
-        out.timings.colour_ms += ms(t0, t1);
-
-        // Slopes from the model on touched, accepted pixels; zero elsewhere.
+        let inputs = Inputs {
+            dx,
+            dy,
+            refs: &self.refs,
+            filter: &filter,
+            gains: self.lut_gains.as_deref(),
+        };
         let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
         let mut q = Grid::filled(roi.width, roi.height, 0.0f32);
-        for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
-            self.slopes.clear();
-            self.slopes.resize(self.features[axis].len(), 0.0);
-            let model = if axis == 0 {
-                &self.model.dx
-            } else {
-                &self.model.dy
-            };
-            model.eval(self.kind, &self.features[axis], &mut self.slopes);
-            let values = grid.as_mut_slice();
-            for (&k, &s) in self.targets[axis].iter().zip(&self.slopes) {
-                values[k] = s;
+        let t2 = if let (ModelKind::Lut, Some(_)) = (self.kind, &self.lut_gains) {
+            // The lookup table reads the colours as they are made: one pass, no rows of
+            // features in between; each stage's time is measured inside it.
+            let (changed, times) = self.features.lut_slopes(
+                &inputs,
+                roi,
+                &mask,
+                [&self.model.dx.lut, &self.model.dy.lut],
+                [p.as_mut_slice(), q.as_mut_slice()],
+                self.max_slope,
+            );
+            out.sanitized_slopes += changed;
+            out.rejected_pixels += self.features.rejected;
+            let t2 = Instant::now();
+            let overhead = ms(t0, t2) - times.colour_ms - times.model_ms;
+            out.timings.colour_ms += times.colour_ms + overhead;
+            out.timings.model_ms += times.model_ms;
+            t2
+        } else {
+            // Each axis' model features of the touched pixels the colour filter accepts;
+            // the others get no slope on that axis.
+            self.features.collect(&inputs, roi, &mask);
+            out.rejected_pixels += self.features.rejected;
+            let t1 = Instant::now();
+            out.timings.colour_ms += ms(t0, t1);
+            for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
+                self.slopes.clear();
+                let features = &self.features.axes[axis];
+                self.slopes.resize(features.rows.len(), 0.0);
+                let model = if axis == 0 {
+                    &self.model.dx
+                } else {
+                    &self.model.dy
+                };
+                model.eval(self.kind, &features.rows, &mut self.slopes);
+                // Non-finite slopes become 0 and the rest are bounded (the grid's other
+                // pixels are 0 already).
+                let fixed = sanitize(&mut self.slopes, self.max_slope);
+                out.sanitized_slopes += fixed.non_finite + fixed.clamped;
+                let values = grid.as_mut_slice();
+                for (&k, &s) in features.targets.iter().zip(&self.slopes) {
+                    values[k] = s;
+                }
             }
-        }
-        let t2 = Instant::now();
-        out.timings.model_ms += ms(t1, t2);
+            let t2 = Instant::now();
+            out.timings.model_ms += ms(t1, t2);
+            t2
+        };
 
-        let fixed = sanitize(p.as_mut_slice(), self.max_slope);
-        let fixed_q = sanitize(q.as_mut_slice(), self.max_slope);
-        out.sanitized_slopes +=
-            fixed.non_finite + fixed.clamped + fixed_q.non_finite + fixed_q.clamped;
         let depth_px = self.solver.integrate(self.solver_kind, &p, &q)?;
         // The imprint is the touched pixels with the holes they enclose (a flat-bottomed
         // object's plateau has no slope but is pressed in). Skin outside it is at rest:

@@ -15,19 +15,22 @@ pub struct SanitizeReport {
     pub clamped: usize,
 }
 
-/// Replaces non-finite slopes by 0 and clamps the rest to `±max_slope`.
+/// Replaces non-finite slopes by 0 and clamps the rest to `±max_slope`. Branch-free, so
+/// it runs in vector lanes.
 pub fn sanitize(slopes: &mut [f32], max_slope: f32) -> SanitizeReport {
-    let mut report = SanitizeReport::default();
+    let (mut non_finite, mut clamped) = (0usize, 0usize);
     for v in slopes {
-        if !v.is_finite() {
-            *v = 0.0;
-            report.non_finite += 1;
-        } else if v.abs() > max_slope {
-            *v = v.signum() * max_slope;
-            report.clamped += 1;
-        }
+        let finite = v.is_finite();
+        let steep = v.abs() > max_slope;
+        non_finite += usize::from(!finite);
+        clamped += usize::from(finite & steep);
+        let bounded = if steep { max_slope.copysign(*v) } else { *v };
+        *v = if finite { bounded } else { 0.0 };
     }
-    report
+    SanitizeReport {
+        non_finite,
+        clamped,
+    }
 }
 
 #[cfg(test)]
@@ -36,9 +39,17 @@ mod tests {
 
     #[test]
     fn replaces_and_clamps() {
-        let mut v = [0.5, f32::NAN, f32::INFINITY, -1e3, 2.0, f32::NEG_INFINITY];
+        let mut v = [
+            0.5,
+            f32::NAN,
+            f32::INFINITY,
+            -1e3,
+            2.0,
+            f32::NEG_INFINITY,
+            -0.25,
+        ];
         let r = sanitize(&mut v, 1.0);
-        assert_eq!(v, [0.5, 0.0, 0.0, -1.0, 1.0, 0.0]);
+        assert_eq!(v, [0.5, 0.0, 0.0, -1.0, 1.0, 0.0, -0.25]);
         assert_eq!(
             r,
             SanitizeReport {

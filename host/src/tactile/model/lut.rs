@@ -141,58 +141,123 @@ impl Lut {
         if self.gain.len() == 1 {
             return colour * self.gain[0];
         }
-        let gain: f32 = cell_weights(x, y, self.cells_x, self.cells_y)
+        colour * self.blended_gain(x, y, self.cells_x, self.cells_y)
+    }
+
+    /// The position gain at normalised position `(x, y)`, bilinear between cells.
+    #[inline]
+    fn blended_gain(&self, x: f32, y: f32, cells_x: usize, cells_y: usize) -> f32 {
+        cell_weights(x, y, cells_x, cells_y)
             .iter()
             .map(|&(cell, w)| self.gain[cell] * w)
-            .sum();
-        colour * gain
+            .sum()
+    }
+
+    /// The gain [`Self::eval`] multiplies the colour's slope by at every pixel of a
+    /// `width × height` frame, row by row, at the positions reconstruction gives the
+    /// model (`x / width`, `y / height`): with it, [`Self::eval_planes`] skips the
+    /// blend per pixel. `None` for a damaged table (see [`Self::eval_batch`]).
+    pub fn gain_plane(&self, width: usize, height: usize) -> Option<Vec<f32>> {
+        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
+        if self.gain.len() < cells_x * cells_y {
+            return None;
+        }
+        let (inv_w, inv_h) = (1.0 / width as f32, 1.0 / height as f32);
+        let mut plane = Vec::with_capacity(width * height);
+        for y in 0..height {
+            let yn = y as f32 * inv_h;
+            plane.extend((0..width).map(|x| {
+                if cells_x * cells_y == 1 {
+                    self.gain[0]
+                } else {
+                    self.blended_gain(x as f32 * inv_w, yn, cells_x, cells_y)
+                }
+            }));
+        }
+        Some(plane)
+    }
+}
+
+impl Lut {
+    /// [`Self::eval`] over feature rows `[r, b, x, y]`, with the table's constants
+    /// hoisted out of the loop.
+    pub fn eval_batch(&self, features: &[[f32; 4]], out: &mut [f32]) {
+        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
+        if self.gain.len() < cells_x * cells_y {
+            // A table that does not match its size (a damaged model file): slope 0.
+            out.iter_mut().for_each(|o| *o = 0.0);
+            return;
+        }
+        let single_gain = (cells_x * cells_y == 1).then(|| self.gain[0]);
+        self.eval_colours(features, out, |f| match single_gain {
+            Some(g) => g,
+            None => self.blended_gain(f[2], f[3], cells_x, cells_y),
+        });
+    }
+
+    /// [`Self::eval`] on colour planes: slope `i` from `(red[i], blue[i])` and `gains[i]`,
+    /// its pixel's entry of [`Self::gain_plane`] (the same slopes, bit for bit, without
+    /// the blend of the gain per pixel).
+    pub fn eval_planes(&self, red: &[f32], blue: &[f32], gains: &[f32], out: &mut [f32]) {
+        let Some(table) = self.checked_table() else {
+            out.iter_mut().for_each(|o| *o = 0.0);
+            return;
+        };
+        let n = out.len().min(red.len()).min(blue.len()).min(gains.len());
+        let (red, blue, gains, out) = (&red[..n], &blue[..n], &gains[..n], &mut out[..n]);
+        for i in 0..n {
+            out[i] = self.table_colour(table, red[i], blue[i]) * gains[i];
+        }
+    }
+
+    /// The table when it matches its size (`None` for a damaged model file).
+    #[inline]
+    fn checked_table(&self) -> Option<&[f32]> {
+        let bins = self.bins.max(2);
+        self.table.get(..bins * bins)
+    }
+
+    /// The colour table at `(r, b)`, bilinear; `table` from [`Self::checked_table`].
+    #[inline(always)]
+    fn table_colour(&self, table: &[f32], r: f32, b: f32) -> f32 {
+        let bins = self.bins.max(2);
+        let top = (bins - 1) as f32;
+        let scale = top / self.max_value;
+        // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
+        let split = |v: f32| {
+            let v = v.max(0.0).min(top);
+            let i = (v as usize).min((top as usize).saturating_sub(1));
+            (i, v - i as f32)
+        };
+        let (ir, fr) = split(r * scale);
+        let (ib, fb) = split(b * scale);
+        let row = ir * bins + ib;
+        let a = table[row] * (1.0 - fb) + table[row + 1] * fb;
+        let c = table[row + bins] * (1.0 - fb) + table[row + bins + 1] * fb;
+        a * (1.0 - fr) + c * fr
+    }
+
+    /// The colour table, bilinear, times `gain(feature row)`.
+    #[inline(always)]
+    fn eval_colours(
+        &self,
+        features: &[[f32; 4]],
+        out: &mut [f32],
+        mut gain: impl FnMut(&[f32; 4]) -> f32,
+    ) {
+        let Some(table) = self.checked_table() else {
+            // A table that does not match its size (a damaged model file): slope 0.
+            out.iter_mut().for_each(|o| *o = 0.0);
+            return;
+        };
+        for (f, o) in features.iter().zip(out.iter_mut()) {
+            *o = self.table_colour(table, f[0], f[1]) * gain(f);
+        }
     }
 }
 
 /// Mean per entry where samples fell; elsewhere the mean of already-filled neighbours,
 /// spreading outwards until the table is full. An empty table is all zero.
-impl Lut {
-    /// [`Self::eval`] over feature rows `[r, b, x, y]`, with the table's constants
-    /// hoisted out of the loop (the hot path of reconstruction).
-    pub fn eval_batch(&self, features: &[[f32; 4]], out: &mut [f32]) {
-        let bins = self.bins.max(2);
-        if self.table.len() < bins * bins || self.gain.len() < self.cells_x * self.cells_y {
-            // A table that does not match its size (a damaged model file): slope 0.
-            out.iter_mut().for_each(|o| *o = 0.0);
-            return;
-        }
-        let table = &self.table[..bins * bins];
-        let top = (bins - 1) as f32;
-        let scale = top / self.max_value;
-        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
-        let single_gain = (cells_x * cells_y == 1).then(|| self.gain[0]);
-        // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
-        let split = |v: f32, top: f32| {
-            let v = v.max(0.0).min(top);
-            let i = (v as usize).min((top as usize).saturating_sub(1));
-            (i, v - i as f32)
-        };
-        for (f, o) in features.iter().zip(out.iter_mut()) {
-            let (ir, fr) = split(f[0] * scale, top);
-            let (ib, fb) = split(f[1] * scale, top);
-            let row = ir * bins + ib;
-            let a = table[row] * (1.0 - fb) + table[row + 1] * fb;
-            let c = table[row + bins] * (1.0 - fb) + table[row + bins + 1] * fb;
-            let colour = a * (1.0 - fr) + c * fr;
-            *o = match single_gain {
-                Some(g) => colour * g,
-                None => {
-                    let gain: f32 = cell_weights(f[2], f[3], cells_x, cells_y)
-                        .iter()
-                        .map(|&(cell, w)| self.gain[cell] * w)
-                        .sum();
-                    colour * gain
-                }
-            };
-        }
-    }
-}
-
 fn fill_gaps(sum: &[f32], weight: &[f32], bins: usize) -> Vec<f32> {
     const SEEN: f32 = 1e-3;
     let mut value: Vec<f32> = sum

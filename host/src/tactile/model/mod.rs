@@ -39,17 +39,22 @@ pub const LUT_MAX_COLOUR: f32 = 4.0;
 /// Without it, a colour in which one LED is shadowed (steep walls) is ambiguous and a
 /// model reads steep walls shallow. When the other phase is rejected the factor is 1.
 pub fn colour_features(c: [f32; 4]) -> [Option<[f32; 2]>; 2] {
-    let brightness = |r: f32, b: f32| {
-        let s = r + b;
-        if s.is_finite() && s > 0.0 {
-            (2.0 / s).clamp(0.5, 3.0)
-        } else {
-            1.0
-        }
-    };
-    let (sx, sy) = (brightness(c[0], c[1]), brightness(c[2], c[3]));
+    let (sx, sy) = (cross_factor(c[0], c[1]), cross_factor(c[2], c[3]));
     let phase = |r: f32, b: f32, s: f32| (!r.is_nan() && !b.is_nan()).then_some([r * s, b * s]);
     [phase(c[0], c[1], sy), phase(c[2], c[3], sx)]
+}
+
+/// The factor [`colour_features`] multiplies the other phase's colour by, from one
+/// phase's normalised `(r, b)`: `2 / (r + b)` within [0.5, 3], or 1 when the sum is not a
+/// positive number (a rejected phase is NaN).
+#[inline(always)]
+pub fn cross_factor(r: f32, b: f32) -> f32 {
+    let s = r + b;
+    if s.is_finite() && s > 0.0 {
+        (2.0 / s).clamp(0.5, 3.0)
+    } else {
+        1.0
+    }
 }
 
 /// One training example: features `[r, b, x, y]` and the true slope.

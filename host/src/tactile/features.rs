@@ -1,0 +1,453 @@
+//! The model's inputs for the touched pixels of one region: each phase's normalised LED
+//! colour ([`ReferencePlanes::normalise`]), made independent of the other axis' slope by
+//! the other phase's brightness ([`cross_factor`]), with the pixel's position and, for the
+//! lookup table, its position gain.
+//!
+//! The numbers are those of [`super::contact::colours_of`] then
+//! [`super::model::colour_features`], computed differently for speed: a region row at a
+//! time, every pixel of the row's touched span in vector lanes (colour planes first, then
+//! the filter and the factors without branches), and only then the touched, accepted
+//! pixels are kept (a compaction whose write position advances with the filter's verdict).
+
+use std::time::Instant;
+
+use image::RgbImage;
+
+use super::colour::{ColourFilter, ReferencePlanes};
+use super::contact::{References, Roi};
+use super::model::{Lut, cross_factor};
+use super::sanitize::sanitize;
+
+/// Feature rows of one axis and where they go.
+#[derive(Debug, Default)]
+pub struct AxisFeatures {
+    /// `[r, b, x / width, y / height]` per accepted touched pixel.
+    pub rows: Vec<[f32; 4]>,
+    /// Index of each row's pixel in the region (row-major).
+    pub targets: Vec<usize>,
+}
+
+/// Buffers reused across regions and frames.
+#[derive(Debug, Default)]
+pub struct Features {
+    /// dx phase (x slopes) and dy phase (y slopes).
+    pub axes: [AxisFeatures; 2],
+    /// Pixels the colour filter rejected, summed over both phases.
+    pub rejected: usize,
+    row: RowScratch,
+}
+
+/// One region row of both phases, as planes.
+#[derive(Debug, Default)]
+struct RowScratch {
+    /// `[R, G, B]` planes of dx then dy.
+    planes: [[Vec<f32>; 3]; 2],
+    /// Normalised `[red, blue]` of dx then dy, times the other phase's factor.
+    colour: [[Vec<f32>; 2]; 2],
+    /// Accepted by the filter, dx then dy.
+    lit: [Vec<bool>; 2],
+}
+
+/// What the features are made from.
+pub struct Inputs<'a> {
+    /// Phase images (the light the model works on).
+    pub dx: &'a RgbImage,
+    /// dy phase.
+    pub dy: &'a RgbImage,
+    /// Full-resolution references.
+    pub refs: &'a References,
+    /// Colour filter.
+    pub filter: &'a ColourFilter,
+    /// Position gain of every pixel of the frame per axis ([`super::model::Lut::gain_plane`]),
+    /// or `None`.
+    pub gains: Option<&'a [Vec<f32>; 2]>,
+}
+
+/// Calls `visit(ry, first, span)` for every run of set pixels of `mask` (row-major over
+/// `roi` in a frame `frame_width` wide): its region row, its first region column, and its
+/// frame indices.
+fn for_each_run(
+    mask: &[bool],
+    roi: &Roi,
+    frame_width: usize,
+    mut visit: impl FnMut(usize, usize, std::ops::Range<usize>),
+) {
+    for (ry, row) in mask.chunks_exact(roi.width.max(1)).enumerate() {
+        let mut x = 0;
+        while x < row.len() {
+            while x < row.len() && !row[x] {
+                x += 1;
+            }
+            let first = x;
+            while x < row.len() && row[x] {
+                x += 1;
+            }
+            if x > first {
+                let start = (roi.y + ry) * frame_width + roi.x + first;
+                visit(ry, first, start..start + (x - first));
+            }
+        }
+    }
+}
+
+/// Time spent in the two stages of [`Features::lut_slopes`] (ms).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FusedTimings {
+    /// Colour filter and normalisation.
+    pub colour_ms: f64,
+    /// Lookup table and slope bounds.
+    pub model_ms: f64,
+}
+
+impl Features {
+    /// The features of `mask`'s pixels (row-major over `roi`) in `roi`. Only the runs
+    /// of touched pixels are read (the references are large).
+    pub fn collect(&mut self, inputs: &Inputs<'_>, roi: &Roi, mask: &[bool]) {
+        let (w, h) = (inputs.dx.width() as usize, inputs.dx.height() as usize);
+        let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
+        let touched = mask.iter().filter(|m| **m).count();
+        // One spare row: every touched pixel is written, the position advances when the
+        // phase was accepted.
+        for axis in &mut self.axes {
+            axis.rows.clear();
+            axis.rows.resize(touched + 1, [0.0; 4]);
+            axis.targets.clear();
+            axis.targets.resize(touched + 1, 0);
+        }
+        let mut next = [0usize; 2];
+        let (row, axes) = (&mut self.row, &mut self.axes);
+        for_each_run(mask, roi, w, |ry, first, span| {
+            row.fill(inputs, span.clone());
+            let yn = (roi.y + ry) as f32 * inv_h;
+            for (axis, out) in axes.iter_mut().enumerate() {
+                let [red, blue] = &row.colour[axis];
+                let lit = &row.lit[axis];
+                let mut j = next[axis];
+                for (i, ((&r, &b), &ok)) in red.iter().zip(blue).zip(lit).enumerate() {
+                    let rx = first + i;
+                    out.rows[j] = [r, b, (roi.x + rx) as f32 * inv_w, yn];
+                    out.targets[j] = ry * roi.width + rx;
+                    j += usize::from(ok);
+                }
+                next[axis] = j;
+            }
+        });
+        for (axis, n) in self.axes.iter_mut().zip(next) {
+            axis.rows.truncate(n);
+            axis.targets.truncate(n);
+        }
+        self.rejected = 2 * touched - next[0] - next[1];
+    }
+
+    /// The lookup tables' slopes of `mask`'s pixels straight into `slopes` (`[p, q]`,
+    /// row-major over `roi`, zero where nothing is written), run by run: the colour and
+    /// the table in one pass with no feature rows in between. Pixels the filter rejects in
+    /// a phase get slope 0 on its axis; slopes are bounded by `max_slope` (NaN → 0) and
+    /// the bounded ones counted, as [`super::sanitize::sanitize`] does. Needs
+    /// `inputs.gains`. Returns the slopes changed and the time of each stage.
+    pub fn lut_slopes(
+        &mut self,
+        inputs: &Inputs<'_>,
+        roi: &Roi,
+        mask: &[bool],
+        luts: [&Lut; 2],
+        slopes: [&mut [f32]; 2],
+        max_slope: f32,
+    ) -> (usize, FusedTimings) {
+        let w = inputs.dx.width() as usize;
+        let mut timings = FusedTimings::default();
+        let mut changed = 0;
+        self.rejected = 0;
+        let Some(gains) = inputs.gains else {
+            return (0, timings);
+        };
+        let (row, rejected) = (&mut self.row, &mut self.rejected);
+        let [p, q] = slopes;
+        let mut clock = Instant::now();
+        for_each_run(mask, roi, w, |ry, first, span| {
+            row.fill(inputs, span.clone());
+            let t = Instant::now();
+            timings.colour_ms += ms(clock, t);
+            let at = ry * roi.width + first..ry * roi.width + first + span.len();
+            for (axis, out) in [&mut p[at.clone()], &mut q[at.clone()]]
+                .into_iter()
+                .enumerate()
+            {
+                let [red, blue] = &row.colour[axis];
+                luts[axis].eval_planes(red, blue, &gains[axis][span.clone()], out);
+                let lit = &row.lit[axis];
+                for (o, &ok) in out.iter_mut().zip(lit) {
+                    *o = if ok { *o } else { 0.0 };
+                }
+                *rejected += lit.iter().filter(|ok| !**ok).count();
+                let fixed = sanitize(out, max_slope);
+                changed += fixed.non_finite + fixed.clamped;
+            }
+            clock = Instant::now();
+            timings.model_ms += ms(t, clock);
+        });
+        (changed, timings)
+    }
+}
+
+fn ms(a: Instant, b: Instant) -> f64 {
+    (b - a).as_secs_f64() * 1e3
+}
+
+impl RowScratch {
+    /// Planes, normalised colours, verdicts and cross factors of the pixels `span` (frame
+    /// indices within one row).
+    fn fill(&mut self, inputs: &Inputs<'_>, span: std::ops::Range<usize>) {
+        let n = span.len();
+        for (phase, image) in [inputs.dx, inputs.dy].into_iter().enumerate() {
+            let raw = &image.as_raw()[3 * span.start..3 * span.end];
+            let [r, g, b] = &mut self.planes[phase];
+            for plane in [&mut *r, &mut *g, &mut *b] {
+                plane.resize(n, 0.0);
+            }
+            deinterleave(raw, r, g, b);
+        }
+        let refs = [
+            inputs.refs.dx.planes(span.clone()),
+            inputs.refs.dy.planes(span),
+        ];
+        for (colour, lit) in self.colour.iter_mut().zip(&mut self.lit) {
+            colour[0].resize(n, 0.0);
+            colour[1].resize(n, 0.0);
+            lit.resize(n, false);
+        }
+        normalise_pair(
+            &self.planes,
+            &refs,
+            inputs.filter,
+            &mut self.colour,
+            &mut self.lit,
+        );
+    }
+}
+
+/// Interleaved 8-bit RGB into three float planes.
+#[inline]
+fn deinterleave(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
+    for (((px, r), g), b) in raw.chunks_exact(3).zip(r).zip(g).zip(b) {
+        (*r, *g, *b) = (f32::from(px[0]), f32::from(px[1]), f32::from(px[2]));
+    }
+}
+
+/// Both phases' normalised colours, each times the other phase's cross factor (1 where
+/// the other phase is rejected), and the filter's verdicts. Runs the AVX2 copy when the
+/// CPU has it.
+#[allow(unsafe_code)]
+fn normalise_pair(
+    planes: &[[Vec<f32>; 3]; 2],
+    refs: &[ReferencePlanes<'_>; 2],
+    filter: &ColourFilter,
+    colour: &mut [[Vec<f32>; 2]; 2],
+    lit: &mut [Vec<bool>; 2],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::avx2() {
+        // SAFETY: `normalise_pair_avx2` only needs AVX2, detected just above.
+        return unsafe { normalise_pair_avx2(planes, refs, filter, colour, lit) };
+    }
+    normalise_pair_portable(planes, refs, filter, colour, lit)
+}
+
+/// [`normalise_pair_portable`] in 8-wide lanes (no FMA: the same numbers).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn normalise_pair_avx2(
+    planes: &[[Vec<f32>; 3]; 2],
+    refs: &[ReferencePlanes<'_>; 2],
+    filter: &ColourFilter,
+    colour: &mut [[Vec<f32>; 2]; 2],
+    lit: &mut [Vec<bool>; 2],
+) {
+    normalise_pair_portable(planes, refs, filter, colour, lit)
+}
+
+#[inline(always)]
+fn normalise_pair_portable(
+    planes: &[[Vec<f32>; 3]; 2],
+    refs: &[ReferencePlanes<'_>; 2],
+    filter: &ColourFilter,
+    colour: &mut [[Vec<f32>; 2]; 2],
+    lit: &mut [Vec<bool>; 2],
+) {
+    let n = lit[0].len();
+    let [[rx, gx, bx], [ry, gy, by]] = planes;
+    let (rx, gx, bx, ry, gy, by) = (&rx[..n], &gx[..n], &bx[..n], &ry[..n], &gy[..n], &by[..n]);
+    let [[cxr, cxb], [cyr, cyb]] = colour;
+    let (cxr, cxb, cyr, cyb) = (&mut cxr[..n], &mut cxb[..n], &mut cyr[..n], &mut cyb[..n]);
+    let [lit_x, lit_y] = lit;
+    let (lit_x, lit_y) = (&mut lit_x[..n], &mut lit_y[..n]);
+    for i in 0..n {
+        let (c_dx, ok_dx) = refs[0].normalise(filter, i, [rx[i], gx[i], bx[i]]);
+        let (c_dy, ok_dy) = refs[1].normalise(filter, i, [ry[i], gy[i], by[i]]);
+        let s_dx = if ok_dx {
+            cross_factor(c_dx[0], c_dx[1])
+        } else {
+            1.0
+        };
+        let s_dy = if ok_dy {
+            cross_factor(c_dy[0], c_dy[1])
+        } else {
+            1.0
+        };
+        cxr[i] = c_dx[0] * s_dy;
+        cxb[i] = c_dx[1] * s_dy;
+        cyr[i] = c_dy[0] * s_dx;
+        cyb[i] = c_dy[1] * s_dx;
+        lit_x[i] = ok_dx;
+        lit_y[i] = ok_dy;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tactile::contact::{colours_of, dilate};
+    use crate::tactile::model::{Sample, colour_features};
+
+    /// Frames, references and a mask that cross every rule of the colour filter.
+    fn scene() -> (RgbImage, RgbImage, References, Roi, Vec<bool>) {
+        let mut rng = crate::rng::Rng::new(21);
+        let (w, h) = (61u32, 37u32);
+        let mut noisy = |base: [f32; 3]| {
+            RgbImage::from_fn(w, h, |x, _| {
+                let base = match x {
+                    0..5 => [8.0, 7.0, 8.0],
+                    5..9 => [200.0, 190.0, 195.0],
+                    _ => base,
+                };
+                image::Rgb(
+                    base.map(|c| (c + rng.range(-70.0, 90.0) as f32).clamp(0.0, 255.0) as u8),
+                )
+            })
+        };
+        let (dx, dy) = (noisy([120.0, 30.0, 110.0]), noisy([100.0, 25.0, 130.0]));
+        let refs = References {
+            dx: crate::tactile::colour::Reference::from_image(&noisy([120.0, 30.0, 110.0])),
+            dy: crate::tactile::colour::Reference::from_image(&noisy([100.0, 25.0, 130.0])),
+        };
+        let roi = Roi {
+            x: 2,
+            y: 3,
+            width: 50,
+            height: 30,
+        };
+        let mut mask: Vec<bool> = (0..roi.area()).map(|_| rng.uniform() < 0.05).collect();
+        dilate(&mut mask, roi.width, roi.height, 2);
+        (dx, dy, refs, roi, mask)
+    }
+
+    #[test]
+    fn rows_equal_colours_of_then_colour_features() {
+        let (dx, dy, refs, roi, mask) = scene();
+        let filter = ColourFilter::default();
+        let inputs = Inputs {
+            dx: &dx,
+            dy: &dy,
+            refs: &refs,
+            filter: &filter,
+            gains: None,
+        };
+        let mut features = Features::default();
+        features.collect(&inputs, &roi, &mask);
+        let mut want: [Vec<([f32; 4], usize)>; 2] = Default::default();
+        let mut rejected = 0;
+        for (k, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+            let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
+            let i = y * dx.width() as usize + x;
+            let at = |img: &RgbImage| img.get_pixel(x as u32, y as u32).0.map(f32::from);
+            let (c, _) = colours_of(&refs, &filter, i, at(&dx), at(&dy));
+            rejected += usize::from(c[0].is_nan()) + usize::from(c[2].is_nan());
+            let (xn, yn) = (x as f32 / dx.width() as f32, y as f32 / dx.height() as f32);
+            for (axis, f) in colour_features(c).into_iter().enumerate() {
+                if let Some([r, b]) = f {
+                    want[axis].push(([r, b, xn, yn], k));
+                }
+            }
+        }
+        assert_eq!(features.rejected, rejected);
+        assert!(rejected > 0 && want[0].len() > 100 && want[1].len() > 100);
+        for (axis, want) in want.iter().enumerate() {
+            let got = &features.axes[axis];
+            assert_eq!(got.rows.len(), want.len());
+            for (j, (row, k)) in want.iter().enumerate() {
+                assert_eq!(got.targets[j], *k);
+                for c in 0..4 {
+                    // Positions are `x · (1 / width)` here and `x / width` above.
+                    let tolerance = if c < 2 { 0.0 } else { 1e-6 };
+                    assert!(
+                        (got.rows[j][c] - row[c]).abs() <= tolerance,
+                        "axis {axis} row {j}: {:?} vs {row:?}",
+                        got.rows[j]
+                    );
+                }
+            }
+        }
+    }
+
+    /// The fused lookup-table pass writes exactly the slopes the feature rows give
+    /// through `Lut::eval_batch`, bounded and counted as `sanitize` does.
+    #[test]
+    fn lut_slopes_equal_the_feature_rows_path() {
+        let (dx, dy, refs, roi, mask) = scene();
+        let filter = ColourFilter::default();
+        let mut rng = crate::rng::Rng::new(4);
+        let samples: Vec<Sample> = (0..4000)
+            .map(|_| {
+                let features = [
+                    rng.range(0.0, 3.0) as f32,
+                    rng.range(0.0, 3.0) as f32,
+                    rng.uniform() as f32,
+                    rng.uniform() as f32,
+                ];
+                // Steep enough that some slopes are bounded.
+                Sample {
+                    target: 6.0 * (features[0] - features[1]) * (0.5 + features[2]),
+                    features,
+                }
+            })
+            .collect();
+        let lut = Lut::fit(&samples, 24, 4.0, 4, 3);
+        let (w, h) = (dx.width() as usize, dx.height() as usize);
+        let gain = lut.gain_plane(w, h).expect("a whole table");
+        let gains = [gain.clone(), gain];
+        let inputs = Inputs {
+            dx: &dx,
+            dy: &dy,
+            refs: &refs,
+            filter: &filter,
+            gains: Some(&gains),
+        };
+        let mut features = Features::default();
+        let (mut p, mut q) = (vec![0.0f32; roi.area()], vec![0.0f32; roi.area()]);
+        let (changed, _) =
+            features.lut_slopes(&inputs, &roi, &mask, [&lut, &lut], [&mut p, &mut q], 3.0);
+        let fused_rejected = features.rejected;
+
+        features.collect(&inputs, &roi, &mask);
+        assert_eq!(features.rejected, fused_rejected);
+        let mut want_changed = 0;
+        for (axis, got) in [&p, &q].into_iter().enumerate() {
+            let rows = &features.axes[axis];
+            let mut slopes = vec![0.0; rows.rows.len()];
+            lut.eval_batch(&rows.rows, &mut slopes);
+            let fixed = sanitize(&mut slopes, 3.0);
+            want_changed += fixed.non_finite + fixed.clamped;
+            let mut want = vec![0.0f32; roi.area()];
+            for (&k, &s) in rows.targets.iter().zip(&slopes) {
+                want[k] = s;
+            }
+            assert_eq!(
+                got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                "axis {axis}"
+            );
+        }
+        assert_eq!(changed, want_changed);
+        assert!(changed > 0, "some slopes were bounded");
+    }
+}
