@@ -223,11 +223,13 @@ impl Lut {
         let bins = self.bins.max(2);
         let top = (bins - 1) as f32;
         let scale = top / self.max_value;
+        let last = (top as i32 - 1).max(0);
         // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
+        // `v` is within [0, top] here, so the (cheaper) i32 conversion is exact.
         let split = |v: f32| {
             let v = v.max(0.0).min(top);
-            let i = (v as usize).min((top as usize).saturating_sub(1));
-            (i, v - i as f32)
+            let i = (v as i32).min(last);
+            (i as usize, v - i as f32)
         };
         let (ir, fr) = split(r * scale);
         let (ib, fb) = split(b * scale);
