@@ -2,8 +2,10 @@
 //! `mcap` crate's sans-io linear reader, fed from the file in pieces.
 //!
 //! [`RecordingReader`] yields every message, metadata record and attachment in file
-//! order. A file that ends early (the writer was killed, the machine lost power) is
-//! read up to where it stops, usually the last complete chunk: the reader then reports
+//! order. A file that ends early (the writer was killed, the disk filled up, the machine
+//! lost power) is read up to where it stops: the end of the last chunk the writer
+//! finished (the one it was writing still has its placeholder length), or the last whole
+//! record. The reader then reports
 //! [`RecordingReader::truncated`] instead of failing, so `process` works on what there
 //! is and says so. Damage anywhere else is an error naming the file.
 //!
@@ -66,6 +68,8 @@ pub struct RecordingReader {
     reader: LinearReader,
     channels: HashMap<u16, (String, String)>,
     truncated: Option<String>,
+    /// The file ends with the closing magic: its writer finished it.
+    finished: bool,
     done: bool,
     /// Bytes read so far (for progress).
     read_bytes: u64,
@@ -85,6 +89,25 @@ impl std::fmt::Debug for RecordingReader {
 /// more): 256 MiB, far above a 4K RGB frame.
 const RECORD_LIMIT: usize = 256 << 20;
 
+/// MCAP's chunk opcode: the record a writer stopped mid-chunk leaves unfinished.
+const CHUNK_OPCODE: u8 = 0x06;
+
+/// The magic an MCAP file starts and, once finished, ends with.
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// `true` when `file` ends with the closing magic (its writer finished it).
+fn ends_with_magic(file: &mut File, len: u64) -> std::io::Result<bool> {
+    use std::io::{Seek, SeekFrom};
+    if len < MAGIC.len() as u64 {
+        return Ok(false);
+    }
+    file.seek(SeekFrom::End(-(MAGIC.len() as i64)))?;
+    let mut tail = [0u8; 8];
+    file.read_exact(&mut tail)?;
+    file.seek(SeekFrom::Start(0))?;
+    Ok(&tail == MAGIC)
+}
+
 impl RecordingReader {
     /// Opens `path`.
     pub fn open(path: &Path) -> Result<Self, RecordingError> {
@@ -92,9 +115,11 @@ impl RecordingReader {
             path: path.to_path_buf(),
             error,
         };
-        let file = File::open(path).map_err(io)?;
+        let mut file = File::open(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
+        let finished = ends_with_magic(&mut file, len).map_err(io)?;
         Ok(Self {
+            finished,
             path: path.to_path_buf(),
             file,
             reader: LinearReader::new_with_options(
@@ -152,6 +177,25 @@ impl RecordingReader {
                     self.truncated = Some(format!(
                         "the file ends inside a record after {} bytes (the writer was \
                          stopped before finishing it); everything before was read",
+                        self.read_bytes
+                    ));
+                    return None;
+                }
+                // A chunk is started with a placeholder length that is filled in when it
+                // is finished: a writer stopped mid-chunk (killed, disk full) leaves one
+                // that claims to run past the end of the file. In a file without its
+                // closing magic, that is where the writer stopped.
+                Err(
+                    mcap::McapError::UnexpectedEoc
+                    | mcap::McapError::RecordTooLarge {
+                        opcode: CHUNK_OPCODE,
+                        ..
+                    },
+                ) if !self.finished => {
+                    self.truncated = Some(format!(
+                        "the file ends inside a chunk the writer never finished, after {} \
+                         bytes (it was stopped mid-chunk: killed, or the disk was full); \
+                         everything before that chunk was read",
                         self.read_bytes
                     ));
                     return None;
