@@ -130,13 +130,35 @@ pub fn transpose<T: Copy>(src: &[T], dst: &mut [T], width: usize, height: usize)
     assert_eq!(src.len(), width * height);
     assert_eq!(dst.len(), width * height);
     const TILE: usize = 32;
+    const BLOCK: usize = 8;
     for y0 in (0..height).step_by(TILE) {
         let y1 = (y0 + TILE).min(height);
         for x0 in (0..width).step_by(TILE) {
             let x1 = (x0 + TILE).min(width);
+            // Whole 8 × 8 blocks go through registers: eight rows read, eight columns
+            // written; the tile's ragged edges element by element.
+            let (bx1, by1) = (
+                x0 + (x1 - x0) / BLOCK * BLOCK,
+                y0 + (y1 - y0) / BLOCK * BLOCK,
+            );
+            for by in (y0..by1).step_by(BLOCK) {
+                for bx in (x0..bx1).step_by(BLOCK) {
+                    let block: [[T; BLOCK]; BLOCK] = std::array::from_fn(|r| {
+                        let row = &src[(by + r) * width + bx..][..BLOCK];
+                        std::array::from_fn(|c| row[c])
+                    });
+                    for c in 0..BLOCK {
+                        let out = &mut dst[(bx + c) * height + by..][..BLOCK];
+                        for (r, o) in out.iter_mut().enumerate() {
+                            *o = block[r][c];
+                        }
+                    }
+                }
+            }
             for y in y0..y1 {
                 let row = &src[y * width..];
-                for x in x0..x1 {
+                let xs = if y < by1 { bx1..x1 } else { x0..x1 };
+                for x in xs {
                     dst[x * height + y] = row[x];
                 }
             }

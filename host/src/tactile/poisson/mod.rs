@@ -249,7 +249,11 @@ impl<T: Real> PoissonSolver<T> {
             });
         }
         for grid in [p, q] {
-            if let Some(i) = grid.as_slice().iter().position(|v| !v.is_finite()) {
+            // One pass without an early exit runs in vector lanes; the position is looked
+            // for only when there is something to report.
+            let values = grid.as_slice();
+            if values.iter().fold(false, |bad, v| bad | !v.is_finite()) {
+                let i = values.iter().position(|v| !v.is_finite()).unwrap_or(0);
                 return Err(PoissonError::NonFinite { x: i % w, y: i / w });
             }
         }
@@ -276,13 +280,15 @@ impl<T: Real> PoissonSolver<T> {
         let ex = &self.eigen[&(kind, w)];
         let ey = &self.eigen[&(kind, h)];
         // `t` is w rows (one per x frequency) of h values (y frequencies).
-        for (kx, row) in t.chunks_exact_mut(h).enumerate() {
-            for (ky, v) in row.iter_mut().enumerate() {
-                let denom = ex[kx] + ey[ky];
+        // Without branches (the zero frequency of Neumann gives 0), so it runs in lanes.
+        for (row, &ex) in t.chunks_exact_mut(h).zip(ex) {
+            for (v, &ey) in row.iter_mut().zip(&ey[..h]) {
+                let denom = ex + ey;
+                let quotient = *v / denom;
                 *v = if denom == T::zero() {
                     T::zero()
                 } else {
-                    *v / denom
+                    quotient
                 };
             }
         }
