@@ -165,37 +165,31 @@ fn a_raised_stop_flag_ends_the_run_at_once_and_keeps_what_was_captured() {
 /// to `rec`, under `shell_prefix` (shell commands run before the `exec`), and returns
 /// (success, stdout, stderr).
 fn cli_run(shell_prefix: &str, rec: &Path, seconds: &str) -> (bool, String, String) {
-    let out = std::process::Command::new("bash")
-        .args([
-            "-c",
-            &format!("{shell_prefix}; exec \"$0\" \"$@\""),
-            env!("CARGO_BIN_EXE_stereotac"),
-            "--sim",
-            "run",
-            "--camera",
-            "sim",
-            "--mode",
-            "gradient",
-            "--duration-s",
-            seconds,
-            "--mcap",
-            rec.to_str().unwrap(),
-            "--jsonl",
-        ])
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    captured(std::process::Command::new("bash").args([
+        "-c",
+        &format!("{shell_prefix}; exec \"$0\" \"$@\""),
+        env!("CARGO_BIN_EXE_stereotac"),
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--mode",
+        "gradient",
+        "--duration-s",
+        seconds,
+        "--mcap",
+        rec.to_str().unwrap(),
+        "--jsonl",
+    ]))
 }
 
 fn cli(args: &[&str]) -> (bool, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
-        .args(args)
-        .output()
-        .unwrap();
+    captured(std::process::Command::new(env!("CARGO_BIN_EXE_stereotac")).args(args))
+}
+
+/// Runs `command` to the end: (success, stdout, stderr).
+fn captured(command: &mut std::process::Command) -> (bool, String, String) {
+    let out = command.output().unwrap();
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -204,7 +198,7 @@ fn cli(args: &[&str]) -> (bool, String, String) {
 }
 
 /// The pairs `process` reads back from a recording cut short, checked against the pairs
-/// the live run printed: the same depth, in order, and fewer of them.
+/// the live run printed: the same depth, in order, and no more of them.
 fn processed_prefix(rec: &Path, live: &str) -> usize {
     let (ok, out, err) = cli(&["process", rec.to_str().unwrap(), "--jsonl"]);
     assert!(ok, "a cut recording is processed up to the cut: {err}");
