@@ -1,7 +1,13 @@
-//! Timing helpers the benchmarks and the live reports share: the median of repeated
-//! runs, percentiles of latencies.
+//! Timing helpers the benchmarks, the pipelines' stage timings and the live reports
+//! share: milliseconds between two instants, the median of repeated runs, percentiles of
+//! latencies.
 
 use std::time::Instant;
+
+/// Milliseconds from `a` to `b`: the stage timings of the pipelines.
+pub fn ms_between(a: Instant, b: Instant) -> f64 {
+    (b - a).as_secs_f64() * 1e3
+}
 
 /// Median wall time in ms of `repeats` runs of `f`, after one warm-up run.
 pub fn median_ms(repeats: usize, mut f: impl FnMut()) -> f64 {

@@ -274,7 +274,7 @@ impl StereoPipeline {
             self.rectification.focal(),
             self.rectification.baseline(),
         );
-        let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
+        let ms = crate::timing::ms_between;
         let timings = StereoTimings {
             rectify_ms: ms(start, t_rect),
             match_ms: ms(t_rect, t_match),

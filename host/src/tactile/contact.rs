@@ -444,6 +444,22 @@ pub(crate) fn label_components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, 
     (labels, out)
 }
 
+/// The runs `[start, end)` of consecutive entries of `row` equal to `value`, left to
+/// right.
+pub(crate) fn runs(row: &[bool], value: bool) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+    let mut x = 0;
+    std::iter::from_fn(move || {
+        while x < row.len() && row[x] != value {
+            x += 1;
+        }
+        let start = x;
+        while x < row.len() && row[x] == value {
+            x += 1;
+        }
+        (x > start).then_some(start..x)
+    })
+}
+
 /// Sets every unset pixel not 4-connected to the frame border through unset pixels.
 ///
 /// Works on runs of unset pixels rather than pixels: the runs of each row are joined to
@@ -453,27 +469,15 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
     if w == 0 || h == 0 {
         return;
     }
-    // Runs `[start, end)` of unset pixels, row by row; `rows[y]..rows[y + 1]` are row y's.
-    let mut runs: Vec<(usize, usize)> = Vec::new();
+    // Spans `[start, end)` of unset pixels, row by row; `rows[y]..rows[y + 1]` are row y's.
+    let mut spans: Vec<(usize, usize)> = Vec::new();
     let mut rows = Vec::with_capacity(h + 1);
     for row in mask.chunks_exact(w) {
-        rows.push(runs.len());
-        let mut x = 0;
-        while x < w {
-            while x < w && row[x] {
-                x += 1;
-            }
-            let start = x;
-            while x < w && !row[x] {
-                x += 1;
-            }
-            if x > start {
-                runs.push((start, x));
-            }
-        }
+        rows.push(spans.len());
+        spans.extend(runs(row, false).map(|r| (r.start, r.end)));
     }
-    rows.push(runs.len());
-    let mut parent: Vec<usize> = (0..runs.len()).collect();
+    rows.push(spans.len());
+    let mut parent: Vec<usize> = (0..spans.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
             parent[i] = parent[parent[i]];
@@ -485,23 +489,23 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
         let (above, here) = (rows[y - 1]..rows[y], rows[y]..rows[y + 1]);
         let mut a = above.start;
         for i in here {
-            let (start, end) = runs[i];
-            // Runs above that end before this one starts can touch no later run either.
-            while a < above.end && runs[a].1 <= start {
+            let (start, end) = spans[i];
+            // Spans above that end before this one starts can touch no later span either.
+            while a < above.end && spans[a].1 <= start {
                 a += 1;
             }
             let mut j = a;
-            while j < above.end && runs[j].0 < end {
+            while j < above.end && spans[j].0 < end {
                 let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
                 parent[ri.max(rj)] = ri.min(rj);
                 j += 1;
             }
         }
     }
-    let mut outside = vec![false; runs.len()];
+    let mut outside = vec![false; spans.len()];
     for y in 0..h {
         let first = rows[y];
-        for (i, &(start, end)) in runs[first..rows[y + 1]].iter().enumerate() {
+        for (i, &(start, end)) in spans[first..rows[y + 1]].iter().enumerate() {
             if y == 0 || y + 1 == h || start == 0 || end == w {
                 let r = root(&mut parent, first + i);
                 outside[r] = true;
@@ -511,7 +515,7 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
     for y in 0..h {
         for i in rows[y]..rows[y + 1] {
             if !outside[root(&mut parent, i)] {
-                let (start, end) = runs[i];
+                let (start, end) = spans[i];
                 mask[y * w + start..y * w + end].fill(true);
             }
         }

@@ -4,19 +4,21 @@
 //! lookup table, its position gain.
 //!
 //! The numbers are those of [`super::contact::colours_of`] then
-//! [`super::model::colour_features`], computed differently for speed: a region row at a
-//! time, every pixel of the row's touched span in vector lanes (colour planes first, then
-//! the filter and the factors without branches), and only then the touched, accepted
-//! pixels are kept (a compaction whose write position advances with the filter's verdict).
+//! [`super::model::colour_features`], computed differently for speed: a run of touched
+//! pixels of a region row at a time, in vector lanes (colour planes first, then the
+//! filter and the factors without branches), and only then the accepted pixels are kept
+//! (a compaction whose write position advances with the filter's verdict), or, with the
+//! lookup table, turned into slopes at once ([`Features::lut_slopes`]).
 
 use std::time::Instant;
 
 use image::RgbImage;
 
 use super::colour::{ColourFilter, ReferencePlanes};
-use super::contact::{References, Roi};
+use super::contact::{References, Roi, runs};
 use super::model::{Lut, cross_factor};
 use super::sanitize::sanitize;
+use crate::timing::ms_between as ms;
 
 /// Feature rows of one axis and where they go.
 #[derive(Debug, Default)]
@@ -73,19 +75,9 @@ fn for_each_run(
     mut visit: impl FnMut(usize, usize, std::ops::Range<usize>),
 ) {
     for (ry, row) in mask.chunks_exact(roi.width.max(1)).enumerate() {
-        let mut x = 0;
-        while x < row.len() {
-            while x < row.len() && !row[x] {
-                x += 1;
-            }
-            let first = x;
-            while x < row.len() && row[x] {
-                x += 1;
-            }
-            if x > first {
-                let start = (roi.y + ry) * frame_width + roi.x + first;
-                visit(ry, first, start..start + (x - first));
-            }
+        for run in runs(row, true) {
+            let start = (roi.y + ry) * frame_width + roi.x + run.start;
+            visit(ry, run.start, start..start + run.len());
         }
     }
 }
@@ -188,10 +180,6 @@ impl Features {
         });
         (changed, timings)
     }
-}
-
-fn ms(a: Instant, b: Instant) -> f64 {
-    (b - a).as_secs_f64() * 1e3
 }
 
 impl RowScratch {

@@ -26,6 +26,7 @@ use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
 use crate::grid::Grid;
+use crate::timing::ms_between as ms;
 
 /// Why a frame pair could not be reconstructed.
 #[derive(Debug, thiserror::Error)]
@@ -227,7 +228,7 @@ pub struct Reconstructor {
     /// Model features and their pixel in the region, per axis.
     features: Features,
     /// The lookup table's position gain at every pixel, per axis (LUT only: computed
-    /// once, so the model does not blend it per pixel), and each feature row's gain.
+    /// once, so the model does not blend it per pixel).
     lut_gains: Option<Arc<[Vec<f32>; 2]>>,
     slopes: Vec<f32>,
     /// LED light of the current pair (models calibrated on LED light).
@@ -487,9 +488,10 @@ impl Reconstructor {
         };
         let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
         let mut q = Grid::filled(roi.width, roi.height, 0.0f32);
-        let t2 = if let (ModelKind::Lut, Some(_)) = (self.kind, &self.lut_gains) {
-            // The lookup table reads the colours as they are made: one pass, no rows of
-            // features in between; each stage's time is measured inside it.
+        let t2 = if self.lut_gains.is_some() {
+            // The lookup table (its gains are made only for it) reads the colours as they
+            // are made: one pass, no rows of features in between; each stage's time is
+            // measured inside it.
             let (changed, times) = self.features.lut_slopes(
                 &inputs,
                 roi,
@@ -622,10 +624,6 @@ fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
     }
     let k = ring.len() / 2;
     *ring.select_nth_unstable_by(k, f32::total_cmp).1
-}
-
-fn ms(a: Instant, b: Instant) -> f64 {
-    (b - a).as_secs_f64() * 1e3
 }
 
 #[cfg(test)]

@@ -74,16 +74,13 @@ impl BlockMeans {
                     &mut out.green[at..],
                     &mut out.blue[at..],
                 );
-                for (j, q) in quads.chunks_exact(12).take(whole - 1).enumerate() {
+                // Block j's sums are quads[12j..12j + 3] (all written: the last block's
+                // end 9 values before the sums do).
+                for (j, q) in quads.chunks_exact(12).take(whole).enumerate() {
                     red[j] = f32::from(q[0]) * full;
                     green[j] = f32::from(q[1]) * full;
                     blue[j] = f32::from(q[2]) * full;
                 }
-                // The last block's sums end 9 values before the row does.
-                let q = &quads[12 * (whole - 1)..];
-                red[whole - 1] = f32::from(q[0]) * full;
-                green[whole - 1] = f32::from(q[1]) * full;
-                blue[whole - 1] = f32::from(q[2]) * full;
                 if any_clipped {
                     out.clipped
                         .extend(row_max[..whole * 12].chunks_exact(12).map(count_clipped));
