@@ -89,23 +89,18 @@ impl std::fmt::Debug for RecordingReader {
 /// more): 256 MiB, far above a 4K RGB frame.
 const RECORD_LIMIT: usize = 256 << 20;
 
-/// MCAP's chunk opcode: the record a writer stopped mid-chunk leaves unfinished.
-const CHUNK_OPCODE: u8 = 0x06;
-
-/// The magic an MCAP file starts and, once finished, ends with.
-const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
-
 /// `true` when `file` ends with the closing magic (its writer finished it).
 fn ends_with_magic(file: &mut File, len: u64) -> std::io::Result<bool> {
     use std::io::{Seek, SeekFrom};
-    if len < MAGIC.len() as u64 {
+    let magic = mcap::MAGIC;
+    if len < magic.len() as u64 {
         return Ok(false);
     }
-    file.seek(SeekFrom::End(-(MAGIC.len() as i64)))?;
-    let mut tail = [0u8; 8];
+    file.seek(SeekFrom::End(-(magic.len() as i64)))?;
+    let mut tail = vec![0u8; magic.len()];
     file.read_exact(&mut tail)?;
     file.seek(SeekFrom::Start(0))?;
-    Ok(&tail == MAGIC)
+    Ok(tail == magic)
 }
 
 impl RecordingReader {
@@ -188,7 +183,7 @@ impl RecordingReader {
                 Err(
                     mcap::McapError::UnexpectedEoc
                     | mcap::McapError::RecordTooLarge {
-                        opcode: CHUNK_OPCODE,
+                        opcode: mcap::records::op::CHUNK,
                         ..
                     },
                 ) if !self.finished => {
