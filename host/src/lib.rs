@@ -11,7 +11,7 @@
 //!   [`out_dir`] (an output directory per run: nothing replaced without `--force`, no
 //!   folder left by a failed run), [`rng`] (a deterministic random generator),
 //!   [`timing`] (median timings for the benchmarks), [`cpu`] (vector instructions
-//!   the kernels may use), [`output`] (NPY, PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
+//!   the kernels may use), [`union_find`] (disjoint sets, for regions joined run by run), [`output`] (NPY, PNG, PLY files), [`clock`] (host clocks and the device→host clock sync), [`uf2`]
 //!   (firmware ELF to UF2 image, flash and RAM footprint).
 //! * The link: [`transport`] (byte pipes to a sensor: USB through nusb or libusb; owns
 //!   [`transport::Transport`] and the connectors), [`client`] (the protocol client:
@@ -58,3 +58,4 @@ pub mod tactile;
 pub mod timing;
 pub mod transport;
 pub mod uf2;
+pub mod union_find;

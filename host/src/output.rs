@@ -90,16 +90,23 @@ pub fn read_grey(path: &Path) -> Result<Grid<u8>, OutputError> {
     })
 }
 
-/// An RGB frame as 8-bit grey: the `image` crate's luma (Rec. 709 weights), the one
-/// conversion for files (`stereo`) and live frames (`run`, `process`) alike.
+/// An RGB frame as 8-bit grey: the `image` crate's luma (Rec. 709 weights,
+/// `(2126 r + 7152 g + 722 b) / 10000` rounded down), the one conversion for files
+/// (`stereo`) and live frames (`run`, `process`) alike. Computed here in a flat loop the
+/// compiler vectorises: the crate's generic per-pixel conversion took 1.2 ms of a
+/// 640×480 frame, a seventh of the live stereo stage.
 pub fn grey(image: &image::RgbImage) -> Grid<u8> {
     let (w, h) = image.dimensions();
-    Grid::from_vec(
-        w as usize,
-        h as usize,
-        image::imageops::grayscale(image).into_raw(),
-    )
-    .expect("one value per pixel")
+    let luma: Vec<u8> = image
+        .as_raw()
+        .chunks_exact(3)
+        .map(|p| {
+            let sum = 2126 * u32::from(p[0]) + 7152 * u32::from(p[1]) + 722 * u32::from(p[2]);
+            // At most 255 · 10000: the quotient fits a byte.
+            (sum / 10_000) as u8
+        })
+        .collect();
+    Grid::from_vec(w as usize, h as usize, luma).expect("one value per pixel")
 }
 
 /// Writes `grid` as an 8-bit grey PNG.
@@ -338,6 +345,25 @@ mod tests {
             _ => image::Rgb([255, 255, 255]),
         });
         assert_eq!(grey(&img).as_slice(), &[54, 182, 255]);
+    }
+
+    /// The flat loop gives the `image` crate's own luma for every level of every channel
+    /// and for mixed pixels.
+    #[test]
+    fn grey_is_the_image_crates_luma() {
+        let mut rng = crate::rng::Rng::new(11);
+        let mut raw = Vec::new();
+        for v in 0..=255u8 {
+            raw.extend([v, 0, 0, 0, v, 0, 0, 0, v, v, v, v]);
+        }
+        for _ in 0..4096 {
+            raw.extend([0; 3].map(|_| (rng.uniform() * 256.0) as u8));
+        }
+        let img = image::RgbImage::from_raw((raw.len() / 3) as u32, 1, raw).unwrap();
+        assert_eq!(
+            grey(&img).as_slice(),
+            image::imageops::grayscale(&img).as_raw().as_slice()
+        );
     }
 
     #[test]

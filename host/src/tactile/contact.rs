@@ -13,6 +13,8 @@
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
+use crate::union_find::DisjointSets;
+
 use super::colour::{ColourFilter, Reference};
 use super::poisson::SolverKind;
 use super::smooth::BlockMeans;
@@ -477,14 +479,7 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
         spans.extend(runs(row, false).map(|r| (r.start, r.end)));
     }
     rows.push(spans.len());
-    let mut parent: Vec<usize> = (0..spans.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
+    let mut sets = DisjointSets::new(spans.len());
     for y in 1..h {
         let (above, here) = (rows[y - 1]..rows[y], rows[y]..rows[y + 1]);
         let mut a = above.start;
@@ -496,8 +491,7 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
             }
             let mut j = a;
             while j < above.end && spans[j].0 < end {
-                let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
-                parent[ri.max(rj)] = ri.min(rj);
+                sets.union(i, j);
                 j += 1;
             }
         }
@@ -507,14 +501,14 @@ pub(crate) fn fill_holes(mask: &mut [bool], w: usize, h: usize) {
         let first = rows[y];
         for (i, &(start, end)) in spans[first..rows[y + 1]].iter().enumerate() {
             if y == 0 || y + 1 == h || start == 0 || end == w {
-                let r = root(&mut parent, first + i);
+                let r = sets.root(first + i);
                 outside[r] = true;
             }
         }
     }
     for y in 0..h {
         for i in rows[y]..rows[y + 1] {
-            if !outside[root(&mut parent, i)] {
+            if !outside[sets.root(i)] {
                 let (start, end) = spans[i];
                 mask[y * w + start..y * w + end].fill(true);
             }
