@@ -160,6 +160,9 @@ pub struct LoopFigures {
     pub tactile_latency: Option<Latency>,
     /// Stereo latency.
     pub stereo_latency: Option<Latency>,
+    /// Of the latency, the stages' own work (reconstruction or pipeline time; the rest
+    /// is waiting for a busy stage and for the frame pair), tactile and stereo.
+    pub processing: (Option<Latency>, Option<Latency>),
     /// CPU time (user + system, all threads) per delivered frame, ms.
     pub cpu_ms_per_frame: Option<f64>,
     /// Resident memory after the first minute (or the first sample), MiB.
@@ -343,6 +346,7 @@ pub fn run(
         progress: &mut progress,
         tactile: Vec::new(),
         stereo: Vec::new(),
+        processing: (Vec::new(), Vec::new()),
         frames: 0,
         skipped: (0, 0),
         rss_start: None,
@@ -384,6 +388,10 @@ pub fn run(
         stereo_per_s: hooks.stereo.len() as f64 / seconds,
         tactile_latency: latency(hooks.tactile.clone()),
         stereo_latency: latency(hooks.stereo.clone()),
+        processing: (
+            latency(hooks.processing.0.clone()),
+            latency(hooks.processing.1.clone()),
+        ),
         cpu_ms_per_frame: cpu.map(|c| c * 1e3 / frames.max(1) as f64),
         rss_mib_start: rss_start,
         rss_mib_end: rss_end,
@@ -407,6 +415,8 @@ struct BenchHooks<'a, P> {
     progress: &'a mut P,
     tactile: Vec<f64>,
     stereo: Vec<f64>,
+    /// The stages' own time per output: tactile, stereo.
+    processing: (Vec<f64>, Vec<f64>),
     frames: u64,
     skipped: (u64, u64),
     rss_start: Option<f64>,
@@ -433,10 +443,12 @@ impl<P: FnMut(LiveBenchProgress)> Hooks for BenchHooks<'_, P> {
         match output {
             Output::Tactile { record, .. } => {
                 self.tactile.extend(record.latency_ms);
+                self.processing.0.push(record.stage_ms.total_ms);
                 self.skipped.0 = self.skipped.0.max(record.jobs_skipped);
             }
             Output::Stereo { record, .. } => {
                 self.stereo.extend(record.latency_ms);
+                self.processing.1.push(record.stage_ms.total_ms);
                 self.skipped.1 = self.skipped.1.max(record.jobs_skipped);
             }
         }
@@ -592,6 +604,12 @@ pub fn format_table(r: &LiveBenchReport) -> String {
         l.stereo_per_s,
         l.skipped.1,
         lat(l.stereo_latency)
+    );
+    let _ = writeln!(
+        s,
+        "  of which the stage's own work: tactile {}, stereo {}",
+        lat(l.processing.0),
+        lat(l.processing.1)
     );
     let _ = writeln!(
         s,

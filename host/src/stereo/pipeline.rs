@@ -257,29 +257,29 @@ impl StereoPipeline {
         }
         let holes_filled = self.config.hole_fill.map_or(0, |f| f.apply(&mut disparity));
         let t_filter = Instant::now();
-        let mut cloud = reproject(&disparity, &self.rectification.q);
+        let (focal, baseline) = (self.rectification.focal(), self.rectification.baseline());
+        let (mut cloud, mut depth_mm) = rayon::join(
+            || reproject(&disparity, &self.rectification.q),
+            || depth_from_disparity(&disparity, focal, baseline),
+        );
         let t_reproject = Instant::now();
         let mut outliers_removed = 0;
         if let Some(p) = &self.config.outliers {
             let keep = grid_inliers(&cloud, disparity.width(), disparity.height(), p);
             for (&pixel, _) in cloud.pixels.iter().zip(&keep).filter(|(_, k)| !**k) {
                 disparity.as_mut_slice()[pixel as usize] = f32::NAN;
+                depth_mm.as_mut_slice()[pixel as usize] = f32::NAN;
                 outliers_removed += 1;
             }
             cloud.retain(&keep);
         }
         let t_outliers = Instant::now();
-        let depth_mm = depth_from_disparity(
-            &disparity,
-            self.rectification.focal(),
-            self.rectification.baseline(),
-        );
         let ms = crate::timing::ms_between;
         let timings = StereoTimings {
             rectify_ms: ms(start, t_rect),
             match_ms: ms(t_rect, t_match),
             filter_ms: ms(t_match, t_filter),
-            reproject_ms: ms(t_filter, t_reproject) + ms(t_outliers, Instant::now()),
+            reproject_ms: ms(t_filter, t_reproject),
             outliers_ms: ms(t_reproject, t_outliers),
             total_ms: ms(start, Instant::now()),
         };
@@ -345,5 +345,34 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    /// Outlier removal drops a point from the cloud, the disparity and the depth map
+    /// alike (depth is computed beside the cloud, before the removal).
+    #[test]
+    fn removed_outliers_leave_no_depth() {
+        let rig = StereoRig::sensor();
+        let config = StereoConfig {
+            outliers: Some(crate::stereo::outliers::OutlierParams {
+                std_ratio: 0.5,
+                ..Default::default()
+            }),
+            ..StereoConfig::default()
+        };
+        let mut p = StereoPipeline::new(&rig.calibration(), config).unwrap();
+        let (l, r) = render_pair(&rig, &Plane::facing(200.0), &Membrane::sensor(), 1);
+        let f = p.process(&l, &r).unwrap();
+        assert!(f.outliers_removed > 0, "a tight ratio removes some points");
+        let finite = |g: &Grid<f32>| {
+            g.as_slice()
+                .iter()
+                .map(|v| v.is_finite())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(finite(&f.depth_mm), finite(&f.disparity));
+        assert_eq!(
+            f.cloud.len(),
+            finite(&f.depth_mm).iter().filter(|v| **v).count()
+        );
     }
 }

@@ -26,6 +26,7 @@ macro_rules! print {
     }};
 }
 
+mod allocator;
 mod args;
 mod cameras;
 mod cmd;
@@ -166,6 +167,7 @@ fn parser() -> clap::Command {
 }
 
 fn main() -> ExitCode {
+    allocator::keep_frame_buffers();
     let matches = parser().get_matches();
     let name = matches.subcommand_name().unwrap_or_default().to_string();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
