@@ -35,7 +35,8 @@ impl Default for SpatialFilter {
 impl SpatialFilter {
     /// Filters `disparity` in place. Rows are filtered in parallel; the vertical passes
     /// run a whole row at a time (row `y` against the filtered row `y ∓ 1`), which keeps
-    /// them in cache and lets them vectorise.
+    /// them in cache and lets them vectorise, on bands of columns in parallel (one per
+    /// thread: each column is filtered exactly as it would be alone).
     pub fn apply(&self, disparity: &mut Grid<f32>) {
         let alpha = self.alpha.clamp(f32::MIN_POSITIVE, 1.0);
         let (w, h) = (disparity.width(), disparity.height());
@@ -44,20 +45,38 @@ impl SpatialFilter {
         }
         let delta = self.delta;
         let data = disparity.as_mut_slice();
+        // Bands at least 64 columns wide, so a row's part still fills vector lanes.
+        let bands = rayon::current_num_threads().min(w / 64).max(1);
+        let band_w = w.div_ceil(bands);
         for _ in 0..self.iterations {
             data.par_chunks_mut(w).for_each(|row| {
                 smooth_line(row.iter_mut(), alpha, delta);
                 smooth_line(row.iter_mut().rev(), alpha, delta);
             });
-            for y in 1..h {
-                let (done, rest) = data.split_at_mut(y * w);
-                smooth_towards(&mut rest[..w], &done[(y - 1) * w..], alpha, delta);
+            let mut columns: Vec<Vec<&mut [f32]>> =
+                (0..bands).map(|_| Vec::with_capacity(h)).collect();
+            for row in data.chunks_mut(w) {
+                for (band, part) in columns.iter_mut().zip(row.chunks_mut(band_w)) {
+                    band.push(part);
+                }
             }
-            for y in (0..h - 1).rev() {
-                let (head, done) = data.split_at_mut((y + 1) * w);
-                smooth_towards(&mut head[y * w..], &done[..w], alpha, delta);
-            }
+            columns
+                .par_iter_mut()
+                .for_each(|rows| smooth_vertically(rows, alpha, delta));
         }
+    }
+}
+
+/// The vertical passes over one band of columns (`rows`: each row's part, top to
+/// bottom): down, then up.
+fn smooth_vertically(rows: &mut [&mut [f32]], alpha: f32, delta: f32) {
+    for y in 1..rows.len() {
+        let (done, rest) = rows.split_at_mut(y);
+        smooth_towards(rest[0], done[y - 1], alpha, delta);
+    }
+    for y in (0..rows.len().saturating_sub(1)).rev() {
+        let (head, done) = rows.split_at_mut(y + 1);
+        smooth_towards(head[y], done[0], alpha, delta);
     }
 }
 
@@ -247,6 +266,43 @@ mod tests {
         let mut n = Grid::from_fn(5, 1, |x, _| if x == 2 { f32::NAN } else { 10.0 });
         SpatialFilter::default().apply(&mut n);
         assert!(n.get(2, 0).is_nan() && n.get(1, 0) == 10.0 && n.get(3, 0) == 10.0);
+    }
+
+    /// Column bands on several threads filter exactly as one thread does.
+    #[test]
+    fn spatial_bands_match_one_thread() {
+        let mut rng = crate::rng::Rng::new(4);
+        let noisy = Grid::from_fn(301, 40, |x, y| {
+            if rng.uniform() < 0.05 {
+                f32::NAN
+            } else {
+                (x / 50) as f32 * 3.0 + 0.01 * y as f32 + rng.uniform() as f32 * 0.6
+            }
+        });
+        let run = |threads| {
+            let mut d = noisy.clone();
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| SpatialFilter::default().apply(&mut d));
+            d
+        };
+        let one = run(1);
+        let changed = one.as_slice().iter().zip(noisy.as_slice());
+        let changed = changed.filter(|(a, b)| a.is_finite() && a != b).count();
+        assert!(
+            changed > 301 * 40 / 2,
+            "the filter smoothed {changed} pixels"
+        );
+        for threads in [2, 3, 4] {
+            let many = run(threads);
+            let same = one.as_slice().iter().zip(many.as_slice());
+            assert!(
+                same.into_iter().all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{threads} threads"
+            );
+        }
     }
 
     #[test]
