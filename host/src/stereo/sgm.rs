@@ -730,6 +730,15 @@ impl RefineSums {
         let den = 0.25 * (u * u * aa + 2.0 * t * u * ab + t * t * bb);
         (num, den)
     }
+
+    /// One Gauss–Newton step from disparity `d` with these sums at whole shift `b`:
+    /// the new disparity, or `None` where the window has no gradient or the estimate
+    /// strays more than 0.75 px from `whole`, the whole pixel it started at.
+    fn step(&self, b: f32, d: f32, whole: f32) -> Option<f32> {
+        let (num, den) = self.at(b - d);
+        let next = d - num / den;
+        (den > 1.0 && (next - whole).abs() <= 0.75).then_some(next)
+    }
 }
 
 /// Least-squares sub-pixel refinement (Lucas–Kanade along the row, 9×9 window). For a
@@ -886,15 +895,12 @@ fn refine_row(
                 here.push((b, s));
                 s
             };
-            let (num, den) = sums.at(b as f32 - d);
-            if den <= 1.0 {
-                ok = false;
-                break;
-            }
-            d -= num / den;
-            if (d - whole).abs() > 0.75 {
-                ok = false;
-                break;
+            match sums.step(b as f32, d, whole) {
+                Some(next) => d = next,
+                None => {
+                    ok = false;
+                    break;
+                }
             }
         }
         if ok {
@@ -1016,15 +1022,12 @@ mod tests {
                             RefineSums::column(left, right, y - R..y + R + 1, xx, xx - b as usize);
                         sums.add(c, 1);
                     }
-                    let (num, den) = sums.at(b - d);
-                    if den <= 1.0 {
-                        ok = false;
-                        break;
-                    }
-                    d -= num / den;
-                    if (d - whole).abs() > 0.75 {
-                        ok = false;
-                        break;
+                    match sums.step(b, d, whole) {
+                        Some(next) => d = next,
+                        None => {
+                            ok = false;
+                            break;
+                        }
                     }
                 }
                 if ok {
