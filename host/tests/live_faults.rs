@@ -165,22 +165,32 @@ fn a_raised_stop_flag_ends_the_run_at_once_and_keeps_what_was_captured() {
 /// to `rec`, under `shell_prefix` (shell commands run before the `exec`), and returns
 /// (success, stdout, stderr).
 fn cli_run(shell_prefix: &str, rec: &Path, seconds: &str) -> (bool, String, String) {
-    captured(std::process::Command::new("bash").args([
-        "-c",
-        &format!("{shell_prefix}; exec \"$0\" \"$@\""),
-        env!("CARGO_BIN_EXE_stereotac"),
+    captured(
+        std::process::Command::new("bash")
+            .args([
+                "-c",
+                &format!("{shell_prefix}; exec \"$0\" \"$@\""),
+                env!("CARGO_BIN_EXE_stereotac"),
+            ])
+            .args(run_args(rec))
+            .args(["--duration-s", seconds]),
+    )
+}
+
+/// The arguments of a simulated `run` (one simulated camera, gradient mode) that records
+/// to `rec` and prints JSON lines.
+fn run_args(rec: &Path) -> [&str; 9] {
+    [
         "--sim",
         "run",
         "--camera",
         "sim",
         "--mode",
         "gradient",
-        "--duration-s",
-        seconds,
         "--mcap",
         rec.to_str().unwrap(),
         "--jsonl",
-    ]))
+    ]
 }
 
 fn cli(args: &[&str]) -> (bool, String, String) {
@@ -239,17 +249,7 @@ fn a_full_disk_stops_the_run_and_leaves_a_recording_readable_up_to_its_last_chun
 fn a_killed_run_leaves_a_recording_readable_up_to_its_last_chunk() {
     let rec = temp("killed");
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
-        .args([
-            "--sim",
-            "run",
-            "--camera",
-            "sim",
-            "--mode",
-            "gradient",
-            "--mcap",
-            rec.to_str().unwrap(),
-            "--jsonl",
-        ])
+        .args(run_args(&rec))
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
         .spawn()
