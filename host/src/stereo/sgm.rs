@@ -750,10 +750,9 @@ impl RefineSums {
 /// the same shift, and each window column is slid down from the row above
 /// ([`ColumnCache`]), so a pixel usually costs two window columns of two pixels each
 /// (640×480, 64 disparities: 38 → 16 ms on one core, the same result bit for bit).
-/// Kept only when it
-/// stays within 0.75 px of the nearest whole pixel and the window has gradient;
-/// otherwise the aggregated-cost estimate stays, as it does where the window (and the
-/// right-view pixels it reads) would leave the image.
+/// Kept only when it stays within 0.75 px of the nearest whole pixel and the window has
+/// gradient; otherwise the aggregated-cost estimate stays, as it does where the window
+/// (and the right-view pixels it reads) would leave the image.
 fn refine(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
     const R: usize = REFINE_RADIUS;
     let (w, h) = (left.width(), left.height());
