@@ -6,8 +6,9 @@
 //! half-pixel positions (`(p[i] + p[i+1]) / 2 ≈ z[i+1] − z[i]`), which removes the
 //! half-pixel shift of a plain forward difference.
 //!
-//! Two solvers, both exact (no iteration) and `O(N log N)` through real FFTs whose plans
-//! are built once per length and cached in [`PoissonSolver`]:
+//! Two solvers, both exact (no iteration) and `O(N log N)`: each is one 2-D DCT-II
+//! (two real 2-D FFTs and a pass over the spectrum, see [`Dct2d`]) whose plans are built
+//! once per domain size and cached in [`PoissonSolver`]:
 //!
 //! * [`SolverKind::Dct`], Neumann boundary: no flux across the border of the domain
 //!   (the surface is mirrored there). The result is defined up to a constant, which is
@@ -30,9 +31,11 @@ use std::str::FromStr;
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
 
-pub use transforms::{DctII, DstII, Real, Scratch, next_smooth};
+pub use transforms::{Buffers, Dct2d, Real, Signs, next_smooth};
 
-use crate::grid::{Grid, transpose};
+use rustfft::FftPlanner;
+
+use crate::grid::Grid;
 
 /// Which boundary condition / transform to integrate with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -125,16 +128,18 @@ pub fn divergence<T: Real>(kind: SolverKind, p: &Grid<T>, q: &Grid<T>, out: &mut
     for y in 0..h {
         let pr = p.row(y);
         let o = &mut out[y * w..(y + 1) * w];
-        let mut left = edge(pr[0]);
-        for x in 0..w {
-            let right = if x + 1 < w {
-                (pr[x] + pr[x + 1]) * half
-            } else {
-                edge(pr[x])
-            };
-            o[x] = right - left;
-            left = right;
+        if w == 1 {
+            o[0] = edge(pr[0]) - edge(pr[0]);
+            continue;
         }
+        // Flux (p[x] + p[x+1]) / 2 out of the right side minus the same into the left
+        // side: (p[x+1] − p[x−1]) / 2 inside, written without a carried value so that
+        // the loop runs in vector lanes.
+        o[0] = (pr[0] + pr[1]) * half - edge(pr[0]);
+        for (o, window) in o[1..w - 1].iter_mut().zip(pr.windows(3)) {
+            *o = (window[2] - window[0]) * half;
+        }
+        o[w - 1] = edge(pr[w - 1]) - (pr[w - 2] + pr[w - 1]) * half;
     }
     // y fluxes row by row (contiguous): flux below row y is (q[y] + q[y+1]) / 2.
     for y in 0..h {
@@ -164,13 +169,12 @@ pub fn divergence<T: Real>(kind: SolverKind, p: &Grid<T>, q: &Grid<T>, out: &mut
 /// Integrates slope fields; owns the cached plans and work buffers, so reuse one per
 /// thread across frames.
 pub struct PoissonSolver<T: Real> {
-    planner: RealFftPlanner<T>,
-    dct: HashMap<usize, DctII<T>>,
-    dst: HashMap<usize, DstII<T>>,
+    real_planner: RealFftPlanner<T>,
+    planner: FftPlanner<T>,
+    plans: HashMap<(usize, usize), Dct2d<T>>,
     eigen: HashMap<(SolverKind, usize), Vec<T>>,
-    scratch: Scratch<T>,
+    buffers: Buffers<T>,
     work: Vec<T>,
-    work_t: Vec<T>,
 }
 
 impl<T: Real> Default for PoissonSolver<T> {
@@ -179,45 +183,35 @@ impl<T: Real> Default for PoissonSolver<T> {
     }
 }
 
-/// Plans kept per transform kind before the cache is cleared (ROIs change size).
+/// Plans (sizes) kept before the cache is cleared (ROIs change size).
 const PLAN_CACHE_LIMIT: usize = 64;
 
 impl<T: Real> PoissonSolver<T> {
     /// A solver with empty plan caches.
     pub fn new() -> Self {
         Self {
-            planner: RealFftPlanner::new(),
-            dct: HashMap::new(),
-            dst: HashMap::new(),
+            real_planner: RealFftPlanner::new(),
+            planner: FftPlanner::new(),
+            plans: HashMap::new(),
             eigen: HashMap::new(),
-            scratch: Scratch::default(),
+            buffers: Buffers::default(),
             work: Vec::new(),
-            work_t: Vec::new(),
         }
     }
 
     /// Builds (or finds) the plans for a `width × height` domain ahead of time.
     pub fn prepare(&mut self, kind: SolverKind, width: usize, height: usize) {
+        if width == 0 || height == 0 {
+            return;
+        }
+        if self.plans.len() >= PLAN_CACHE_LIMIT && !self.plans.contains_key(&(width, height)) {
+            self.plans.clear();
+        }
+        let (real_planner, planner) = (&mut self.real_planner, &mut self.planner);
+        self.plans
+            .entry((width, height))
+            .or_insert_with(|| Dct2d::new(real_planner, planner, width, height));
         for n in [width, height] {
-            if n == 0 {
-                continue;
-            }
-            match kind {
-                SolverKind::Dct => {
-                    if self.dct.len() >= PLAN_CACHE_LIMIT && !self.dct.contains_key(&n) {
-                        self.dct.clear();
-                    }
-                    let planner = &mut self.planner;
-                    self.dct.entry(n).or_insert_with(|| DctII::new(planner, n));
-                }
-                SolverKind::Dst => {
-                    if self.dst.len() >= PLAN_CACHE_LIMIT && !self.dst.contains_key(&n) {
-                        self.dst.clear();
-                    }
-                    let planner = &mut self.planner;
-                    self.dst.entry(n).or_insert_with(|| DstII::new(planner, n));
-                }
-            }
             if self.eigen.len() >= 2 * PLAN_CACHE_LIMIT && !self.eigen.contains_key(&(kind, n)) {
                 self.eigen.clear();
             }
@@ -270,67 +264,29 @@ impl<T: Real> PoissonSolver<T> {
 
     /// Solves `L z = f` in place (row-major `w × h`), `L` the 5-point Laplacian with the
     /// boundary of `kind`. For Neumann the zero-frequency term is dropped (mean 0).
+    /// [`Self::prepare`] must have been called for this size.
     fn solve_in_place(&mut self, kind: SolverKind, f: &mut [T], w: usize, h: usize) {
-        let mut t = std::mem::take(&mut self.work_t);
-        t.clear();
-        t.resize(w * h, T::zero());
-        self.rows(kind, f, w, true);
-        transpose(f, &mut t, w, h);
-        self.rows(kind, &mut t, h, true);
-        let ex = &self.eigen[&(kind, w)];
-        let ey = &self.eigen[&(kind, h)];
-        // `t` is w rows (one per x frequency) of h values (y frequencies).
-        // Without branches (the zero frequency of Neumann gives 0), so it runs in lanes.
-        for (row, &ex) in t.chunks_exact_mut(h).zip(ex) {
-            for (v, &ey) in row.iter_mut().zip(&ey[..h]) {
-                let denom = ex + ey;
-                let quotient = *v / denom;
-                *v = if denom == T::zero() {
-                    T::zero()
-                } else {
-                    quotient
-                };
-            }
-        }
-        self.rows(kind, &mut t, h, false);
-        transpose(&t, f, h, w);
-        self.rows(kind, f, w, false);
-        self.work_t = t;
-    }
-
-    fn rows(&mut self, kind: SolverKind, data: &mut [T], len: usize, forward: bool) {
-        match kind {
-            SolverKind::Dct => {
-                let plan = &self.dct[&len];
-                for row in data.chunks_exact_mut(len) {
-                    if forward {
-                        plan.forward(row, &mut self.scratch);
-                    } else {
-                        plan.inverse(row, &mut self.scratch);
-                    }
-                }
-            }
-            SolverKind::Dst => {
-                let plan = &self.dst[&len];
-                for row in data.chunks_exact_mut(len) {
-                    if forward {
-                        plan.forward(row, &mut self.scratch);
-                    } else {
-                        plan.inverse(row, &mut self.scratch);
-                    }
-                }
-            }
-        }
+        let signs = match kind {
+            SolverKind::Dct => Signs::Plain,
+            SolverKind::Dst => Signs::Checkerboard,
+        };
+        let plan = &self.plans[&(w, h)];
+        let (ex, ey) = (&self.eigen[&(kind, w)], &self.eigen[&(kind, h)]);
+        plan.solve(f, signs, ex, ey, &mut self.buffers);
     }
 }
 
-/// Eigenvalues of the 1-D second-difference operator with the boundary of `kind`.
+/// Eigenvalues of the 1-D second-difference operator with the boundary of `kind`, in the
+/// order of the DCT coefficients the solve divides: index `k` of the DCT for Neumann,
+/// and for Dirichlet the DST index `N − 1 − k` (the DST runs as a DCT of the
+/// checkerboard-signed input, coefficients reversed). One unused entry at the end
+/// (`N`, a coefficient that does not exist) keeps the solve's indexing branch-free.
 fn laplacian_eigenvalues<T: Real>(kind: SolverKind, n: usize) -> Vec<T> {
-    (0..n)
+    (0..=n)
         .map(|k| {
             let theta = match kind {
                 SolverKind::Dct => std::f64::consts::PI * k as f64 / n as f64,
-                SolverKind::Dst => std::f64::consts::PI * (k + 1) as f64 / n as f64,
+                SolverKind::Dst => std::f64::consts::PI * (n - k) as f64 / n as f64,
             };
             T::from(2.0 * theta.cos() - 2.0).expect("fits")
         })

@@ -51,53 +51,67 @@ fn five_point_laplacian(w: usize, h: usize, at: impl Fn(isize, isize) -> f64) ->
         .collect()
 }
 
+/// Sizes for the exact-inversion checks: odd and even each way, single rows and
+/// columns, prime lengths.
+const EXACT_SIZES: [(usize, usize); 7] = [
+    (37, 24),
+    (29, 40),
+    (1, 7),
+    (6, 1),
+    (2, 2),
+    (13, 13),
+    (64, 45),
+];
+
 #[test]
 fn neumann_solver_inverts_the_discrete_laplacian_exactly() {
     // Analytic check of the linear solve itself: z → L z (mirror boundary) → solve → z.
-    let (w, h) = (37, 24);
-    let z = Grid::from_fn(w, h, |x, y| ((x * 31 + y * 17) % 23) as f64 / 7.0);
-    let mean = z.as_slice().iter().sum::<f64>() / (w * h) as f64;
-    let at = |x: isize, y: isize| {
-        let x = x.clamp(0, w as isize - 1) as usize;
-        let y = y.clamp(0, h as isize - 1) as usize;
-        z.get(x, y)
-    };
-    let mut f = five_point_laplacian(w, h, at);
-    let mut solver = PoissonSolver::<f64>::new();
-    solver.prepare(SolverKind::Dct, w, h);
-    solver.solve_in_place(SolverKind::Dct, &mut f, w, h);
-    for (got, want) in f.iter().zip(z.as_slice()) {
-        assert!(
-            (got - (want - mean)).abs() < 1e-9,
-            "{got} vs {}",
-            want - mean
-        );
+    for (w, h) in EXACT_SIZES {
+        let z = Grid::from_fn(w, h, |x, y| ((x * 31 + y * 17) % 23) as f64 / 7.0);
+        let mean = z.as_slice().iter().sum::<f64>() / (w * h) as f64;
+        let at = |x: isize, y: isize| {
+            let x = x.clamp(0, w as isize - 1) as usize;
+            let y = y.clamp(0, h as isize - 1) as usize;
+            z.get(x, y)
+        };
+        let mut f = five_point_laplacian(w, h, at);
+        let mut solver = PoissonSolver::<f64>::new();
+        solver.prepare(SolverKind::Dct, w, h);
+        solver.solve_in_place(SolverKind::Dct, &mut f, w, h);
+        for (got, want) in f.iter().zip(z.as_slice()) {
+            assert!(
+                (got - (want - mean)).abs() < 1e-9,
+                "{w}x{h}: {got} vs {}",
+                want - mean
+            );
+        }
     }
 }
 
 #[test]
 fn dirichlet_solver_inverts_the_discrete_laplacian_exactly() {
-    let (w, h) = (29, 40);
-    let z = Grid::from_fn(w, h, |x, y| ((x * 13 + y * 7) % 19) as f64 / 5.0 - 1.0);
-    // Zero half a pixel outside: the first outside pixel mirrors the border with
-    // opposite sign.
-    let at = |x: isize, y: isize| {
-        let sign = if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
-            -1.0
-        } else {
-            1.0
+    for (w, h) in EXACT_SIZES {
+        let z = Grid::from_fn(w, h, |x, y| ((x * 13 + y * 7) % 19) as f64 / 5.0 - 1.0);
+        // Zero half a pixel outside: the first outside pixel mirrors the border with
+        // opposite sign.
+        let at = |x: isize, y: isize| {
+            let sign = if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+                -1.0
+            } else {
+                1.0
+            };
+            sign * z.get(
+                x.clamp(0, w as isize - 1) as usize,
+                y.clamp(0, h as isize - 1) as usize,
+            )
         };
-        sign * z.get(
-            x.clamp(0, w as isize - 1) as usize,
-            y.clamp(0, h as isize - 1) as usize,
-        )
-    };
-    let mut f = five_point_laplacian(w, h, at);
-    let mut solver = PoissonSolver::<f64>::new();
-    solver.prepare(SolverKind::Dst, w, h);
-    solver.solve_in_place(SolverKind::Dst, &mut f, w, h);
-    for (got, want) in f.iter().zip(z.as_slice()) {
-        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        let mut f = five_point_laplacian(w, h, at);
+        let mut solver = PoissonSolver::<f64>::new();
+        solver.prepare(SolverKind::Dst, w, h);
+        solver.solve_in_place(SolverKind::Dst, &mut f, w, h);
+        for (got, want) in f.iter().zip(z.as_slice()) {
+            assert!((got - want).abs() < 1e-9, "{w}x{h}: {got} vs {want}");
+        }
     }
 }
 
