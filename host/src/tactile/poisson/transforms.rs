@@ -182,7 +182,11 @@ fn unreorder<T: Copy>(v: &mut [T], data: &mut [T]) {
 #[inline]
 fn checkerboard_row<T: Real>(v: &mut [T], source_row: usize) {
     let (front, back) = v.split_at_mut(v.len().div_ceil(2));
-    let flip = if source_row % 2 == 0 { back } else { front };
+    let flip = if source_row.is_multiple_of(2) {
+        back
+    } else {
+        front
+    };
     for value in flip {
         *value = -*value;
     }
@@ -266,7 +270,7 @@ impl<T: Real> Dct2d<T> {
 
     /// Inverse of [`Self::to_spectrum`], without the `1 / (N1·N2)` scale (the pass over
     /// the spectrum applies it).
-    fn from_spectrum(&self, x: &mut [T], signs: Signs, buffers: &mut Buffers<T>) {
+    fn spectrum_into(&self, x: &mut [T], signs: Signs, buffers: &mut Buffers<T>) {
         let (w, h) = (self.width, self.height);
         let half = w / 2 + 1;
         let Buffers {
@@ -370,7 +374,7 @@ impl<T: Real> Dct2d<T> {
             })
         });
         buffers.columns = columns;
-        self.from_spectrum(coefficients, Signs::Plain, buffers);
+        self.spectrum_into(coefficients, Signs::Plain, buffers);
     }
 
     /// Solves `L z = f` in place, `L` the 5-point Laplacian whose 1-D parts have the
@@ -430,7 +434,7 @@ impl<T: Real> Dct2d<T> {
                 row[k2] = rescale_pair(row[k2], row[k2], tx, ty, [a, b, a, b]).0;
             }
         }
-        self.from_spectrum(f, signs, buffers);
+        self.spectrum_into(f, signs, buffers);
     }
 }
 
@@ -566,7 +570,7 @@ fn mask<T: Real>(quad: &mut Quad<T>, k1: usize, k2: usize) {
 
 /// `(x, y)` frequency of entry `i` of the quad at `(k1, k2)`.
 fn quad_index(i: usize, k1: usize, k2: usize, w: usize, h: usize) -> (usize, usize) {
-    let x = if i % 2 == 0 { k1 } else { w - k1 };
+    let x = if i.is_multiple_of(2) { k1 } else { w - k1 };
     let y = if i < 2 { k2 } else { h - k2 };
     (x, y)
 }
