@@ -66,21 +66,13 @@ impl BlockMeans {
             let full = 1.0 / (n_rows * step) as f32;
             if whole > 0 {
                 let at = out.red.len();
-                for plane in [&mut out.red, &mut out.green, &mut out.blue] {
-                    plane.resize(at + whole, 0.0);
-                }
-                let (red, green, blue) = (
-                    &mut out.red[at..],
-                    &mut out.green[at..],
-                    &mut out.blue[at..],
-                );
                 // Block j's sums are quads[12j..12j + 3] (all written: the last block's
-                // end 9 values before the sums do).
-                for (j, q) in quads.chunks_exact(12).take(whole).enumerate() {
-                    red[j] = f32::from(q[0]) * full;
-                    green[j] = f32::from(q[1]) * full;
-                    blue[j] = f32::from(q[2]) * full;
-                }
+                // end 9 values before the sums do). Appended, not zero-filled first: the
+                // planes of a 640×480 frame are 230 kB.
+                let blocks = || quads.chunks_exact(12).take(whole);
+                out.red.extend(blocks().map(|q| f32::from(q[0]) * full));
+                out.green.extend(blocks().map(|q| f32::from(q[1]) * full));
+                out.blue.extend(blocks().map(|q| f32::from(q[2]) * full));
                 if any_clipped {
                     out.clipped
                         .extend(row_max[..whole * 12].chunks_exact(12).map(count_clipped));
@@ -202,14 +194,33 @@ fn sum_rows_portable(
     quads: &mut [u16],
 ) -> bool {
     let (sums, maxes) = (&mut sums[..stride], &mut maxes[..stride]);
-    sums.fill(0);
-    maxes.fill(0);
-    for row in rows.chunks_exact(stride) {
-        // Cannot overflow (at most 257 rows of 255); wrapping keeps the loop free of
-        // overflow checks so it vectorises in every profile.
-        for ((s, m), &v) in sums.iter_mut().zip(maxes.iter_mut()).zip(row) {
-            *s = s.wrapping_add(u16::from(v));
-            *m = (*m).max(v);
+    if rows.len() == 4 * stride {
+        // Four rows (the default block) at once: each sum and maximum is written once
+        // instead of read and written per row (detection 198 → 161 µs at 640×480).
+        let (a, rest) = rows.split_at(stride);
+        let (b, rest) = rest.split_at(stride);
+        let (c, d) = rest.split_at(stride);
+        for (((((s, m), &a), &b), &c), &d) in sums
+            .iter_mut()
+            .zip(maxes.iter_mut())
+            .zip(a)
+            .zip(b)
+            .zip(c)
+            .zip(d)
+        {
+            *s = u16::from(a) + u16::from(b) + u16::from(c) + u16::from(d);
+            *m = a.max(b).max(c.max(d));
+        }
+    } else {
+        sums.fill(0);
+        maxes.fill(0);
+        for row in rows.chunks_exact(stride) {
+            // Cannot overflow (at most 257 rows of 255); wrapping keeps the loop free of
+            // overflow checks so it vectorises in every profile.
+            for ((s, m), &v) in sums.iter_mut().zip(maxes.iter_mut()).zip(row) {
+                *s = s.wrapping_add(u16::from(v));
+                *m = (*m).max(v);
+            }
         }
     }
     if !quads.is_empty() {
@@ -327,6 +338,55 @@ mod tests {
         assert_eq!((whole.width, whole.height), (1, 1));
         for (got, want) in whole.mean(0).iter().zip([4.5, 2.5, 7.0]) {
             assert!((got - want).abs() < 1e-5, "{:?}", whole.mean(0));
+        }
+    }
+
+    #[test]
+    fn block_means_match_a_direct_sum() {
+        // Random pixels with some saturated channels; whole and partial blocks, the
+        // four-row path (step 4) and the general one (steps 3 and 5).
+        let mut rng = crate::rng::Rng::new(11);
+        let (w, h) = (37usize, 23usize);
+        let img = RgbImage::from_fn(w as u32, h as u32, |_, _| {
+            image::Rgb(std::array::from_fn(|_| {
+                if rng.uniform() < 0.05 {
+                    255
+                } else {
+                    (rng.next_u64() % 256) as u8
+                }
+            }))
+        });
+        for step in [3usize, 4, 5] {
+            let b = BlockMeans::of(&img, step);
+            for by in 0..h.div_ceil(step) {
+                for bx in 0..w.div_ceil(step) {
+                    let (xs, ys) = (
+                        bx * step..((bx + 1) * step).min(w),
+                        by * step..((by + 1) * step).min(h),
+                    );
+                    let mut sum = [0u32; 3];
+                    let mut clipped = vec![[false; 3]; xs.len()];
+                    for y in ys.clone() {
+                        for (i, x) in xs.clone().enumerate() {
+                            let p = img.get_pixel(x as u32, y as u32).0;
+                            for c in 0..3 {
+                                sum[c] += u32::from(p[c]);
+                                clipped[i][c] |= p[c] == 255;
+                            }
+                        }
+                    }
+                    let n = (xs.len() * ys.len()) as f32;
+                    let i = by * b.width + bx;
+                    for (got, want) in b.mean(i).iter().zip(sum) {
+                        assert!(
+                            (got - want as f32 / n).abs() < 1e-4,
+                            "step {step} block ({bx}, {by})"
+                        );
+                    }
+                    let want = clipped.iter().flatten().filter(|&&c| c).count() as u32;
+                    assert_eq!(b.clipped[i], want, "step {step} block ({bx}, {by}) clipped");
+                }
+            }
         }
     }
 
