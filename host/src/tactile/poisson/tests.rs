@@ -316,3 +316,44 @@ fn one_sanitised_spike_stays_local() {
         far(&fixed)
     );
 }
+
+#[test]
+fn divergence_is_the_difference_of_half_pixel_fluxes() {
+    // By definition: the flux through the right side of pixel x is (p[x] + p[x+1]) / 2,
+    // through the outer border 0 (Neumann) or the border pixel's own slope (Dirichlet);
+    // the same along y. Odd and even sizes, single rows and columns.
+    let mut rng = crate::rng::Rng::new(3);
+    for (w, h) in [(7, 5), (1, 4), (6, 1), (1, 1), (2, 2), (16, 9)] {
+        let p = Grid::from_fn(w, h, |_, _| rng.range(-1.0, 1.0));
+        let q = Grid::from_fn(w, h, |_, _| rng.range(-1.0, 1.0));
+        for kind in SolverKind::ALL {
+            let border = |v: f64| if kind == SolverKind::Dct { 0.0 } else { v };
+            // Flux out of the high side of cell i along a line of n values.
+            let flux = |line: &dyn Fn(usize) -> f64, n: usize, i: isize| {
+                if i < 0 {
+                    border(line(0))
+                } else if i as usize + 1 >= n {
+                    border(line(n - 1))
+                } else {
+                    (line(i as usize) + line(i as usize + 1)) / 2.0
+                }
+            };
+            let mut got = Vec::new();
+            divergence(kind, &p, &q, &mut got);
+            for y in 0..h {
+                for x in 0..w {
+                    let row = |i: usize| p.get(i, y);
+                    let column = |i: usize| q.get(x, i);
+                    let want = flux(&row, w, x as isize) - flux(&row, w, x as isize - 1)
+                        + flux(&column, h, y as isize)
+                        - flux(&column, h, y as isize - 1);
+                    let got = got[y * w + x];
+                    assert!(
+                        (got - want).abs() < 1e-12,
+                        "{kind} {w}x{h} ({x}, {y}): {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
+}
