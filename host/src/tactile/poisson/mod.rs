@@ -211,10 +211,16 @@ impl<T: Real> PoissonSolver<T> {
         self.plans
             .entry((width, height))
             .or_insert_with(|| Dct2d::new(real_planner, planner, width, height));
+        // Cleared before either length goes in: clearing between the two would drop the
+        // width's table that the solve is about to use.
+        let missing = [width, height]
+            .iter()
+            .filter(|&&n| !self.eigen.contains_key(&(kind, n)))
+            .count();
+        if self.eigen.len() + missing > 2 * PLAN_CACHE_LIMIT {
+            self.eigen.clear();
+        }
         for n in [width, height] {
-            if self.eigen.len() >= 2 * PLAN_CACHE_LIMIT && !self.eigen.contains_key(&(kind, n)) {
-                self.eigen.clear();
-            }
             self.eigen
                 .entry((kind, n))
                 .or_insert_with(|| laplacian_eigenvalues(kind, n));

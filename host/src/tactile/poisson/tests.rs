@@ -357,3 +357,23 @@ fn divergence_is_the_difference_of_half_pixel_fluxes() {
         }
     }
 }
+
+#[test]
+fn many_region_sizes_outgrow_the_plan_caches_safely() {
+    // Regions of ever new sizes fill the caches past their limits; every solve must still
+    // find its plans (the caches are cleared, never half-cleared under a solve).
+    let mut solver = PoissonSolver::<f32>::new();
+    for i in 1..=3 * PLAN_CACHE_LIMIT {
+        // Widths seen before, heights always new: the cache reaches its limit between a
+        // region's (cached) width and its (new) height.
+        let (w, h) = (8 + i % 3, 16 + i);
+        let p = Grid::from_fn(w, h, |x, _| x as f32 * 0.01);
+        let q = Grid::filled(w, h, 0.0f32);
+        for kind in SolverKind::ALL {
+            let z = solver.integrate(kind, &p, &q).unwrap();
+            assert!(z.as_slice().iter().all(|v| v.is_finite()), "{kind} {w}x{h}");
+        }
+    }
+    assert!(solver.plans.len() <= PLAN_CACHE_LIMIT);
+    assert!(solver.eigen.len() <= 2 * PLAN_CACHE_LIMIT);
+}
