@@ -174,7 +174,6 @@ pub struct PoissonSolver<T: Real> {
     plans: HashMap<(usize, usize), Dct2d<T>>,
     eigen: HashMap<(SolverKind, usize), Vec<T>>,
     buffers: Buffers<T>,
-    work: Vec<T>,
 }
 
 impl<T: Real> Default for PoissonSolver<T> {
@@ -195,7 +194,6 @@ impl<T: Real> PoissonSolver<T> {
             plans: HashMap::new(),
             eigen: HashMap::new(),
             buffers: Buffers::default(),
-            work: Vec::new(),
         }
     }
 
@@ -258,7 +256,7 @@ impl<T: Real> PoissonSolver<T> {
             }
         }
         self.prepare(kind, w, h);
-        let mut f = std::mem::take(&mut self.work);
+        let mut f = Vec::new();
         divergence(kind, p, q, &mut f);
         self.solve_in_place(kind, &mut f, w, h);
         let mut z = Grid::from_vec(w, h, f).expect("length is w*h");

@@ -36,6 +36,7 @@ fn cast<T: Real>(v: f64) -> T {
 }
 
 /// Work buffers of one transform at a time (one set per solver, reused across frames).
+#[derive(Default)]
 pub struct Buffers<T: Real> {
     /// Reordered real input; the inverse's reordered output.
     real: Vec<T>,
@@ -48,22 +49,11 @@ pub struct Buffers<T: Real> {
     pairs: PairPlanes<T>,
 }
 
-impl<T: Real> Default for Buffers<T> {
-    fn default() -> Self {
-        Self {
-            real: Vec::new(),
-            rows: Vec::new(),
-            columns: Vec::new(),
-            scratch: Vec::new(),
-            pairs: PairPlanes::default(),
-        }
-    }
-}
-
 /// The bins `V[k1, k2]` and their mirrors `V[k1, N2−k2]` of one row, `k2 = 1..`, as
 /// separate real and imaginary planes in the same order, with the `k2`-dependent
 /// factors beside them: contiguous lanes the compiler vectorises, where the
 /// interleaved, mirrored originals are not.
+#[derive(Default)]
 struct PairPlanes<T> {
     re: Vec<T>,
     im: Vec<T>,
@@ -73,21 +63,6 @@ struct PairPlanes<T> {
     twiddle_im: Vec<T>,
     eigen: Vec<T>,
     mirror_eigen: Vec<T>,
-}
-
-impl<T> Default for PairPlanes<T> {
-    fn default() -> Self {
-        Self {
-            re: Vec::new(),
-            im: Vec::new(),
-            mirror_re: Vec::new(),
-            mirror_im: Vec::new(),
-            twiddle_re: Vec::new(),
-            twiddle_im: Vec::new(),
-            eigen: Vec::new(),
-            mirror_eigen: Vec::new(),
-        }
-    }
 }
 
 /// Sign pattern applied on the way into and out of the transform.
@@ -213,11 +188,6 @@ impl<T: Real> Dct2d<T> {
         }
     }
 
-    /// `(width, height)` of the planned grid.
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
-    }
-
     fn fit(&self, buffers: &mut Buffers<T>) {
         let (w, h) = (self.width, self.height);
         let half = w / 2 + 1;
@@ -312,28 +282,17 @@ impl<T: Real> Dct2d<T> {
         mut op: impl FnMut(usize, usize, Quad<T>) -> Quad<T>,
     ) {
         let h = self.height;
-        let half = cast::<T>(0.5);
         for (k1, row) in columns.chunks_exact_mut(h).enumerate() {
             let tx = self.twiddles_x[k1];
             for (k2, &ty) in self.twiddles_y.iter().enumerate() {
                 let j = (h - k2) % h;
-                let p = tx * row[k2];
-                let q = tx * row[j];
-                // Spectra of the real and imaginary parts of the x-transformed column.
-                let re = (p + q.conj()) * half;
-                let im = (p - q.conj()) * half;
-                let im = Complex::new(im.im, -im.re);
-                let (a, b) = (ty * re, ty * im);
+                let (a, b) = to_quad(row[k2], row[j], tx, ty);
                 let mut quad = [a.re, -b.re, -a.im, b.im];
                 mask(&mut quad, k1, k2);
                 let mut quad = op(k1, k2, quad);
                 mask(&mut quad, k1, k2);
                 let [a, b, c, d] = quad;
-                let re = ty.conj() * Complex::new(a, -c);
-                let im = ty.conj() * Complex::new(-b, d);
-                let i_im = Complex::new(-im.im, im.re);
-                row[k2] = tx.conj() * (re + i_im);
-                row[j] = tx.conj() * (re - i_im).conj();
+                (row[k2], row[j]) = from_quad(Complex::new(a, -c), Complex::new(-b, d), tx, ty);
             }
         }
     }
@@ -526,9 +485,42 @@ impl<T: Real> PairPlanes<T> {
     }
 }
 
-/// The solve's pass over one pair of stored bins `r1 = V[k1, k2]`, `r2 = V[k1, N2−k2]`:
-/// to the four DCT coefficients of the quad (see [`Quad`]), each multiplied by its
-/// factor in `s`, and back.
+/// The two stored bins `r1 = V[k1, k2]`, `r2 = V[k1, N2−k2]` turned into their quad
+/// (see [`Quad`]) as two complex numbers `a`, `b`: `[a.re, −b.re, −a.im, b.im]`.
+#[inline(always)]
+fn to_quad<T: Real>(
+    r1: Complex<T>,
+    r2: Complex<T>,
+    tx: Complex<T>,
+    ty: Complex<T>,
+) -> (Complex<T>, Complex<T>) {
+    let half = cast::<T>(0.5);
+    let p = tx * r1;
+    let q = (tx * r2).conj();
+    // Spectra of the real and imaginary parts of the x-transformed column; rotated,
+    // their real and imaginary parts are the quad (up to sign).
+    let re = (p + q) * half;
+    let d = (p - q) * half;
+    let im = Complex::new(d.im, -d.re);
+    (ty * re, ty * im)
+}
+
+/// Inverse of [`to_quad`]: the two stored bins from `a`, `b`.
+#[inline(always)]
+fn from_quad<T: Real>(
+    a: Complex<T>,
+    b: Complex<T>,
+    tx: Complex<T>,
+    ty: Complex<T>,
+) -> (Complex<T>, Complex<T>) {
+    let re = ty.conj() * a;
+    let im = ty.conj() * b;
+    let i_im = Complex::new(-im.im, im.re);
+    (tx.conj() * (re + i_im), tx.conj() * (re - i_im).conj())
+}
+
+/// The solve's pass over one pair of stored bins: to the quad, each coefficient
+/// multiplied by its factor in `s` (in the quad's order), and back.
 #[inline(always)]
 fn rescale_pair<T: Real>(
     r1: Complex<T>,
@@ -537,22 +529,10 @@ fn rescale_pair<T: Real>(
     ty: Complex<T>,
     s: [T; 4],
 ) -> (Complex<T>, Complex<T>) {
-    let half = cast::<T>(0.5);
-    let p = tx * r1;
-    let q = (tx * r2).conj();
-    // Spectra of the real and imaginary parts of the x-transformed column.
-    let re = (p + q) * half;
-    let d = (p - q) * half;
-    let im = Complex::new(d.im, -d.re);
-    // Rotated, their real and imaginary parts are the quad (up to sign): scale them.
-    let a = ty * re;
-    let b = ty * im;
+    let (a, b) = to_quad(r1, r2, tx, ty);
     let a = Complex::new(a.re * s[0], a.im * s[2]);
     let b = Complex::new(b.re * s[1], b.im * s[3]);
-    let re = ty.conj() * a;
-    let im = ty.conj() * b;
-    let i_im = Complex::new(-im.im, im.re);
-    (tx.conj() * (re + i_im), tx.conj() * (re - i_im).conj())
+    from_quad(a, b, tx, ty)
 }
 
 /// Zeroes the entries of a quad that name no coefficient (index `N` at `k = 0`).
