@@ -88,6 +88,32 @@ fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
     }
 }
 
+/// A disk 1 mm deep whose wall is steeper (1.6) than any slope the 6 mm calibration
+/// ball made (about 0.9): the lookup table saturates at the ball's slopes and reads it
+/// shallow (0.84 mm); the light model carries the strips' response past them (0.96).
+#[test]
+fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let scene = Scene {
+        shapes: vec![Shape::Disk {
+            cx: 10.7,
+            cy: 8.0,
+            diameter: 6.0,
+            depth: 1.0,
+            wall: 1.0 / 1.6,
+            linear: true,
+        }],
+    };
+    let read = |kind| reading(&optics, &model, &refs, kind, SolverKind::Dct, &scene);
+    let (lut, light) = (read(ModelKind::Lut), read(ModelKind::Light));
+    assert!(lut < 0.9, "lut read {lut:.3} mm of 1.000");
+    assert!(
+        (light - 1.0).abs() < 0.07,
+        "light read {light:.3} mm of 1.000"
+    );
+}
+
 #[test]
 fn a_ball_on_the_frame_edge_needs_the_neumann_solver() {
     let optics = optics();
@@ -481,7 +507,13 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 12] = [
+    let cases: [(&str, Damage); 14] = [
+        ("dx.light.response", |m| {
+            m["dx"]["light"]["response"].as_array_mut().unwrap().pop();
+        }),
+        ("dy.light.cells_x", |m| {
+            m["dy"]["light"]["cells_x"] = 0.into()
+        }),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 0.into()),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 1e6.into()),
         ("background.dx", |m| {
@@ -522,6 +554,22 @@ fn model_files_round_trip_and_refuse_other_versions() {
         );
         assert!(err.to_string().contains("recalibrate"), "{err}");
     }
+    // A model written before the light model existed still loads; asking it for the
+    // light model is refused with the fix, the other models work.
+    let mut old = good.clone();
+    for axis in ["dx", "dy"] {
+        old[axis].as_object_mut().unwrap().remove("light");
+    }
+    let old = TactileModel::from_json("m.json", &serde_json::to_vec(&old).unwrap()).unwrap();
+    let err = Reconstructor::new(old.clone(), ModelKind::Light, SolverKind::Dct, None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("dx.light") && err.contains("calibrate again"),
+        "{err}"
+    );
+    assert!(Reconstructor::new(old, ModelKind::Lut, SolverKind::Dct, None).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -391,7 +391,7 @@ pub fn format_table(report: &BenchReport) -> String {
     for r in &report.references {
         let _ = writeln!(
             s,
-            "{}x{}: one real 2-D FFT {:.2} ms; full-frame solve {}; calibration slope RMS lut {:.3}/{:.3} mlp {:.3}/{:.3} (train/held-out)",
+            "{}x{}: one real 2-D FFT {:.2} ms; full-frame solve {}; calibration slope RMS lut {:.3}/{:.3} mlp {:.3}/{:.3} light {:.3}/{:.3} (train/held-out)",
             r.width,
             r.height,
             r.fft2d_ms,
@@ -404,6 +404,8 @@ pub fn format_table(report: &BenchReport) -> String {
             r.calibration.lut_validation_rms,
             r.calibration.mlp_train_rms,
             r.calibration.mlp_validation_rms,
+            r.calibration.light_train_rms,
+            r.calibration.light_validation_rms,
         );
     }
     let _ = writeln!(

@@ -21,7 +21,7 @@ use super::ambient::{
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
-use super::model::{ModelKind, TactileModel, validate};
+use super::model::{ModelKind, TactileModel, light, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -337,8 +337,20 @@ impl Reconstructor {
                 (Some(dx), Some(dy)) => Some(Arc::new([dx, dy])),
                 _ => None,
             },
-            ModelKind::Mlp => None,
+            ModelKind::Mlp | ModelKind::Light => None,
         };
+        if kind == ModelKind::Light {
+            for (axis, m) in [("dx", &model.dx), ("dy", &model.dy)] {
+                if m.light.is_none() {
+                    return Err(ReconstructError::InvalidModel {
+                        field: format!("{axis}.light"),
+                        why: "absent (the model was calibrated before the light model \
+                              existed): calibrate again, or use the lut or mlp model"
+                            .into(),
+                    });
+                }
+            }
+        }
         Ok(Self {
             lut_gains,
             model,
@@ -533,6 +545,9 @@ impl Reconstructor {
                     values[k] = s;
                 }
             }
+            if self.kind == ModelKind::Light {
+                self.read_light_pairs(&mut p, &mut q);
+            }
             let t2 = Instant::now();
             out.timings.model_ms += ms(t1, t2);
             t2
@@ -584,6 +599,40 @@ impl Reconstructor {
         }
         out.timings.solve_ms += ms(t2, Instant::now());
         Ok(())
+    }
+
+    /// The light model's slopes again where a pixel was read in both phases, both at
+    /// once ([`light::read_pair`]): a wall steep along both axes shadows a strip of each
+    /// phase, which the one-phase reading takes for a gentler slope. The slopes are
+    /// bounded as the first reading's were (and counted there).
+    fn read_light_pairs(&self, p: &mut Grid<f32>, q: &mut Grid<f32>) {
+        let (Some(lx), Some(ly)) = (&self.model.dx.light, &self.model.dy.light) else {
+            return;
+        };
+        let [fx, fy] = &self.features.axes;
+        let (p, q) = (p.as_mut_slice(), q.as_mut_slice());
+        // Both lists are in raster order: walk them together.
+        let mut j = 0;
+        for (row, &k) in fx.rows.iter().zip(&fx.targets) {
+            while j < fy.targets.len() && fy.targets[j] < k {
+                j += 1;
+            }
+            if fy.targets.get(j) != Some(&k) {
+                continue;
+            }
+            let other = &fy.rows[j];
+            let Some(mut both) = light::read_pair(
+                [lx, ly],
+                [row[0], row[1]],
+                [other[0], other[1]],
+                row[2],
+                row[3],
+            ) else {
+                continue;
+            };
+            sanitize(&mut both, self.max_slope);
+            [p[k], q[k]] = both;
+        }
     }
 }
 

@@ -31,8 +31,9 @@ use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
 use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_SKIN_THICKNESS_MM};
 use super::model::{
-    AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, LUT_MAX_COLOUR, Lut, MODEL_FORMAT,
-    MODEL_VERSION, Mlp, MlpTraining, ModelKind, Sample, TactileModel, colour_features,
+    AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, LUT_MAX_COLOUR, LightModel, Lut,
+    MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, Sample, TactileModel,
+    colour_features,
 };
 use super::phase_check::{self, PhaseImageError};
 
@@ -627,27 +628,34 @@ pub fn calibrate(
                 rms,
             })
         });
-        let model = AxisModel { lut, mlp };
+        let light = LightModel::fit(&train, settings.lut_cells.0, settings.lut_cells.1);
+        let model = AxisModel {
+            lut,
+            mlp,
+            light: Some(light),
+        };
         let rms = |kind, set: &[Sample]| rms_error(&model, kind, set);
         fit_report.samples_per_axis = fit_report.samples_per_axis.max(train.len());
-        if axis == 0 {
-            fit_report.lut_train_rms = rms(ModelKind::Lut, &train);
-            fit_report.mlp_train_rms = rms(ModelKind::Mlp, &train);
-            fit_report.lut_validation_rms = rms(ModelKind::Lut, &valid);
-            fit_report.mlp_validation_rms = rms(ModelKind::Mlp, &valid);
-        } else {
-            // Report the worse of the two axes.
-            let worse = |a: &mut f32, b: f32| *a = a.max(b);
-            worse(&mut fit_report.lut_train_rms, rms(ModelKind::Lut, &train));
-            worse(&mut fit_report.mlp_train_rms, rms(ModelKind::Mlp, &train));
-            worse(
+        // The worse of the two axes.
+        for (kind, train_rms, validation_rms) in [
+            (
+                ModelKind::Lut,
+                &mut fit_report.lut_train_rms,
                 &mut fit_report.lut_validation_rms,
-                rms(ModelKind::Lut, &valid),
-            );
-            worse(
+            ),
+            (
+                ModelKind::Mlp,
+                &mut fit_report.mlp_train_rms,
                 &mut fit_report.mlp_validation_rms,
-                rms(ModelKind::Mlp, &valid),
-            );
+            ),
+            (
+                ModelKind::Light,
+                &mut fit_report.light_train_rms,
+                &mut fit_report.light_validation_rms,
+            ),
+        ] {
+            *train_rms = train_rms.max(rms(kind, &train));
+            *validation_rms = validation_rms.max(rms(kind, &valid));
         }
         all.extend(train);
         all.extend(valid);

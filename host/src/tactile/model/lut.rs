@@ -14,6 +14,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Sample;
+use super::cells::{cell_weights, locate};
 
 /// The table and its axes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,38 +32,6 @@ pub struct Lut {
     pub table: Vec<f32>,
     /// `cells_y × cells_x` gains.
     pub gain: Vec<f32>,
-}
-
-/// Bilinear position along an axis of `n` entries: `(index, fraction)`.
-#[inline]
-fn locate(v: f32, n: usize) -> (usize, f32) {
-    if n <= 1 {
-        return (0, 0.0);
-    }
-    // NaN compares false everywhere: map it to the first entry.
-    let v = if v.is_nan() {
-        0.0
-    } else {
-        v.clamp(0.0, (n - 1) as f32)
-    };
-    let i = (v as usize).min(n - 2);
-    (i, v - i as f32)
-}
-
-/// The four bilinear neighbours `(index, weight)` of `(x, y)` ∈ [0, 1]² on a grid of
-/// cell centres.
-#[inline]
-fn cell_weights(x: f32, y: f32, cells_x: usize, cells_y: usize) -> [(usize, f32); 4] {
-    let (cx, fx) = locate(x * cells_x as f32 - 0.5, cells_x);
-    let (cy, fy) = locate(y * cells_y as f32 - 0.5, cells_y);
-    let cxn = (cx + 1).min(cells_x - 1);
-    let cyn = (cy + 1).min(cells_y - 1);
-    [
-        (cy * cells_x + cx, (1.0 - fx) * (1.0 - fy)),
-        (cy * cells_x + cxn, fx * (1.0 - fy)),
-        (cyn * cells_x + cx, (1.0 - fx) * fy),
-        (cyn * cells_x + cxn, fx * fy),
-    ]
 }
 
 impl Lut {

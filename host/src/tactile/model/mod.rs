@@ -3,11 +3,13 @@
 //! `(x, y)` (both in [0, 1]) to the slope along that phase's axis.
 //!
 //! [`TactileModel`] is what calibration writes and reconstruction reads: one
-//! [`AxisModel`] per phase (each with a lookup table and an MLP), the colour filter and
-//! contact thresholds it was calibrated with, and a low-resolution no-contact background
-//! used when no reference frames are given. The file is JSON with a format name and a
+//! [`AxisModel`] per phase (each with a lookup table, an MLP and a light-response model),
+//! the colour filter and contact thresholds it was calibrated with, and a low-resolution
+//! no-contact background used when no reference frames are given. The file is JSON with a format name and a
 //! version number checked on load.
 
+mod cells;
+pub mod light;
 pub mod lut;
 pub mod mlp;
 pub mod validate;
@@ -18,6 +20,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+pub use light::LightModel;
 pub use lut::Lut;
 pub use mlp::{Mlp, MlpTraining};
 
@@ -75,17 +78,21 @@ pub enum ModelKind {
     Lut,
     /// Multilayer perceptron (smooth).
     Mlp,
+    /// Each strip's light response per cell, inverted (extrapolates past the
+    /// calibration's slopes).
+    Light,
 }
 
 impl ModelKind {
     /// Both kinds.
-    pub const ALL: [ModelKind; 2] = [ModelKind::Lut, ModelKind::Mlp];
+    pub const ALL: [ModelKind; 3] = [ModelKind::Lut, ModelKind::Mlp, ModelKind::Light];
 
     /// Lower-case name.
     pub fn name(self) -> &'static str {
         match self {
             ModelKind::Lut => "lut",
             ModelKind::Mlp => "mlp",
+            ModelKind::Light => "light",
         }
     }
 }
@@ -102,7 +109,7 @@ impl FromStr for ModelKind {
         Self::ALL
             .into_iter()
             .find(|k| k.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| format!("unknown model {s:?} (expected lut or mlp)"))
+            .ok_or_else(|| format!("unknown model {s:?} (expected lut, mlp or light)"))
     }
 }
 
@@ -114,6 +121,9 @@ pub struct AxisModel {
     pub lut: Lut,
     /// Perceptron.
     pub mlp: Mlp,
+    /// Light response (absent from models calibrated before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light: Option<LightModel>,
 }
 
 impl AxisModel {
@@ -122,6 +132,11 @@ impl AxisModel {
         match kind {
             ModelKind::Lut => self.lut.eval_batch(features, out),
             ModelKind::Mlp => self.mlp.eval_batch(features, out),
+            ModelKind::Light => match &self.light {
+                Some(light) => light.eval_batch(features, out),
+                // Refused when the reconstructor is made; slope 0 if asked anyway.
+                None => out.iter_mut().for_each(|o| *o = 0.0),
+            },
         }
     }
 }
@@ -226,6 +241,12 @@ pub struct FitReport {
     pub mlp_train_rms: f32,
     /// MLP RMS on the held-out pairs.
     pub mlp_validation_rms: f32,
+    /// Light model RMS on the training pairs.
+    #[serde(default)]
+    pub light_train_rms: f32,
+    /// Light model RMS on the held-out pairs.
+    #[serde(default)]
+    pub light_validation_rms: f32,
 }
 
 /// Format name stored in every model file.

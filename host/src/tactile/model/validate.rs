@@ -5,6 +5,7 @@
 //! infinite depth.
 
 use super::TactileModel;
+use super::light::LightModel;
 use super::lut::Lut;
 use super::mlp::Mlp;
 
@@ -123,6 +124,29 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
     for (axis, model) in [("dx", &m.dx), ("dy", &m.dy)] {
         check_lut(&model.lut).map_err(|(f, why)| (format!("{axis}.lut.{f}"), why))?;
         check_mlp(&model.mlp).map_err(|(f, why)| (format!("{axis}.mlp.{f}"), why))?;
+        if let Some(light) = &model.light {
+            check_light(light).map_err(|(f, why)| (format!("{axis}.light.{f}"), why))?;
+        }
+    }
+    Ok(())
+}
+
+fn check_light(l: &LightModel) -> Result<(), (String, String)> {
+    let fail = |field: &str, why: String| Err((field.to_string(), why));
+    for (field, v) in [("cells_x", l.cells_x), ("cells_y", l.cells_y)] {
+        if !(1..=64).contains(&v) {
+            return fail(field, format!("{v} is outside 1..=64"));
+        }
+    }
+    let want = l.cells_x * l.cells_y;
+    if l.response.len() != want {
+        return fail(
+            "response",
+            format!("{} values, {want} declared", l.response.len()),
+        );
+    }
+    if l.response.iter().flatten().any(|v| !v.is_finite()) {
+        return fail("response", "holds a value that is not finite".into());
     }
     Ok(())
 }

@@ -292,8 +292,13 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
     let (calibration, refs) = builtin_calibration(&optics)?;
     let fit = calibration.model.fit;
     println!(
-        "calibrated on {BUILTIN_PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3})",
-        fit.lut_train_rms, fit.lut_validation_rms, fit.mlp_train_rms, fit.mlp_validation_rms
+        "calibrated on {BUILTIN_PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3}), light {:.3} (held-out {:.3})",
+        fit.lut_train_rms,
+        fit.lut_validation_rms,
+        fit.mlp_train_rms,
+        fit.mlp_validation_rms,
+        fit.light_train_rms,
+        fit.light_validation_rms
     );
     calibration.model.save(&out.join("model.json"))?;
     let px_per_mm = calibration.model.px_per_mm;

@@ -1,0 +1,434 @@
+//! Light-response model: each strip's normalised colour as a straight line in the
+//! slope, fitted per cell of the frame, and inverted. The one model that extrapolates
+//! past the steepest slope the calibration ball made.
+//!
+//! For a matte skin lit from elevation `e`, a phase's cross-normalised colours (see
+//! [`super::colour_features`]) are `1 + a·p` for the strip the slope faces and `1 − a'·p`
+//! for the other, `a = cot e`, until the other strip is shadowed (its colour reaches 0).
+//! So per cell (the elevation changes across the frame) each colour's response `a` is
+//! fitted by least squares through flat skin (`colour = 1` at slope 0),  on the gentler
+//! part of the calibration's slopes: the steepest ones sit at a press's rim, where the
+//! skin and the camera blur the edge and the colour no longer follows the sphere.
+//! Reading a pixel inverts the lines: the least-squares slope of both colours, or of the
+//! lit one alone where the other is shadowed (below [`SHADOWED`]), which is what carries
+//! it past the calibration's slopes. Where the physics is not a matte skin (gloss,
+//! gamma, inverse-square fall-off) the lines are a first-order fit, measured against
+//! the lookup table and the perceptron by `bench skins --model light`.
+
+use serde::{Deserialize, Serialize};
+
+use super::Sample;
+use super::cells::{cell_weights, locate};
+
+/// A colour below this (normalised, flat skin = 1) is a shadowed strip: it bounds the
+/// slope but does not measure it.
+pub const SHADOWED: f32 = 0.15;
+
+/// The responses are fitted on slopes up to this share of the calibration's steepest
+/// (its 95th percentile of |slope|).
+const FIT_SHARE: f32 = 0.6;
+
+/// A cell whose colour-times-slope weight is below this share of the mean cell's takes
+/// the whole frame's response.
+const MIN_CELL_SHARE: f64 = 0.05;
+
+/// Colour responses per cell.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightModel {
+    /// Cells across.
+    pub cells_x: usize,
+    /// Cells down.
+    pub cells_y: usize,
+    /// `cells_y × cells_x` pairs `[red, blue]`: colour change per unit slope.
+    pub response: Vec<[f32; 2]>,
+}
+
+impl LightModel {
+    /// Fits the responses of `cells_x × cells_y` cells to `samples` (slope and
+    /// features `[r, b, x, y]`).
+    pub fn fit(samples: &[Sample], cells_x: usize, cells_y: usize) -> Self {
+        let (cells_x, cells_y) = (cells_x.max(1), cells_y.max(1));
+        let usable: Vec<&Sample> = samples
+            .iter()
+            .filter(|s| s.target.is_finite() && s.features.iter().all(|f| f.is_finite()))
+            .collect();
+        let mut magnitudes: Vec<f32> = usable.iter().map(|s| s.target.abs()).collect();
+        let limit = match magnitudes.len() {
+            0 => 0.0,
+            n => {
+                let k = (n - 1) * 95 / 100;
+                FIT_SHARE * *magnitudes.select_nth_unstable_by(k, f32::total_cmp).1
+            }
+        };
+        let fit_set: Vec<&Sample> = usable
+            .into_iter()
+            .filter(|s| s.target.abs() <= limit)
+            .collect();
+        let mut response = vec![[0.0f32; 2]; cells_x * cells_y];
+        for c in 0..2 {
+            for (r, a) in response
+                .iter_mut()
+                .zip(fit_colour(&fit_set, c, cells_x, cells_y))
+            {
+                r[c] = a;
+            }
+        }
+        Self {
+            cells_x,
+            cells_y,
+            response,
+        }
+    }
+
+    /// Slope for normalised colour `(r, b)` at normalised position `(x, y)` ∈ [0, 1]²;
+    /// 0 where neither colour measures it (both shadowed or not numbers) or the model's
+    /// cells do not match its size (a damaged file).
+    pub fn eval(&self, r: f32, b: f32, x: f32, y: f32) -> f32 {
+        self.response_at(x, y).map_or(0.0, |a| invert([r, b], a))
+    }
+
+    /// The responses at `(x, y)`, bilinear between cell centres; `None` when the cells do
+    /// not match the model's size (a damaged file).
+    fn response_at(&self, x: f32, y: f32) -> Option<[f32; 2]> {
+        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
+        if self.response.len() < cells_x * cells_y {
+            return None;
+        }
+        let mut a = [0.0f32; 2];
+        for (cell, w) in cell_weights(x, y, cells_x, cells_y) {
+            for (a, r) in a.iter_mut().zip(self.response[cell]) {
+                *a += w * r;
+            }
+        }
+        Some(a)
+    }
+
+    /// [`Self::eval`] over feature rows `[r, b, x, y]`.
+    ///
+    /// Rows come a region row at a time: the responses blended down the frame are
+    /// computed once per row position `y`, leaving one blend across per pixel.
+    pub fn eval_batch(&self, features: &[[f32; 4]], out: &mut [f32]) {
+        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
+        if self.response.len() < cells_x * cells_y {
+            out.iter_mut().for_each(|o| *o = 0.0);
+            return;
+        }
+        let mut across = vec![[0.0f32; 2]; cells_x];
+        let mut row_y = None;
+        for (f, o) in features.iter().zip(out.iter_mut()) {
+            if row_y != Some(f[3].to_bits()) {
+                row_y = Some(f[3].to_bits());
+                let (cy, fy) = locate(f[3] * cells_y as f32 - 0.5, cells_y);
+                let cyn = (cy + 1).min(cells_y - 1);
+                for (i, a) in across.iter_mut().enumerate() {
+                    let (top, bottom) = (
+                        self.response[cy * cells_x + i],
+                        self.response[cyn * cells_x + i],
+                    );
+                    *a = [0, 1].map(|c| top[c] * (1.0 - fy) + bottom[c] * fy);
+                }
+            }
+            let (cx, fx) = locate(f[2] * cells_x as f32 - 0.5, cells_x);
+            let (left, right) = (across[cx], across[(cx + 1).min(cells_x - 1)]);
+            let a = [0, 1].map(|c| left[c] * (1.0 - fx) + right[c] * fx);
+            *o = invert([f[0], f[1]], a);
+        }
+    }
+}
+
+/// The responses per cell of colour `c`: the line through flat skin (`colour − 1 = a·p`)
+/// by weighted least squares, the whole frame's where a cell has too few samples.
+fn fit_colour(samples: &[&Sample], c: usize, cells_x: usize, cells_y: usize) -> Vec<f32> {
+    let cells = cells_x * cells_y;
+    // Σ w·p·(colour − 1) and Σ w·p² per cell, and over the whole frame.
+    let mut sums = vec![[0.0f64; 2]; cells];
+    let mut all = [0.0f64; 2];
+    for s in samples {
+        let colour = s.features[c];
+        if colour < SHADOWED {
+            continue;
+        }
+        let p = f64::from(s.target);
+        let terms = [p * (f64::from(colour) - 1.0), p * p];
+        for (a, t) in all.iter_mut().zip(terms) {
+            *a += t;
+        }
+        for (cell, w) in cell_weights(s.features[2], s.features[3], cells_x, cells_y) {
+            for (a, t) in sums[cell].iter_mut().zip(terms) {
+                *a += f64::from(w) * t;
+            }
+        }
+    }
+    let line = |[py, pp]: [f64; 2]| {
+        let a = py / pp;
+        (pp > 0.0 && a.is_finite()).then_some(a as f32)
+    };
+    let whole = line(all).unwrap_or(0.0);
+    sums.iter()
+        .map(|&cell| {
+            (cell[1] > MIN_CELL_SHARE * all[1] / cells as f64)
+                .then(|| line(cell))
+                .flatten()
+                .unwrap_or(whole)
+        })
+        .collect()
+}
+
+/// Rounds of [`read_pair`]'s fixed-point iteration, at most.
+const PAIR_ROUNDS: usize = 4;
+/// A round that moves neither slope by more than this ends the iteration.
+const SETTLED: f32 = 1e-3;
+
+/// Both slopes `[p, q]` of a pixel seen in both phases: features `[r, b]` of the dx
+/// phase (`fx`) and the dy phase (`fy`) at normalised position `(x, y)`.
+///
+/// Each phase's features were divided by the other phase's brightness
+/// ([`super::cross_factor`]), which is `2 / |n|` for a matte skin only while neither of
+/// its strips is shadowed; past that (a wall steep along both axes) the features read
+/// shallow. Under the lines, a phase's raw colours are `(1 + a·s)⁺ / |n|`, so the
+/// factor the other phase applied is known from the slopes: starting from the
+/// per-phase reading, each round undoes the factor the current slopes imply and reads
+/// again ([`PAIR_ROUNDS`] rounds; where no strip is shadowed the factor is 1 and nothing
+/// changes; `None`: no strip is shadowed, the one-phase readings stand). Where both phases have a shadowed strip the features hold only the ratio
+/// `(1 + a·p) / (1 + a·q)`, not the slopes' size (the factors took out `|n|`): the
+/// steeper axis keeps its one-phase reading and the gentler one, which one phase alone
+/// reads far too gentle, follows the ratio. A diagonal wall steeper than the light's
+/// elevation therefore still reads gentle.
+pub fn read_pair(
+    models: [&LightModel; 2],
+    fx: [f32; 2],
+    fy: [f32; 2],
+    x: f32,
+    y: f32,
+) -> Option<[f32; 2]> {
+    // No strip shadowed: the factors are the lines' own (what calibration saw), and each
+    // phase's reading stands.
+    if fx.iter().chain(&fy).all(|c| *c >= SHADOWED) {
+        return None;
+    }
+    let (Some(ax), Some(ay)) = (models[0].response_at(x, y), models[1].response_at(x, y)) else {
+        return Some([0.0; 2]);
+    };
+    let mut slopes = [invert(fx, ax), invert(fy, ay)];
+    for _ in 0..PAIR_ROUNDS {
+        let [p, q] = slopes;
+        let norm = (1.0 + p * p + q * q).sqrt();
+        // The factor each phase's features were multiplied by, from the other phase's
+        // raw brightness under the lines.
+        let factor = |a: [f32; 2], s: f32| {
+            let raw: f32 = a.iter().map(|a| (1.0 + a * s).max(0.0)).sum::<f32>() / norm;
+            super::cross_factor(raw, 0.0)
+        };
+        let (fx_factor, fy_factor) = (factor(ay, q), factor(ax, p));
+        // Back to `(1 + a·s)⁺`: raw colour times |n|.
+        let undo = |f: [f32; 2], factor: f32| f.map(|c| c / factor * norm);
+        let next = [
+            invert(undo(fx, fx_factor), ax),
+            invert(undo(fy, fy_factor), ay),
+        ];
+        if !(next[0].is_finite() && next[1].is_finite()) {
+            break;
+        }
+        let settled = (next[0] - p).abs().max((next[1] - q).abs()) < SETTLED;
+        slopes = next;
+        if settled {
+            break;
+        }
+    }
+    Some(slopes)
+}
+
+/// The least-squares slope of the colours that are lit (not below [`SHADOWED`], not
+/// NaN) given their responses: `Σ a (colour − 1) / Σ a²`; 0 when none measures it.
+fn invert(colour: [f32; 2], response: [f32; 2]) -> f32 {
+    let (mut num, mut den) = (0.0f32, 0.0f32);
+    for (c, a) in colour.into_iter().zip(response) {
+        if c >= SHADOWED && c.is_finite() && a.is_finite() {
+            num += a * (c - 1.0);
+            den += a * a;
+        }
+    }
+    if den > 1e-6 { num / den } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A matte skin whose light elevation changes across the frame: the facing strip's
+    /// colour `1 + a·p`, the other's `1 − a'·p`, shadowed at 0.
+    fn matte(p: f32, x: f32, y: f32) -> [f32; 2] {
+        let (a_red, a_blue) = (1.2 + 0.6 * x, 1.8 - 0.4 * y);
+        [(1.0 + a_red * p).max(0.0), (1.0 - a_blue * p).max(0.0)]
+    }
+
+    fn samples(max_slope: f32) -> Vec<Sample> {
+        let mut out = Vec::new();
+        for i in 0..=60 {
+            for j in 0..=40 {
+                let (x, y) = (i as f32 / 60.0, j as f32 / 40.0);
+                for k in -9..=9 {
+                    let p = max_slope * k as f32 / 9.0;
+                    let [r, b] = matte(p, x, y);
+                    out.push(Sample {
+                        features: [r, b, x, y],
+                        target: p,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn inverts_a_matte_skin_past_the_slopes_it_was_fitted_on() {
+        let model = LightModel::fit(&samples(0.9), 6, 4);
+        // Inside and well past the calibration's slopes (0.9), where one strip is
+        // shadowed, at cell centres and between them.
+        for (x, y) in [(0.5, 0.5), (1.0 / 12.0, 0.125), (0.3, 0.8), (0.95, 0.05)] {
+            for p in [-1.8f32, -1.31, -0.79, -0.2, 0.0, 0.35, 0.79, 1.31, 1.8] {
+                let [r, b] = matte(p, x, y);
+                let got = model.eval(r, b, x, y);
+                // Bilinear responses between cell centres of a linear trend are exact;
+                // at the border the nearest cell's is used.
+                assert!(
+                    (got - p).abs() < 0.03 * p.abs().max(1.0),
+                    "({x}, {y}) p {p}: {got}"
+                );
+            }
+        }
+    }
+
+    /// Features of a matte skin lit from elevation `cot⁻¹ k` on all four sides at slopes
+    /// `(p, q)`, made as reconstruction makes them ([`super::super::colour_features`]).
+    fn both_phases(p: f32, q: f32, k: f32) -> [[f32; 2]; 2] {
+        let norm = (1.0 + p * p + q * q).sqrt();
+        let lit = |s: f32| [(1.0 + k * s).max(0.0) / norm, (1.0 - k * s).max(0.0) / norm];
+        let ([rx, bx], [ry, by]) = (lit(p), lit(q));
+        let f = super::super::colour_features([rx, bx, ry, by]);
+        [f[0].expect("lit"), f[1].expect("lit")]
+    }
+
+    #[test]
+    fn reads_walls_steep_along_both_axes_from_both_phases() {
+        let k = 1.6f32;
+        // Calibration-like samples: slopes up to 0.9 in any direction.
+        let mut sets = [Vec::new(), Vec::new()];
+        for i in -18..=18 {
+            for j in -18..=18 {
+                let (p, q) = (i as f32 * 0.05, j as f32 * 0.05);
+                if p.hypot(q) > 0.9 {
+                    continue;
+                }
+                let f = both_phases(p, q, k);
+                for (axis, (set, s)) in sets.iter_mut().zip([p, q]).enumerate() {
+                    for (x, y) in [(0.2, 0.3), (0.7, 0.6)] {
+                        set.push(Sample {
+                            features: [f[axis][0], f[axis][1], x, y],
+                            target: s,
+                        });
+                    }
+                }
+            }
+        }
+        let [mx, my] = sets.map(|s| LightModel::fit(&s, 2, 2));
+        let read = |p: f32, q: f32| {
+            let [fx, fy] = both_phases(p, q, k);
+            let alone = [
+                mx.eval(fx[0], fx[1], 0.5, 0.5),
+                my.eval(fy[0], fy[1], 0.5, 0.5),
+            ];
+            let pair = read_pair([&mx, &my], fx, fy, 0.5, 0.5).unwrap_or(alone);
+            (pair, alone)
+        };
+        // Walls past the calibration's slopes where the other phase has both strips lit:
+        // right, from either reading.
+        for (p, q) in [(1.31f32, 0.0f32), (-1.2, 0.3), (0.3, -0.2), (0.0, -1.5)] {
+            let ([gp, gq], _) = read(p, q);
+            assert!(
+                (gp - p).abs() < 0.03 && (gq - q).abs() < 0.03,
+                "({p}, {q}): ({gp}, {gq})"
+            );
+        }
+        // Both phases with a shadowed strip: alone, the gentler axis reads far too gentle
+        // (0.28 for 0.7); together it is corrected, within what the features still hold
+        // (they keep only the ratio (1 + k·p) / (1 + k·q), not the slopes' size).
+        for (p, q) in [(1.2f32, 0.7f32), (-0.6, 1.3), (0.93, 0.93)] {
+            let (pair, alone) = read(p, q);
+            for (axis, truth) in [p, q].into_iter().enumerate() {
+                let (e_pair, e_alone) = ((pair[axis] - truth).abs(), (alone[axis] - truth).abs());
+                assert!(
+                    e_pair <= e_alone + 1e-4,
+                    "({p}, {q}) axis {axis}: {pair:?} vs {alone:?}"
+                );
+            }
+        }
+        let ([_, gq], [_, alone_q]) = read(1.2, 0.7);
+        assert!(
+            (gq - 0.7).abs() < 0.1 && (alone_q - 0.7).abs() > 0.3,
+            "{gq} {alone_q}"
+        );
+        let [fx, _] = both_phases(0.93, 0.93, k);
+        // A damaged model: zero, never a panic.
+        let mut broken = mx.clone();
+        broken.response.clear();
+        assert_eq!(
+            read_pair([&broken, &my], fx, fx, 0.5, 0.5),
+            Some([0.0, 0.0])
+        );
+        // Nothing shadowed: nothing to do.
+        let [gx, gy] = both_phases(0.3, -0.2, k);
+        assert_eq!(read_pair([&mx, &my], gx, gy, 0.5, 0.5), None);
+    }
+
+    #[test]
+    fn degenerate_inputs_give_zero_not_nonsense() {
+        // No samples: no response, slope 0 everywhere.
+        let empty = LightModel::fit(&[], 4, 3);
+        assert_eq!(empty.eval(2.0, 0.1, 0.5, 0.5), 0.0);
+        let model = LightModel::fit(&samples(0.9), 4, 3);
+        // Both strips shadowed, NaN, infinite: 0.
+        assert_eq!(model.eval(0.0, 0.05, 0.5, 0.5), 0.0);
+        assert_eq!(model.eval(f32::NAN, f32::NAN, 0.5, 0.5), 0.0);
+        // One colour NaN: the other alone.
+        let [r, _] = matte(0.5, 0.5, 0.5);
+        let got = model.eval(r, f32::NAN, 0.5, 0.5);
+        assert!((got - 0.5).abs() < 0.03, "{got}");
+        assert!(model.eval(f32::INFINITY, 1.0, 0.5, 0.5).is_finite());
+        // NaN positions land on the first cell, never out of bounds.
+        assert!(model.eval(1.2, 0.8, f32::NAN, 2.0).is_finite());
+        // A damaged model (fewer responses than cells) reads 0.
+        let mut broken = model.clone();
+        broken.response.truncate(2);
+        assert_eq!(broken.eval(1.5, 0.5, 0.5, 0.5), 0.0);
+        // Samples with NaN are left out of the fit.
+        let mut noisy = samples(0.9);
+        for s in noisy.iter_mut().step_by(3) {
+            s.features[0] = f32::NAN;
+        }
+        let fitted = LightModel::fit(&noisy, 4, 3);
+        assert!(fitted.response.iter().flatten().all(|a| a.is_finite()));
+        // The batch gives the one-by-one slopes (within rounding: the blend's order
+        // differs), rows of several positions in raster order and out of it.
+        let mut batch_in = Vec::new();
+        for y in [0.0f32, 0.13, 0.13, 0.5, 0.97, 0.2, f32::NAN] {
+            for x in [0.0f32, 0.05, 0.4, 0.41, 0.99, 1.0] {
+                batch_in.push([1.3 + x, 0.7 - y, x, y]);
+            }
+        }
+        batch_in.push([f32::NAN, 1.0, 0.5, 0.5]);
+        let mut out = vec![9.0; batch_in.len()];
+        fitted.eval_batch(&batch_in, &mut out);
+        for (f, got) in batch_in.iter().zip(&out) {
+            let want = fitted.eval(f[0], f[1], f[2], f[3]);
+            assert!(
+                (got - want).abs() <= 1e-5 * want.abs().max(1.0),
+                "{f:?}: {got} vs {want}"
+            );
+        }
+        let mut short = vec![9.0; 3];
+        broken.eval_batch(&batch_in[..3], &mut short);
+        assert_eq!(short, [0.0; 3]);
+    }
+}
