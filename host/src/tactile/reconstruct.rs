@@ -526,27 +526,41 @@ impl Reconstructor {
             out.rejected_pixels += self.features.rejected;
             let t1 = Instant::now();
             out.timings.colour_ms += ms(t0, t1);
-            for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
-                self.slopes.clear();
-                let features = &self.features.axes[axis];
-                self.slopes.resize(features.rows.len(), 0.0);
-                let model = if axis == 0 {
-                    &self.model.dx
-                } else {
-                    &self.model.dy
-                };
-                model.eval(self.kind, &features.rows, &mut self.slopes);
-                // Non-finite slopes become 0 and the rest are bounded (the grid's other
-                // pixels are 0 already).
-                let fixed = sanitize(&mut self.slopes, self.max_slope);
-                out.sanitized_slopes += fixed.non_finite + fixed.clamped;
-                let values = grid.as_mut_slice();
-                for (&k, &s) in features.targets.iter().zip(&self.slopes) {
-                    values[k] = s;
+            if let (ModelKind::Light, Some(lx), Some(ly)) =
+                (self.kind, &self.model.dx.light, &self.model.dy.light)
+            {
+                // Both phases at once (see `light::read_rows`); then the same bounds.
+                let [fx, fy] = &self.features.axes;
+                light::read_rows(
+                    [lx, ly],
+                    [&fx.rows, &fy.rows],
+                    [&fx.targets, &fy.targets],
+                    [p.as_mut_slice(), q.as_mut_slice()],
+                );
+                for grid in [&mut p, &mut q] {
+                    let fixed = sanitize(grid.as_mut_slice(), self.max_slope);
+                    out.sanitized_slopes += fixed.non_finite + fixed.clamped;
                 }
-            }
-            if self.kind == ModelKind::Light {
-                self.read_light_pairs(&mut p, &mut q);
+            } else {
+                for (axis, grid) in [(0usize, &mut p), (1, &mut q)] {
+                    self.slopes.clear();
+                    let features = &self.features.axes[axis];
+                    self.slopes.resize(features.rows.len(), 0.0);
+                    let model = if axis == 0 {
+                        &self.model.dx
+                    } else {
+                        &self.model.dy
+                    };
+                    model.eval(self.kind, &features.rows, &mut self.slopes);
+                    // Non-finite slopes become 0 and the rest are bounded (the grid's other
+                    // pixels are 0 already).
+                    let fixed = sanitize(&mut self.slopes, self.max_slope);
+                    out.sanitized_slopes += fixed.non_finite + fixed.clamped;
+                    let values = grid.as_mut_slice();
+                    for (&k, &s) in features.targets.iter().zip(&self.slopes) {
+                        values[k] = s;
+                    }
+                }
             }
             let t2 = Instant::now();
             out.timings.model_ms += ms(t1, t2);
@@ -599,40 +613,6 @@ impl Reconstructor {
         }
         out.timings.solve_ms += ms(t2, Instant::now());
         Ok(())
-    }
-
-    /// The light model's slopes again where a pixel was read in both phases, both at
-    /// once ([`light::read_pair`]): a wall steep along both axes shadows a strip of each
-    /// phase, which the one-phase reading takes for a gentler slope. The slopes are
-    /// bounded as the first reading's were (and counted there).
-    fn read_light_pairs(&self, p: &mut Grid<f32>, q: &mut Grid<f32>) {
-        let (Some(lx), Some(ly)) = (&self.model.dx.light, &self.model.dy.light) else {
-            return;
-        };
-        let [fx, fy] = &self.features.axes;
-        let (p, q) = (p.as_mut_slice(), q.as_mut_slice());
-        // Both lists are in raster order: walk them together.
-        let mut j = 0;
-        for (row, &k) in fx.rows.iter().zip(&fx.targets) {
-            while j < fy.targets.len() && fy.targets[j] < k {
-                j += 1;
-            }
-            if fy.targets.get(j) != Some(&k) {
-                continue;
-            }
-            let other = &fy.rows[j];
-            let Some(mut both) = light::read_pair(
-                [lx, ly],
-                [row[0], row[1]],
-                [other[0], other[1]],
-                row[2],
-                row[3],
-            ) else {
-                continue;
-            };
-            sanitize(&mut both, self.max_slope);
-            [p[k], q[k]] = both;
-        }
     }
 }
 

@@ -109,30 +109,12 @@ impl LightModel {
     /// Rows come a region row at a time: the responses blended down the frame are
     /// computed once per row position `y`, leaving one blend across per pixel.
     pub fn eval_batch(&self, features: &[[f32; 4]], out: &mut [f32]) {
-        let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
-        if self.response.len() < cells_x * cells_y {
+        let Some(mut responses) = Responses::new(self) else {
             out.iter_mut().for_each(|o| *o = 0.0);
             return;
-        }
-        let mut across = vec![[0.0f32; 2]; cells_x];
-        let mut row_y = None;
+        };
         for (f, o) in features.iter().zip(out.iter_mut()) {
-            if row_y != Some(f[3].to_bits()) {
-                row_y = Some(f[3].to_bits());
-                let (cy, fy) = locate(f[3] * cells_y as f32 - 0.5, cells_y);
-                let cyn = (cy + 1).min(cells_y - 1);
-                for (i, a) in across.iter_mut().enumerate() {
-                    let (top, bottom) = (
-                        self.response[cy * cells_x + i],
-                        self.response[cyn * cells_x + i],
-                    );
-                    *a = [0, 1].map(|c| top[c] * (1.0 - fy) + bottom[c] * fy);
-                }
-            }
-            let (cx, fx) = locate(f[2] * cells_x as f32 - 0.5, cells_x);
-            let (left, right) = (across[cx], across[(cx + 1).min(cells_x - 1)]);
-            let a = [0, 1].map(|c| left[c] * (1.0 - fx) + right[c] * fx);
-            *o = invert([f[0], f[1]], a);
+            *o = invert([f[0], f[1]], responses.at(f[2], f[3]));
         }
     }
 }
@@ -190,42 +172,36 @@ const SETTLED: f32 = 1e-3;
 /// factor the other phase applied is known from the slopes: starting from the
 /// per-phase reading, each round undoes the factor the current slopes imply and reads
 /// again ([`PAIR_ROUNDS`] rounds; where no strip is shadowed the factor is 1 and nothing
-/// changes; `None`: no strip is shadowed, the one-phase readings stand). Where both phases have a shadowed strip the features hold only the ratio
+/// changes). Where both phases have a shadowed strip the features hold only the ratio
 /// `(1 + a·p) / (1 + a·q)`, not the slopes' size (the factors took out `|n|`): the
 /// steeper axis keeps its one-phase reading and the gentler one, which one phase alone
 /// reads far too gentle, follows the ratio. A diagonal wall steeper than the light's
 /// elevation therefore still reads gentle.
-pub fn read_pair(
-    models: [&LightModel; 2],
-    fx: [f32; 2],
-    fy: [f32; 2],
-    x: f32,
-    y: f32,
-) -> Option<[f32; 2]> {
-    // No strip shadowed: the factors are the lines' own (what calibration saw), and each
-    // phase's reading stands.
-    if fx.iter().chain(&fy).all(|c| *c >= SHADOWED) {
-        return None;
+pub fn read_pair(models: [&LightModel; 2], fx: [f32; 2], fy: [f32; 2], x: f32, y: f32) -> [f32; 2] {
+    match (models[0].response_at(x, y), models[1].response_at(x, y)) {
+        (Some(ax), Some(ay)) => pair_slopes(fx, fy, ax, ay),
+        _ => [0.0; 2],
     }
-    let (Some(ax), Some(ay)) = (models[0].response_at(x, y), models[1].response_at(x, y)) else {
-        return Some([0.0; 2]);
-    };
+}
+
+/// [`read_pair`] with the responses at the pixel given.
+fn pair_slopes(fx: [f32; 2], fy: [f32; 2], ax: [f32; 2], ay: [f32; 2]) -> [f32; 2] {
     let mut slopes = [invert(fx, ax), invert(fy, ay)];
     for _ in 0..PAIR_ROUNDS {
         let [p, q] = slopes;
         let norm = (1.0 + p * p + q * q).sqrt();
-        // The factor each phase's features were multiplied by, from the other phase's
-        // raw brightness under the lines.
-        let factor = |a: [f32; 2], s: f32| {
-            let raw: f32 = a.iter().map(|a| (1.0 + a * s).max(0.0)).sum::<f32>() / norm;
-            super::cross_factor(raw, 0.0)
+        // Each phase's features were multiplied by the other phase's factor,
+        // `cross_factor(Σ (1 + a·s)⁺ / |n|)`; times `|n| / factor` they are `(1 + a·s)⁺`
+        // again. Unbounded, `|n| / factor` is `Σ (1 + a·s)⁺ / 2`.
+        let undo = |a: [f32; 2], s: f32| {
+            let sum = (1.0 + a[0] * s).max(0.0) + (1.0 + a[1] * s).max(0.0);
+            let factor = super::cross_factor(sum / norm, 0.0);
+            norm / factor
         };
-        let (fx_factor, fy_factor) = (factor(ay, q), factor(ax, p));
-        // Back to `(1 + a·s)⁺`: raw colour times |n|.
-        let undo = |f: [f32; 2], factor: f32| f.map(|c| c / factor * norm);
+        let (ux, uy) = (undo(ay, q), undo(ax, p));
         let next = [
-            invert(undo(fx, fx_factor), ax),
-            invert(undo(fy, fy_factor), ay),
+            invert(fx.map(|c| c * ux), ax),
+            invert(fy.map(|c| c * uy), ay),
         ];
         if !(next[0].is_finite() && next[1].is_finite()) {
             break;
@@ -236,7 +212,97 @@ pub fn read_pair(
             break;
         }
     }
-    Some(slopes)
+    slopes
+}
+
+/// The slopes of a region's pixels from both phases' feature rows (`[r, b, x, y]`, in
+/// raster order) and the region index each row's pixel has (`targets`, increasing):
+/// a pixel in both phases is read with [`read_pair`], one in a single phase (the colour
+/// filter rejected the other) by that phase alone. Slopes go to `slopes` (`[p, q]`
+/// grids of the region); other entries are left as they are. A damaged model reads 0.
+pub fn read_rows(
+    models: [&LightModel; 2],
+    rows: [&[[f32; 4]]; 2],
+    targets: [&[usize]; 2],
+    slopes: [&mut [f32]; 2],
+) {
+    let (Some(mut at_x), Some(mut at_y)) = (Responses::new(models[0]), Responses::new(models[1]))
+    else {
+        return;
+    };
+    let [p, q] = slopes;
+    let (mut i, mut j) = (0, 0);
+    let (nx, ny) = (
+        rows[0].len().min(targets[0].len()),
+        rows[1].len().min(targets[1].len()),
+    );
+    while i < nx || j < ny {
+        let (kx, ky) = (
+            targets[0].get(i).copied().filter(|_| i < nx),
+            targets[1].get(j).copied().filter(|_| j < ny),
+        );
+        match (kx, ky) {
+            (Some(a), Some(b)) if a == b => {
+                let (fx, fy) = (rows[0][i], rows[1][j]);
+                let ax = at_x.at(fx[2], fx[3]);
+                let ay = at_y.at(fy[2], fy[3]);
+                [p[a], q[a]] = pair_slopes([fx[0], fx[1]], [fy[0], fy[1]], ax, ay);
+                i += 1;
+                j += 1;
+            }
+            (Some(a), b) if b.is_none_or(|b| a < b) => {
+                let f = rows[0][i];
+                p[a] = invert([f[0], f[1]], at_x.at(f[2], f[3]));
+                i += 1;
+            }
+            (_, Some(b)) => {
+                let f = rows[1][j];
+                q[b] = invert([f[0], f[1]], at_y.at(f[2], f[3]));
+                j += 1;
+            }
+            _ => break,
+        }
+    }
+}
+
+/// A model's responses at successive positions: blended down the frame once per row
+/// position `y`, leaving one blend across per pixel.
+struct Responses<'a> {
+    model: &'a LightModel,
+    cells: (usize, usize),
+    across: Vec<[f32; 2]>,
+    row_y: Option<u32>,
+}
+
+impl<'a> Responses<'a> {
+    /// `None` for a damaged model (fewer responses than cells).
+    fn new(model: &'a LightModel) -> Option<Self> {
+        let cells = (model.cells_x.max(1), model.cells_y.max(1));
+        (model.response.len() >= cells.0 * cells.1).then(|| Self {
+            model,
+            cells,
+            across: vec![[0.0; 2]; cells.0],
+            row_y: None,
+        })
+    }
+
+    #[inline]
+    fn at(&mut self, x: f32, y: f32) -> [f32; 2] {
+        let (cells_x, cells_y) = self.cells;
+        if self.row_y != Some(y.to_bits()) {
+            self.row_y = Some(y.to_bits());
+            let (cy, fy) = locate(y * cells_y as f32 - 0.5, cells_y);
+            let cyn = (cy + 1).min(cells_y - 1);
+            let r = &self.model.response;
+            for (i, a) in self.across.iter_mut().enumerate() {
+                let (top, bottom) = (r[cy * cells_x + i], r[cyn * cells_x + i]);
+                *a = [0, 1].map(|c| top[c] * (1.0 - fy) + bottom[c] * fy);
+            }
+        }
+        let (cx, fx) = locate(x * cells_x as f32 - 0.5, cells_x);
+        let (left, right) = (self.across[cx], self.across[(cx + 1).min(cells_x - 1)]);
+        [0, 1].map(|c| left[c] * (1.0 - fx) + right[c] * fx)
+    }
 }
 
 /// The least-squares slope of the colours that are lit (not below [`SHADOWED`], not
@@ -339,8 +405,7 @@ mod tests {
                 mx.eval(fx[0], fx[1], 0.5, 0.5),
                 my.eval(fy[0], fy[1], 0.5, 0.5),
             ];
-            let pair = read_pair([&mx, &my], fx, fy, 0.5, 0.5).unwrap_or(alone);
-            (pair, alone)
+            (read_pair([&mx, &my], fx, fy, 0.5, 0.5), alone)
         };
         // Walls past the calibration's slopes where the other phase has both strips lit:
         // right, from either reading.
@@ -373,13 +438,67 @@ mod tests {
         // A damaged model: zero, never a panic.
         let mut broken = mx.clone();
         broken.response.clear();
-        assert_eq!(
-            read_pair([&broken, &my], fx, fx, 0.5, 0.5),
-            Some([0.0, 0.0])
+        assert_eq!(read_pair([&broken, &my], fx, fx, 0.5, 0.5), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn rows_of_a_region_are_read_in_pairs_where_both_phases_saw_the_pixel() {
+        let k = 1.6f32;
+        let samples: Vec<Sample> = (-900..=900)
+            .map(|i| {
+                let p = i as f32 / 1000.0;
+                let [f, _] = both_phases(p, 0.0, k);
+                Sample {
+                    features: [f[0], f[1], 0.5, 0.5],
+                    target: p,
+                }
+            })
+            .collect();
+        let model = LightModel::fit(&samples, 1, 1);
+        // A region of 6 pixels: 0, 2, 5 in both phases, 1 and 4 in dx only, 3 in dy only.
+        let slopes = [
+            (1.2f32, 0.7f32),
+            (0.3, 0.0),
+            (0.93, 0.93),
+            (0.0, -0.4),
+            (-1.3, 0.0),
+            (0.2, 0.1),
+        ];
+        let (mut rows, mut targets) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+        for (i, &(p, q)) in slopes.iter().enumerate() {
+            let f = both_phases(p, q, k);
+            let x = i as f32 / 6.0;
+            for axis in 0..2 {
+                let seen = match i {
+                    1 | 4 => axis == 0,
+                    3 => axis == 1,
+                    _ => true,
+                };
+                if seen {
+                    rows[axis].push([f[axis][0], f[axis][1], x, 0.25]);
+                    targets[axis].push(i);
+                }
+            }
+        }
+        let (mut p, mut q) = (vec![9.0f32; 6], vec![9.0f32; 6]);
+        read_rows(
+            [&model, &model],
+            [&rows[0], &rows[1]],
+            [&targets[0], &targets[1]],
+            [&mut p, &mut q],
         );
-        // Nothing shadowed: nothing to do.
-        let [gx, gy] = both_phases(0.3, -0.2, k);
-        assert_eq!(read_pair([&mx, &my], gx, gy, 0.5, 0.5), None);
+        for (i, &(tp, tq)) in slopes.iter().enumerate() {
+            let f = both_phases(tp, tq, k);
+            let x = i as f32 / 6.0;
+            let want = match i {
+                1 | 4 => [model.eval(f[0][0], f[0][1], x, 0.25), 9.0],
+                3 => [9.0, model.eval(f[1][0], f[1][1], x, 0.25)],
+                _ => read_pair([&model, &model], f[0], f[1], x, 0.25),
+            };
+            assert_eq!([p[i], q[i]], want, "pixel {i}");
+        }
+        // Past the ball's slopes in one phase alone (pixel 4): right.
+        assert!((p[4] + 1.3).abs() < 0.03, "{}", p[4]);
     }
 
     #[test]
