@@ -388,6 +388,120 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         let r: serde_json::Value = serde_json::from_str(line).unwrap();
         assert!(r["max_depth_mm"].as_f64().unwrap() <= 0.5, "{line}");
     }
+
+    // A model calibrated with LEDs-off frames (an ambient estimate, here none at all)
+    // where the mode takes no dark frames: refused at start, unless --static-ambient.
+    let mut dark: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    let (w, h) = (
+        dark["width"].as_u64().unwrap(),
+        dark["height"].as_u64().unwrap(),
+    );
+    let (bw, bh) = (w.div_ceil(16), h.div_ceil(16));
+    dark["ambient"] = serde_json::json!({
+        "step": 16,
+        "width": bw,
+        "height": bh,
+        "means": vec![[0.0f32; 3]; (bw * bh) as usize],
+    });
+    let dark_model = dir.join("dark.json");
+    std::fs::write(&dark_model, serde_json::to_vec(&dark).unwrap()).unwrap();
+    let gradient_run = |extra: &[&str]| {
+        let mut args = vec![
+            "--sim",
+            "run",
+            "--camera",
+            "sim",
+            "--mode",
+            "gradient",
+            "--model",
+            path(&dark_model),
+            "--duration-s",
+            "1.5",
+            "--jsonl",
+        ];
+        args.extend_from_slice(extra);
+        stereotac(&args)
+    };
+    let (ok, _, err) = gradient_run(&[]);
+    assert!(
+        !ok && err.contains("LEDs-off frames") && err.contains("--static-ambient"),
+        "{err}"
+    );
+    let (ok, text, err) = gradient_run(&["--static-ambient"]);
+    assert!(ok, "{err}");
+    assert!(
+        text.lines()
+            .all(|l| l.contains(r#""ambient":"calibration""#)),
+        "{text}"
+    );
+    // The demo's LEDs-off frames show the scene behind the skin, brighter than the lit
+    // frames: not an ambient light to remove. Said once, then counted at the end.
+    let (ok, text, err) = stereotac(&[
+        "process",
+        path(&out.join("demo.mcap")),
+        "--model",
+        path(&dark_model),
+        "--jsonl",
+    ]);
+    assert!(ok, "{err}");
+    let refused = text.matches("calibration-dark-refused").count();
+    assert!(refused > 0, "{text}");
+    assert_eq!(
+        err.matches("cannot be their ambient light").count(),
+        1,
+        "{err}"
+    );
+    assert!(
+        err.contains(&format!("{refused} pairs' LEDs-off frames were brighter")),
+        "{err}"
+    );
+    // A model of another frame size: refused at start, with the fix for each command
+    // (live: the camera's size can change; a recording's cannot).
+    let (ok, _, err) = stereotac(&[
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--size",
+        "320x240",
+        "--model",
+        path(&model),
+        "--duration-s",
+        "1",
+    ]);
+    assert!(
+        !ok && err.contains("calibrated at 640×480") && err.contains("(--size)"),
+        "{err}"
+    );
+    let small = dir.join("small.mcap");
+    let (ok, _, err) = stereotac(&[
+        "--sim",
+        "record",
+        "--camera",
+        "sim",
+        "--size",
+        "320x240",
+        "--duration-s",
+        "1",
+        "--out",
+        path(&small),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = stereotac(&["process", path(&small), "--model", path(&model)]);
+    assert!(
+        !ok && err.contains("calibrated at 640×480")
+            && err.contains("at the recording's frame size (--model FILE)")
+            && !err.contains("--size"),
+        "{err}"
+    );
+    // Without a model, the dx/dy pairs are named as skipped, not silently dropped.
+    let (ok, _, err) = stereotac(&["process", path(&out.join("demo.mcap"))]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("dx/dy pairs not reconstructed: no tactile model"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -142,8 +142,21 @@ impl Pipeline {
         match self.router.push(camera, frame)? {
             Job::Tactile(p) if self.tactile.is_some() => Some(Job::Tactile(p)),
             Job::Stereo(p) if self.stereo.is_some() => Some(Job::Stereo(p)),
-            _ => None,
+            Job::Tactile(_) => {
+                self.router.unrouted.0 += 1;
+                None
+            }
+            Job::Stereo(_) => {
+                self.router.unrouted.1 += 1;
+                None
+            }
         }
+    }
+
+    /// Pairs completed for a stage that is off (no model, no calibration): (dx/dy pairs,
+    /// stereo pairs).
+    pub fn unrouted(&self) -> (u64, u64) {
+        self.router.unrouted
     }
 
     /// Runs one job now; `now_us` reads the host clock.
@@ -226,6 +239,8 @@ pub struct Router {
     /// Camera 0's latest dark frame and its phase index: the ambient light of the
     /// tactile pair that follows it.
     ambient: Option<(u32, LabelledFrame)>,
+    /// Pairs completed for a stage that was off (counted by [`Pipeline::route`]).
+    unrouted: (u64, u64),
 }
 
 impl Router {

@@ -2,7 +2,14 @@
 
 use anyhow::Result;
 use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
+use stereotac::tactile::ambient::AmbientSource;
 use stereotac::timing::quantiles;
+
+/// Said once, at the first pair whose LEDs-off frame was not used.
+const DARK_REFUSED: &str = "a LEDs-off frame is brighter than the lit frames after it over \
+    much of the frame, so it cannot be their ambient light: the calibration's ambient \
+    light is removed instead (\"ambient\": \"calibration-dark-refused\"). Is the \
+    exposure or gain the same in every phase, and is the room's light steady?";
 
 use crate::console::emit;
 
@@ -15,6 +22,8 @@ pub struct Report {
     contacts: u64,
     /// Jobs each stage skipped for a newer one: (tactile, stereo).
     skipped: (u64, u64),
+    /// Pairs whose LEDs-off frame was brighter than their lit frames (not used).
+    dark_refused: u64,
 }
 
 impl Report {
@@ -26,6 +35,7 @@ impl Report {
             stereo_latency: Vec::new(),
             contacts: 0,
             skipped: (0, 0),
+            dark_refused: 0,
         }
     }
 
@@ -36,6 +46,12 @@ impl Report {
                 self.tactile_latency.extend(record.latency_ms);
                 self.contacts += u64::from(record.contact);
                 self.skipped.0 = self.skipped.0.max(record.jobs_skipped);
+                if record.ambient == AmbientSource::CalibrationDarkRefused {
+                    if self.dark_refused == 0 {
+                        eprintln!("warning: {DARK_REFUSED}");
+                    }
+                    self.dark_refused += 1;
+                }
                 if self.jsonl {
                     emit(format_args!("{}", serde_json::to_string(record)?))
                 } else {
@@ -66,6 +82,13 @@ impl Report {
                 t.refused(),
                 self.skipped.0,
                 fmt(self.tactile_latency)
+            );
+        }
+        if self.dark_refused > 0 {
+            eprintln!(
+                "warning: {} pairs' LEDs-off frames were brighter than their lit frames and \
+                 were not used (the calibration's ambient light was removed instead)",
+                self.dark_refused
             );
         }
         if let Some(s) = &pipeline.stereo {

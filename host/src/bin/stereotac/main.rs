@@ -80,14 +80,16 @@ enum Command {
     Process(cmd::process::Args),
     /// A recording's dx/dy and stereo pairs as PNG files (`--pairs DIR`).
     Export(cmd::export::Args),
-    /// Record camera frames as PNG plus an index (index.jsonl) of phase, trigger and
-    /// timestamps; Ctrl-C finishes cleanly without losing a captured frame.
+    /// Record camera frames, LED phases, clock sync and the sensor's identity to an MCAP
+    /// file (`--png` for PNG frames plus an index.jsonl); Ctrl-C finishes cleanly without
+    /// losing a captured frame.
     Record(cmd::record::Args),
     /// Change colours, brightness, timing, LED count, power budget or mode.
     Set(cmd::set::Args),
     /// Reboot the sensor into its USB bootloader and copy a UF2 file onto the boot drive.
     Flash(cmd::flash::Args),
-    /// Calibrate the tactile model from ball presses: DIR holds NAME_dx.png / NAME_dy.png.
+    /// Calibrate the tactile model from ball presses: a recording (MCAP) or a folder of
+    /// NAME_dx.png / NAME_dy.png pairs.
     Calibrate(cmd::calibrate::Args),
     /// Reconstruct the depth of one dx/dy pair into depth.npy, PNGs, PLY and summary.json.
     Reconstruct(cmd::reconstruct::Args),

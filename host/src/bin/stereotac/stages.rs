@@ -53,6 +53,33 @@ pub struct StageArgs {
     /// metres): mm (default) or m.
     #[arg(long, default_value = "mm")]
     pub units: LengthUnit,
+    /// Accept a tactile model calibrated with LEDs-off frames where the mode takes none:
+    /// the ambient light measured at calibration is removed from every pair instead of
+    /// each pair's own (wrong as soon as the room's light changes).
+    #[arg(long)]
+    pub static_ambient: bool,
+}
+
+/// What a size mismatch asks the user to change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SizeFix {
+    /// Live: calibrate at the cameras' size, or set the cameras to the file's (`--size`).
+    Camera,
+    /// A recording's frames are what they are: give a file of their size.
+    Recording,
+}
+
+impl SizeFix {
+    fn say(self, what: &str, option: &str, (w, h): (u32, u32)) -> String {
+        match self {
+            SizeFix::Camera => {
+                format!("calibrate at this size, or set the camera to {w}×{h} (--size)")
+            }
+            SizeFix::Recording => {
+                format!("give {what} calibrated at the recording's frame size ({option} FILE)")
+            }
+        }
+    }
 }
 
 /// A tactile model with the no-contact frames it normalises by, if any.
@@ -89,19 +116,35 @@ impl TactileSetup {
         ))
     }
 
-    /// Refuses a model of another frame size than the camera's.
-    pub fn check_size(&self, camera: &str, size: (u32, u32)) -> Result<()> {
+    /// Refuses a model of another frame size than the camera's; `fix` says what to do
+    /// (it depends on the command).
+    pub fn check_size(&self, camera: &str, size: (u32, u32), fix: SizeFix) -> Result<()> {
         let m = (self.model.width as u32, self.model.height as u32);
         if m != size {
             bail!(
                 "the tactile model was calibrated at {}×{} but {camera} gives {}×{} frames: \
-                 calibrate at this size, or set the camera to {}×{} (--size)",
+                 {}",
                 m.0,
                 m.1,
                 size.0,
                 size.1,
-                m.0,
-                m.1
+                fix.say("a model", "--model", m)
+            );
+        }
+        Ok(())
+    }
+
+    /// Refuses a model calibrated with LEDs-off frames when none will come (`dark`:
+    /// whether the mode has dark phases), unless `static_ambient` accepts the ambient
+    /// light measured at calibration in their place.
+    pub fn check_ambient(&self, mode: &str, dark: bool, static_ambient: bool) -> Result<()> {
+        if self.model.ambient.is_some() && !dark && !static_ambient {
+            bail!(
+                "the tactile model was calibrated with LEDs-off frames (it removes each \
+                 pair's ambient light), but --mode {mode} takes none: use --mode \
+                 interleaved, calibrate without NAME_dark.png frames, or pass \
+                 --static-ambient to remove the ambient light measured at calibration \
+                 (wrong once the room's light changes)"
             );
         }
         Ok(())
@@ -161,7 +204,13 @@ impl StereoSetup {
     }
 
     /// Refuses a calibration of another frame size than the cameras'.
-    pub fn check_size(&self, camera: &str, left: bool, size: (u32, u32)) -> Result<()> {
+    pub fn check_size(
+        &self,
+        camera: &str,
+        left: bool,
+        size: (u32, u32),
+        fix: SizeFix,
+    ) -> Result<()> {
         let c = if left {
             &self.calib.left
         } else {
@@ -170,14 +219,13 @@ impl StereoSetup {
         if (c.width, c.height) != size {
             bail!(
                 "the stereo calibration's {} camera is {}×{} but {camera} gives {}×{} frames: \
-                 calibrate at this size, or set the camera to {}×{} (--size)",
+                 {}",
                 if left { "left" } else { "right" },
                 c.width,
                 c.height,
                 size.0,
                 size.1,
-                c.width,
-                c.height
+                fix.say("a calibration", "--calib", (c.width, c.height))
             );
         }
         Ok(())

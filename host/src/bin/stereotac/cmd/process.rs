@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use foxglove::Decode;
-use stereotac::live::{Job, Pipeline, PipelineError};
+use stereotac::describe;
+use stereotac::live::{Job, Pipeline, PipelineError, stages_of};
 use stereotac::recording::messages::{ClockInfo, PhaseInfo};
 use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
 use stereotac::recording::topics;
@@ -21,8 +22,8 @@ use stereotac::tactile::model::TactileModel;
 use crate::live_report::Report;
 use crate::progress::bar;
 use crate::stages::{
-    META_STEREO, REFERENCE_DX, REFERENCE_DY, StageArgs, StereoSetup, TactileSetup, from_png,
-    stereo_settings,
+    META_STEREO, REFERENCE_DX, REFERENCE_DY, SizeFix, StageArgs, StereoSetup, TactileSetup,
+    from_png, stereo_settings,
 };
 use stereotac::recording::metadata::stamp_ref_of;
 
@@ -51,6 +52,12 @@ pub fn run(a: Args) -> Result<()> {
     let header = reader::header(&a.recording)
         .with_context(|| format!("reading {}", a.recording.display()))?;
     let (tactile, stereo) = setups(&a, &header)?;
+    let run_meta = header.metadata.get(topics::META_RECORDING);
+    if let (Some(t), Some(mode)) = (&tactile, run_meta.and_then(|m| m.get("mode"))) {
+        let dark = describe::mode_named(mode).is_some_and(|m| stages_of(m).1);
+        t.check_ambient(mode, dark, a.stages.static_ambient)
+            .with_context(|| format!("{}", a.recording.display()))?;
+    }
     if tactile.is_none() && stereo.is_none() {
         bail!(
             "{}: nothing to process: it holds no tactile model and no stereo calibration; \
@@ -59,7 +66,6 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
-    let run_meta = header.metadata.get(topics::META_RECORDING);
     let stamp = |camera| stamp_ref_of(run_meta, camera).map_err(anyhow::Error::msg);
     let origin_ns = run_meta
         .and_then(|m| m.get("clock_origin_unix_ns"))
@@ -163,10 +169,10 @@ pub fn run(a: Args) -> Result<()> {
                 let name = format!("camera {camera} of the recording");
                 let checks = (|| -> Result<()> {
                     if let (0, Some(t)) = (camera, &tactile) {
-                        t.check_size(&name, size)?;
+                        t.check_size(&name, size, SizeFix::Recording)?;
                     }
                     if let Some(s) = &stereo {
-                        s.check_size(&name, camera == 0, size)?;
+                        s.check_size(&name, camera == 0, size, SizeFix::Recording)?;
                     }
                     Ok(())
                 })();
@@ -197,6 +203,21 @@ pub fn run(a: Args) -> Result<()> {
     }
     let summary = recorder.finish()?;
     report.finish(&pipeline);
+    let unused = pipeline.unrouted();
+    if unused.0 > 0 {
+        eprintln!(
+            "note: {} dx/dy pairs not reconstructed: no tactile model (the recording holds \
+             none; give --model FILE)",
+            unused.0
+        );
+    }
+    if unused.1 > 0 {
+        eprintln!(
+            "note: {} stereo pairs not matched: no stereo calibration (the recording holds \
+             none; give --calib FILE)",
+            unused.1
+        );
+    }
     eprintln!("frames: {dropped} missing from the recording (camera sequence gaps)");
     if let Some(path) = &summary.path {
         eprintln!(

@@ -18,7 +18,7 @@ use crate::live_report::Report;
 use crate::live_session::{self, Outputs, print_recorded};
 use crate::progress::builtin_calibration;
 use crate::sensor_args::DeviceArgs;
-use crate::stages::{StageArgs, StereoSetup, TactileSetup};
+use crate::stages::{SizeFix, StageArgs, StereoSetup, TactileSetup};
 
 /// `stereotac run`.
 #[derive(Debug, clap::Args)]
@@ -77,6 +77,11 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 a.sequence.mode
             ),
         };
+        setup.check_ambient(
+            stereotac::describe::mode(a.sequence.mode.into()),
+            dark,
+            a.stages.static_ambient,
+        )?;
         Some(setup.round_trip()?)
     } else {
         if a.stages.model.is_some() {
@@ -245,10 +250,10 @@ fn check_size(
     stereo: Option<&StereoSetup>,
 ) -> Result<()> {
     if let (0, Some(t)) = (camera, tactile) {
-        t.check_size(name, size)?;
+        t.check_size(name, size, SizeFix::Camera)?;
     }
     if let (0 | 1, Some(s)) = (camera, stereo) {
-        s.check_size(name, camera == 0, size)?;
+        s.check_size(name, camera == 0, size, SizeFix::Camera)?;
     }
     Ok(())
 }
