@@ -20,7 +20,9 @@ use stereotac::frames::capture::{CaptureError, LabelledFrame};
 use stereotac::live::cameras::CameraSetup;
 use stereotac::live::runner::{self, Hooks, Stopped, Until};
 use stereotac::live::session::Session;
-use stereotac::live::{Output, Pipeline, PipelineError, StereoStage, TactileStage, stages_of};
+use stereotac::live::{
+    Output, Pipeline, PipelineError, StereoStage, TactileStage, check_ambient, stages_of,
+};
 use stereotac::matcher::{MatcherConfig, StampRef};
 use stereotac::recording::messages::{FrameInfo, StereoRecord, TactileRecord};
 use stereotac::recording::reader::RecordedFrame;
@@ -271,8 +273,10 @@ impl PySensor {
     /// seconds or until the iterator is closed. With the simulated sensor and cameras,
     /// a built-in model (calibrated first, a few seconds) and calibration are used when
     /// none is given. `model`: a path or a `TactileModel`; `calib`: a path or a pair of
-    /// paths (ROS), `units` the unit of an OpenCV file's `T`.
-    #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut"))]
+    /// paths (ROS), `units` the unit of an OpenCV file's `T`. A model calibrated with
+    /// LEDs-off frames is refused in a mode without dark phases unless `static_ambient`
+    /// (the ambient light measured at calibration is removed instead).
+    #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut", static_ambient = false))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         slf: PyRef<'_, Self>,
@@ -286,6 +290,7 @@ impl PySensor {
         period_ms: u32,
         frames: bool,
         kind: &str,
+        static_ambient: bool,
     ) -> PyResult<PyLiveRun> {
         let mode = mode_named(mode)?;
         let period = period_us(period_ms)?;
@@ -342,6 +347,7 @@ impl PySensor {
                     ));
                 }
             };
+            check_ambient(&model, mode, static_ambient).map_err(|e| bad_input(e.to_string()))?;
             Some((model, references))
         } else {
             None

@@ -217,5 +217,6 @@ class Sensor:
         period_ms: int = 250,
         frames: bool = False,
         kind: str = "lut",
+        static_ambient: bool = False,
     ) -> LiveRun:
         """The live pipeline of `stereotac run`: results with host timestamps."""

@@ -93,6 +93,20 @@ def test_bad_runs_are_refused_before_they_start(sensor, model_path, tmp_path):
     assert sensor.info()["serial"]
 
 
+def test_a_dark_frame_model_needs_dark_phases_or_static_ambient(sensor, model_path, tmp_path):
+    import json
+
+    model = json.loads(open(model_path).read())
+    bw, bh = -(-model["width"] // 16), -(-model["height"] // 16)
+    model["ambient"] = {"step": 16, "width": bw, "height": bh, "means": [[0.0] * 3] * (bw * bh)}
+    dark = tmp_path / "dark.json"
+    dark.write_text(json.dumps(model))
+    with pytest.raises(stereotac.BadInputError, match="static_ambient"):
+        sensor.run(mode="gradient", model=dark)
+    results = [r for r in sensor.run(mode="gradient", model=dark, static_ambient=True, duration_s=1.5)]
+    assert results and all(r.record["ambient"] == "calibration" for r in results)
+
+
 def test_a_closed_sensor_says_so(model_path):
     s = stereotac.Sensor(sim=True)
     s.close()

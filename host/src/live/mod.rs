@@ -34,6 +34,35 @@ use crate::recording::writer::Item;
 use crate::stereo::{StereoError, StereoFrame};
 use crate::tactile::reconstruct::{ReconstructError, Reconstruction};
 
+/// A tactile model calibrated with LEDs-off frames (it removes each pair's own ambient
+/// light) in a mode that takes none.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the tactile model was calibrated with LEDs-off frames (it removes each pair's ambient \
+     light), but mode {mode} takes none: use the interleaved mode, calibrate without \
+     NAME_dark.png frames, or accept the ambient light measured at calibration instead \
+     (--static-ambient; static_ambient=True in Python), wrong once the room's light changes"
+)]
+pub struct NeedsDarkFrames {
+    /// The mode's name.
+    pub mode: &'static str,
+}
+
+/// Refuses a model calibrated with LEDs-off frames when `mode` has no dark phases,
+/// unless `static_ambient` accepts the calibration's ambient light in their place.
+pub fn check_ambient(
+    model: &crate::tactile::model::TactileModel,
+    mode: Mode,
+    static_ambient: bool,
+) -> Result<(), NeedsDarkFrames> {
+    if model.ambient.is_some() && !stages_of(mode).1 && !static_ambient {
+        return Err(NeedsDarkFrames {
+            mode: crate::describe::mode(mode),
+        });
+    }
+    Ok(())
+}
+
 /// Which stages a sequence mode can feed: `(tactile, stereo)`. Tactile needs dx/dy
 /// phases (gradient, interleaved), stereo dark ones (vision, interleaved).
 pub fn stages_of(mode: Mode) -> (bool, bool) {

@@ -134,22 +134,6 @@ impl TactileSetup {
         Ok(())
     }
 
-    /// Refuses a model calibrated with LEDs-off frames when none will come (`dark`:
-    /// whether the mode has dark phases), unless `static_ambient` accepts the ambient
-    /// light measured at calibration in their place.
-    pub fn check_ambient(&self, mode: &str, dark: bool, static_ambient: bool) -> Result<()> {
-        if self.model.ambient.is_some() && !dark && !static_ambient {
-            bail!(
-                "the tactile model was calibrated with LEDs-off frames (it removes each \
-                 pair's ambient light), but --mode {mode} takes none: use --mode \
-                 interleaved, calibrate without NAME_dark.png frames, or pass \
-                 --static-ambient to remove the ambient light measured at calibration \
-                 (wrong once the room's light changes)"
-            );
-        }
-        Ok(())
-    }
-
     /// Puts the model and references into the recording.
     pub fn record(&self, recorder: &Recorder) -> Result<()> {
         let mut items = vec![Item::Attachment {

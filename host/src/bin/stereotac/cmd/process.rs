@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use foxglove::Decode;
 use stereotac::describe;
-use stereotac::live::{Job, Pipeline, PipelineError, stages_of};
+use stereotac::live::{Job, Pipeline, PipelineError, check_ambient};
 use stereotac::recording::messages::{ClockInfo, PhaseInfo};
 use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
 use stereotac::recording::topics;
@@ -53,9 +53,9 @@ pub fn run(a: Args) -> Result<()> {
         .with_context(|| format!("reading {}", a.recording.display()))?;
     let (tactile, stereo) = setups(&a, &header)?;
     let run_meta = header.metadata.get(topics::META_RECORDING);
-    if let (Some(t), Some(mode)) = (&tactile, run_meta.and_then(|m| m.get("mode"))) {
-        let dark = describe::mode_named(mode).is_some_and(|m| stages_of(m).1);
-        t.check_ambient(mode, dark, a.stages.static_ambient)
+    let mode = run_meta.and_then(|m| describe::mode_named(m.get("mode")?));
+    if let (Some(t), Some(mode)) = (&tactile, mode) {
+        check_ambient(&t.model, mode, a.stages.static_ambient)
             .with_context(|| format!("{}", a.recording.display()))?;
     }
     if tactile.is_none() && stereo.is_none() {

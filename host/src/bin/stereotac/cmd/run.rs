@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use stereotac::frames::capture::LabelledFrame;
 use stereotac::live::runner::{self, Hooks, Stopped, Until};
-use stereotac::live::{Output, Pipeline, stages_of};
+use stereotac::live::{Output, Pipeline, check_ambient, stages_of};
 
 use crate::args::{PipelineArgs, SequenceArgs};
 use crate::cameras::CameraArgs;
@@ -77,9 +77,9 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 a.sequence.mode
             ),
         };
-        setup.check_ambient(
-            stereotac::describe::mode(a.sequence.mode.into()),
-            dark,
+        check_ambient(
+            &setup.model,
+            a.sequence.mode.into(),
             a.stages.static_ambient,
         )?;
         Some(setup.round_trip()?)
