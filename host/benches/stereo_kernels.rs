@@ -102,7 +102,8 @@ fn after_matching(c: &mut Criterion) {
             reproject_reference(&disparity, &q),
         );
         assert_eq!(new.pixels, old.pixels);
-        let close = |a: &[f32; 3], b: &[f32; 3]| (0..3).all(|k| (a[k] - b[k]).abs() <= 1e-5 * b[2]);
+        let close =
+            |a: &[f32; 3], b: &[f32; 3]| (0..3).all(|k| (a[k] - b[k]).abs() <= 1e-5 * b[2].abs());
         assert!(new.points.iter().zip(&old.points).all(|(a, b)| close(a, b)));
     }
     for threads in [1, 2] {
@@ -143,8 +144,11 @@ fn after_matching(c: &mut Criterion) {
 /// The spatial filter as it was: the horizontal passes one row at a time.
 fn spatial_reference(f: &SpatialFilter, disparity: &mut Grid<f32>) {
     use rayon::prelude::*;
-    let (alpha, delta) = (f.alpha, f.delta);
+    let (alpha, delta) = (f.alpha.clamp(f32::MIN_POSITIVE, 1.0), f.delta);
     let w = disparity.width();
+    if w == 0 || disparity.height() == 0 || !delta.is_finite() {
+        return;
+    }
     let line = |v: &mut f32, previous: &mut f32| {
         if v.is_finite() && previous.is_finite() && (*v - *previous).abs() < delta {
             *v = alpha * *v + (1.0 - alpha) * *previous;

@@ -347,7 +347,13 @@ impl PySensor {
                     ));
                 }
             };
-            check_ambient(&model, mode, static_ambient).map_err(|e| bad_input(e.to_string()))?;
+            check_ambient(&model, mode, static_ambient).map_err(|e| {
+                bad_input(format!(
+                    "{e}: use mode=\"interleaved\", a model calibrated without LEDs-off \
+                     frames, or static_ambient=True to remove the ambient light measured at \
+                     calibration instead (wrong once the room's light changes)"
+                ))
+            })?;
             Some((model, references))
         } else {
             None

@@ -35,27 +35,28 @@ use crate::stereo::{StereoError, StereoFrame};
 use crate::tactile::reconstruct::{ReconstructError, Reconstruction};
 
 /// A tactile model calibrated with LEDs-off frames (it removes each pair's own ambient
-/// light) in a mode that takes none.
+/// light) in a mode with dx/dy phases but no dark ones. The caller adds how to go on
+/// (its own option names): another mode, a model calibrated without LEDs-off frames, or
+/// accepting the calibration's ambient light.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "the tactile model was calibrated with LEDs-off frames (it removes each pair's ambient \
-     light), but mode {mode} takes none: use the interleaved mode, calibrate without \
-     NAME_dark.png frames, or accept the ambient light measured at calibration instead \
-     (--static-ambient; static_ambient=True in Python), wrong once the room's light changes"
+    "the tactile model was calibrated with LEDs-off frames (it removes each pair's own \
+     ambient light), but the {mode} mode takes none"
 )]
 pub struct NeedsDarkFrames {
     /// The mode's name.
     pub mode: &'static str,
 }
 
-/// Refuses a model calibrated with LEDs-off frames when `mode` has no dark phases,
-/// unless `static_ambient` accepts the calibration's ambient light in their place.
+/// Refuses a model calibrated with LEDs-off frames when `mode` gives dx/dy pairs but no
+/// dark phases, unless `static_ambient` accepts the calibration's ambient light in their
+/// place. (A mode without dx/dy pairs never uses the model.)
 pub fn check_ambient(
     model: &crate::tactile::model::TactileModel,
     mode: Mode,
     static_ambient: bool,
 ) -> Result<(), NeedsDarkFrames> {
-    if model.ambient.is_some() && !stages_of(mode).1 && !static_ambient {
+    if model.ambient.is_some() && stages_of(mode) == (true, false) && !static_ambient {
         return Err(NeedsDarkFrames {
             mode: crate::describe::mode(mode),
         });

@@ -83,9 +83,11 @@ pub fn reproject(disparity: &Grid<f32>, q: &Matrix4<f64>) -> PointCloud {
 /// The points of whole rows `values` (row `first_row` on), row by row: `Q·[u, v, d, 1]ᵀ`
 /// as the row's constant part `Q·[0, v, 0, 1]ᵀ` plus `u` and `d` times their columns.
 fn reproject_band(values: &[f32], w: usize, first_row: usize, q: &Matrix4<f32>) -> PointCloud {
+    // At most one point per positive finite disparity: no growing, no more than needed.
+    let most = values.iter().filter(|d| **d > 0.0 && d.is_finite()).count();
     let mut band = PointCloud {
-        points: Vec::with_capacity(values.len()),
-        pixels: Vec::with_capacity(values.len()),
+        points: Vec::with_capacity(most),
+        pixels: Vec::with_capacity(most),
     };
     let (col_u, col_d) = (q.column(0).into_owned(), q.column(2).into_owned());
     for (r, row) in values.chunks(w).enumerate() {

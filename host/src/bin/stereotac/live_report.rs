@@ -85,10 +85,11 @@ impl Report {
             );
         }
         if self.dark_refused > 0 {
+            let n = self.dark_refused;
             eprintln!(
-                "warning: {} pairs' LEDs-off frames were brighter than their lit frames and \
+                "warning: {n} {} LEDs-off frames were brighter than their lit frames and \
                  were not used (the calibration's ambient light was removed instead)",
-                self.dark_refused
+                if n == 1 { "pair's" } else { "pairs'" }
             );
         }
         if let Some(s) = &pipeline.stereo {

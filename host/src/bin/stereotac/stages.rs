@@ -76,7 +76,7 @@ impl SizeFix {
                 format!("calibrate at this size, or set the camera to {w}×{h} (--size)")
             }
             SizeFix::Recording => {
-                format!("give {what} calibrated at the recording's frame size ({option} FILE)")
+                format!("give {what} at the recording's frame size ({option} FILE)")
             }
         }
     }
@@ -91,6 +91,9 @@ pub struct TactileSetup {
     pub references: Option<(RgbImage, RgbImage)>,
     /// Gradient model.
     pub kind: ModelKind,
+    /// The calibration's ambient light accepted in place of LEDs-off frames
+    /// (`--static-ambient`; kept in the recording, so `process` does as `run` did).
+    pub static_ambient: bool,
 }
 
 impl TactileSetup {
@@ -128,7 +131,7 @@ impl TactileSetup {
                 m.1,
                 size.0,
                 size.1,
-                fix.say("a model", "--model", m)
+                fix.say("a model calibrated", "--model", m)
             );
         }
         Ok(())
@@ -152,7 +155,10 @@ impl TactileSetup {
         }
         items.push(Item::Metadata {
             name: "tactile_settings".into(),
-            entries: BTreeMap::from([("model_kind".into(), self.kind.to_string())]),
+            entries: BTreeMap::from([
+                ("model_kind".into(), self.kind.to_string()),
+                ("static_ambient".into(), self.static_ambient.to_string()),
+            ]),
         });
         for item in items {
             if !recorder.send(item) {
@@ -209,7 +215,7 @@ impl StereoSetup {
                 c.height,
                 size.0,
                 size.1,
-                fix.say("a calibration", "--calib", (c.width, c.height))
+                fix.say("a stereo calibration made", "--calib", (c.width, c.height))
             );
         }
         Ok(())

@@ -55,8 +55,14 @@ pub fn run(a: Args) -> Result<()> {
     let run_meta = header.metadata.get(topics::META_RECORDING);
     let mode = run_meta.and_then(|m| describe::mode_named(m.get("mode")?));
     if let (Some(t), Some(mode)) = (&tactile, mode) {
-        check_ambient(&t.model, mode, a.stages.static_ambient)
-            .with_context(|| format!("{}", a.recording.display()))?;
+        check_ambient(&t.model, mode, t.static_ambient).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: {e}: give a model calibrated without LEDs-off frames (--model), or \
+                 pass --static-ambient to remove the ambient light measured at calibration \
+                 instead (wrong once the room's light changes)",
+                a.recording.display()
+            )
+        })?;
     }
     if tactile.is_none() && stereo.is_none() {
         bail!(
@@ -268,6 +274,13 @@ fn setups(
         })
         .transpose()?;
     let kind = a.stages.model_kind.or(recorded_kind).unwrap_or_default();
+    // Accepted when asked, or when the run that made the recording accepted it.
+    let static_ambient = a.stages.static_ambient
+        || header
+            .metadata
+            .get("tactile_settings")
+            .and_then(|m| m.get("static_ambient"))
+            .is_some_and(|v| v == "true");
     let tactile = match (
         &a.stages.model,
         header.attachments.get(topics::MODEL_ATTACHMENT),
@@ -276,6 +289,7 @@ fn setups(
             model: TactileModel::load(path)?,
             references: None,
             kind,
+            static_ambient,
         }),
         (None, Some(json)) => {
             let name = format!("{file} attachment {}", topics::MODEL_ATTACHMENT);
@@ -293,6 +307,7 @@ fn setups(
                 model: TactileModel::from_json(&name, json)?,
                 references,
                 kind,
+                static_ambient,
             })
         }
         (None, None) => None,

@@ -62,6 +62,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 model: stereotac::tactile::model::TactileModel::load(path)?,
                 references: None,
                 kind: a.stages.model_kind.unwrap_or_default(),
+                static_ambient: a.stages.static_ambient,
             },
             None if all_sim => {
                 let (calibration, references) = builtin_calibration(&a.cameras.sim_optics())?;
@@ -69,6 +70,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                     model: calibration.model,
                     references: Some(references),
                     kind: a.stages.model_kind.unwrap_or_default(),
+                    static_ambient: a.stages.static_ambient,
                 }
             }
             None => bail!(
@@ -81,7 +83,15 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
             &setup.model,
             a.sequence.mode.into(),
             a.stages.static_ambient,
-        )?;
+        )
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "{e}: use --mode interleaved, a model calibrated without LEDs-off \
+                     frames (presses recorded in gradient mode, or no NAME_dark.png files), \
+                     or pass --static-ambient to remove the ambient light measured at \
+                     calibration instead (wrong once the room's light changes)"
+            )
+        })?;
         Some(setup.round_trip()?)
     } else {
         if a.stages.model.is_some() {
