@@ -292,13 +292,10 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     );
     let (ok, _, err) = again(true);
     assert!(ok, "{err}");
-    let (ok, text, err) = stereotac(&[
-        "process",
-        path(&out.join("demo.mcap")),
-        "--model",
-        path(&model),
-        "--jsonl",
-    ]);
+    let demo = out.join("demo.mcap");
+    let process_demo =
+        |model: &Path| stereotac(&["process", path(&demo), "--model", path(model), "--jsonl"]);
+    let (ok, text, err) = process_demo(&model);
     assert!(ok, "{err}");
     let records: Vec<serde_json::Value> = text
         .lines()
@@ -341,13 +338,7 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     thin["skin_thickness_mm"] = 0.5.into();
     let thin_model = dir.join("thin-edited.json");
     std::fs::write(&thin_model, serde_json::to_vec(&thin).unwrap()).unwrap();
-    let (ok, text, err) = stereotac(&[
-        "process",
-        path(&out.join("demo.mcap")),
-        "--model",
-        path(&thin_model),
-        "--jsonl",
-    ]);
+    let (ok, text, err) = process_demo(&thin_model);
     assert!(ok, "{err}");
     let kept: Vec<serde_json::Value> = text
         .lines()
@@ -471,13 +462,7 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     assert!(ok, "{err}");
     // The demo's LEDs-off frames show the scene behind the skin, brighter than the lit
     // frames: not an ambient light to remove. Said once, then counted at the end.
-    let (ok, text, err) = stereotac(&[
-        "process",
-        path(&out.join("demo.mcap")),
-        "--model",
-        path(&dark_model),
-        "--jsonl",
-    ]);
+    let (ok, text, err) = process_demo(&dark_model);
     assert!(ok, "{err}");
     let refused = text.matches("calibration-dark-refused").count();
     assert!(refused > 0, "{text}");
