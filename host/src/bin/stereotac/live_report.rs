@@ -5,13 +5,13 @@ use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
 use stereotac::tactile::ambient::AmbientSource;
 use stereotac::timing::quantiles;
 
-/// Said once, at the first pair whose LEDs-off frame was not used.
-const DARK_REFUSED: &str = "a LEDs-off frame is brighter than the lit frames after it over \
-    much of the frame, so it cannot be their ambient light: the calibration's ambient \
-    light is removed instead (\"ambient\": \"calibration-dark-refused\"). Is the \
-    exposure or gain the same in every phase, and is the room's light steady?";
-
 use crate::console::emit;
+
+/// Said once, at the first pair whose LEDs-off frame was not used.
+const DARK_REFUSED: &str = "a LEDs-off frame is brighter than the lit frames after it in \
+    more than 5 % of its values, so it cannot be their ambient light: the calibration's \
+    ambient light is removed instead (\"ambient\": \"calibration-dark-refused\"). Is \
+    the exposure or gain the same in every phase, and is the room's light steady?";
 
 /// The printed report (see the module documentation).
 #[derive(Debug)]

@@ -86,10 +86,10 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
         )
         .map_err(|e| {
             anyhow::anyhow!(
-                "{e}: use --mode interleaved, a model calibrated without LEDs-off \
-                     frames (presses recorded in gradient mode, or no NAME_dark.png files), \
-                     or pass --static-ambient to remove the ambient light measured at \
-                     calibration instead (wrong once the room's light changes)"
+                "{e}: use --mode interleaved, a model calibrated without LEDs-off frames \
+                 (presses recorded in gradient mode, or no NAME_dark.png files), or pass \
+                 --static-ambient to remove the ambient light measured at calibration \
+                 instead (wrong once the room's light changes)"
             )
         })?;
         Some(setup.round_trip()?)
