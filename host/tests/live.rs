@@ -185,29 +185,35 @@ fn process_refuses_what_is_not_a_recording_naming_the_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `stereotac --sim record --camera sim OPTIONS --out OUT` (the simulated sensor and
+/// camera 0; `options` add cameras, size, mode, duration), asserted to succeed.
+fn record_sim(out: &Path, options: &[&str]) {
+    let mut args = vec!["--sim", "record", "--camera", "sim"];
+    args.extend_from_slice(options);
+    args.extend_from_slice(&["--out", path(out)]);
+    let (ok, _, err) = stereotac(&args);
+    assert!(ok, "{err}");
+}
+
 #[test]
 fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
     let dir = temp_dir("live-export");
     let rec = dir.join("rec.mcap");
-    let (ok, _, err) = stereotac(&[
-        "--sim",
-        "record",
-        "--camera",
-        "sim",
-        "--camera",
-        "sim",
-        "--size",
-        "320x240",
-        "--mode",
-        "interleaved",
-        "--period-ms",
-        "100",
-        "--duration-s",
-        "1.5",
-        "--out",
-        path(&rec),
-    ]);
-    assert!(ok, "{err}");
+    record_sim(
+        &rec,
+        &[
+            "--camera",
+            "sim",
+            "--size",
+            "320x240",
+            "--mode",
+            "interleaved",
+            "--period-ms",
+            "100",
+            "--duration-s",
+            "1.5",
+        ],
+    );
     let pairs = dir.join("pairs");
     let (ok, out, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs)]);
     assert!(ok, "{err}");
@@ -435,19 +441,7 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     assert!(!text.is_empty(), "{err}");
     // A gradient recording processed with such a model: refused, unless accepted.
     let gradient = dir.join("gradient.mcap");
-    let (ok, _, err) = stereotac(&[
-        "--sim",
-        "record",
-        "--camera",
-        "sim",
-        "--mode",
-        "gradient",
-        "--duration-s",
-        "1",
-        "--out",
-        path(&gradient),
-    ]);
-    assert!(ok, "{err}");
+    record_sim(&gradient, &["--mode", "gradient", "--duration-s", "1"]);
     let process_gradient = |extra: &[&str]| {
         let mut args = vec!["process", path(&gradient), "--model", path(&dark_model)];
         args.extend_from_slice(extra);
@@ -495,19 +489,7 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         "{err}"
     );
     let small = dir.join("small.mcap");
-    let (ok, _, err) = stereotac(&[
-        "--sim",
-        "record",
-        "--camera",
-        "sim",
-        "--size",
-        "320x240",
-        "--duration-s",
-        "1",
-        "--out",
-        path(&small),
-    ]);
-    assert!(ok, "{err}");
+    record_sim(&small, &["--size", "320x240", "--duration-s", "1"]);
     let (ok, _, err) = stereotac(&["process", path(&small), "--model", path(&model)]);
     assert!(
         !ok && err.contains("calibrated at 640×480")

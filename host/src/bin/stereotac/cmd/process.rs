@@ -264,9 +264,8 @@ fn setups(
     header: &RecordingHeader,
 ) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
     let file = a.recording.display();
-    let recorded_kind = header
-        .metadata
-        .get("tactile_settings")
+    let recorded = header.metadata.get("tactile_settings");
+    let recorded_kind = recorded
         .and_then(|m| m.get("model_kind"))
         .map(|k| {
             k.parse()
@@ -276,9 +275,7 @@ fn setups(
     let kind = a.stages.model_kind.or(recorded_kind).unwrap_or_default();
     // Accepted when asked, or when the run that made the recording accepted it.
     let static_ambient = a.stages.static_ambient
-        || header
-            .metadata
-            .get("tactile_settings")
+        || recorded
             .and_then(|m| m.get("static_ambient"))
             .is_some_and(|v| v == "true");
     let tactile = match (

@@ -79,12 +79,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 a.sequence.mode
             ),
         };
-        check_ambient(
-            &setup.model,
-            a.sequence.mode.into(),
-            a.stages.static_ambient,
-        )
-        .map_err(|e| {
+        check_ambient(&setup.model, a.sequence.mode.into(), setup.static_ambient).map_err(|e| {
             anyhow::anyhow!(
                 "{e}: use --mode interleaved, a model calibrated without LEDs-off frames \
                  (presses recorded in gradient mode, or no NAME_dark.png files), or pass \
