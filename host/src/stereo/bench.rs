@@ -177,11 +177,12 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
     }
     step();
 
-    // Semi-global matching, 64 disparities: 8 and 4 paths on one thread, 8 on two;
+    // Semi-global matching, 64 disparities: 8, 5 and 4 paths on one thread, 8 on two;
     // OpenCV's StereoSGBM (3-way, 5×5) on the same images.
-    let mut sgm_ms = None;
+    let mut sgm_ms = Vec::new();
     for (paths, threads, pool) in [
         (Paths::Eight, 1, &one),
+        (Paths::Five, 1, &one),
         (Paths::Four, 1, &one),
         (Paths::Eight, 2, &two),
     ] {
@@ -209,7 +210,9 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
             r.valid_pct = Some(valid);
         }
         rows.push(r);
-        sgm_ms.get_or_insert(ms);
+        if threads == 1 && paths != Paths::Four {
+            sgm_ms.push((paths, ms));
+        }
     }
     if options.opencv && opencv_skipped.is_none() {
         let reference = OpenCvMatcher::Sgbm { block: 5 };
@@ -219,9 +222,9 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
                 r.bad_1px_pct = Some(cv.bad_1px_pct);
                 r.valid_pct = Some(cv.valid_pct);
                 rows.push(r);
-                if let Some(ms) = sgm_ms {
+                for (paths, ms) in sgm_ms {
                     rows.push(row(
-                        "match, SGM 8 paths vs OpenCV StereoSGBM",
+                        &format!("match, SGM {} paths vs OpenCV StereoSGBM", paths.count()),
                         1,
                         ms,
                         Some(("OpenCV StereoSGBM", cv.median_ms)),

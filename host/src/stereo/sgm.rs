@@ -1,5 +1,5 @@
 //! Semi-global matching (Hirschmüller, 2008) on rectified pairs: census costs,
-//! aggregation along 4 or 8 image paths, winner-takes-all with a uniqueness ratio,
+//! aggregation along 4, 5 or 8 image paths, winner-takes-all with a uniqueness ratio,
 //! sub-pixel fit, left–right check and speckle removal.
 //!
 //! Block matching decides each pixel from its window alone; here every pixel's cost at
@@ -15,9 +15,14 @@
 //!   (`[y][x][k]`, `d = min_disparity + k`), so every path step is a straight run over
 //!   `u16` lanes the compiler vectorises; compiled portable and for AVX2, chosen at run
 //!   time.
-//! - **Passes**: the paths that come from above (left→right, down, and for 8 paths the
-//!   two downward diagonals) are one pass over the rows, the paths from below the
-//!   other; the two run in parallel (rayon) into their own sums.
+//! - **Sweeps**: a sweep takes the rows in order, making each row's census costs as it
+//!   comes to it (no cost volume). The first, top to bottom, follows the paths along the
+//!   row both ways and those from the row above (straight down, and for 5 and 8 paths
+//!   the two downward diagonals); for 4 and 8 paths a second, bottom to top, follows
+//!   the paths from below. With one sweep (5 paths) each row is matched as soon as it
+//!   is passed and no sums are kept; with two, the first keeps its sums in a volume
+//!   that the second adds to row by row (on one thread), or both keep a volume and run
+//!   side by side (on more).
 //! - **Boundaries**: a path starts afresh at the image edge (its first value is the
 //!   pixel's cost). Candidates that fall off the right image cost the most a census
 //!   can; as with block matching, the `max disparity` leftmost columns are invalid.
@@ -40,15 +45,21 @@ const CENSUS_RADIUS: usize = 3;
 /// Largest census cost (every comparison differs); also the cost of a candidate off the
 /// right image.
 const CENSUS_BITS: u8 = 48;
-/// Largest cost volume the matcher allocates (census costs and the two path sums).
+/// Largest sum volume the matcher allocates (the first sweep's sums, and the second's
+/// when the two run side by side).
 const MAX_VOLUME_MIB: usize = 2048;
 
 /// Image paths the costs are aggregated along.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Paths {
-    /// Horizontal and vertical: faster.
+    /// Horizontal and vertical, in two sweeps over the rows.
     Four,
-    /// With the diagonals: fewer streaks along rows and columns.
+    /// Along the row both ways and the three paths from the row above (straight down
+    /// and the two downward diagonals): one sweep, each row matched as soon as the
+    /// sweep has passed it, no sum volume (as OpenCV's StereoSGBM does). Fastest.
+    Five,
+    /// Every direction and diagonal, in two sweeps: fewest streaks along rows and
+    /// columns.
     Eight,
 }
 
@@ -57,6 +68,7 @@ impl Paths {
     pub fn count(self) -> usize {
         match self {
             Paths::Four => 4,
+            Paths::Five => 5,
             Paths::Eight => 8,
         }
     }
@@ -171,21 +183,25 @@ pub struct SemiGlobalMatcher {
     scratch: Scratch,
 }
 
-/// The cost volume and the two passes' sums.
+/// The cost volume and the sweeps' sums, for paths that take two sweeps.
 #[derive(Default)]
 struct Volumes {
     cost: Vec<u8>,
-    down: Vec<u16>,
-    up: Vec<u16>,
+    first: Vec<u16>,
+    second: Vec<u16>,
 }
 
 impl Volumes {
-    /// At least `cells` of each (contents are overwritten before they are read).
-    fn fit(&mut self, cells: usize) {
-        if self.cost.len() < cells {
+    /// At least `cells` in the cost volume and the first `sums` sum volumes, when `sums`
+    /// is not 0 (contents are overwritten before they are read).
+    fn fit(&mut self, cells: usize, sums: usize) {
+        if sums > 0 && self.cost.len() < cells {
             self.cost.resize(cells, 0);
-            self.down.resize(cells, 0);
-            self.up.resize(cells, 0);
+        }
+        for v in [&mut self.first, &mut self.second].into_iter().take(sums) {
+            if v.len() < cells {
+                v.resize(cells, 0);
+            }
         }
     }
 }
@@ -244,8 +260,20 @@ impl SemiGlobalMatcher {
         let mut disparity = Grid::filled(w, h, f32::NAN);
         let mut stats = MatchStats::default();
         if w > d_max + 2 * CENSUS_RADIUS && h > 2 * CENSUS_RADIUS {
+            let (first, second) = p.paths.sweeps();
+            // On more than one thread the two sweeps run side by side, each into a
+            // volume of its own, and the rows are then matched in parallel; on one, the
+            // second sweep matches each row as it finishes it, from its own sums and
+            // the first sweep's volume. The sums are integers: the same either way.
+            let side_by_side = second.is_some() && rayon::current_num_threads() > 1;
+            let volumes = match second {
+                None => 0,
+                Some(_) => 1 + usize::from(side_by_side),
+            };
             let cells = w.saturating_mul(h).saturating_mul(nd);
-            let mib = cells.saturating_mul(5) >> 20;
+            // Two sweeps read one cost volume (a byte a cell) made beforehand.
+            let bytes_per_cell = if volumes == 0 { 0 } else { 1 + 2 * volumes };
+            let mib = cells.saturating_mul(bytes_per_cell) >> 20;
             if mib > MAX_VOLUME_MIB {
                 return Err(MatchError::TooLarge {
                     width: w,
@@ -262,7 +290,10 @@ impl SemiGlobalMatcher {
                 nd,
                 d_min: p.min_disparity as usize,
             };
-            // The volumes are kept between frames (a fresh 100 MB per frame costs page
+            let s = &shape;
+            let kernel = self.kernel;
+            let row_cells = w * nd;
+            // The volumes are kept between frames (a fresh 40 MB per frame costs page
             // faults and TLB flushes); a matcher shared by several threads at once
             // takes fresh ones.
             let mut kept = match self.scratch.0.try_lock() {
@@ -274,30 +305,54 @@ impl SemiGlobalMatcher {
             };
             let mut fresh = Volumes::default();
             let v: &mut Volumes = kept.as_deref_mut().unwrap_or(&mut fresh);
-            v.fit(cells);
-            let (cost, down, up) = (
-                &mut v.cost[..cells],
-                &mut v.down[..cells],
-                &mut v.up[..cells],
-            );
-            let kernel = self.kernel;
-            cost.par_chunks_mut(w * nd)
-                .enumerate()
-                .for_each(|(y, row)| run_costs(kernel, &shape, cl.row(y), cr.row(y), row));
-            let cost = &*cost;
-            rayon::join(
-                || run_pass(kernel, &shape, p, cost, Pass::Down, down),
-                || run_pass(kernel, &shape, p, cost, Pass::Up, up),
-            );
-            stats = down
-                .par_chunks(w * nd)
-                .zip(up.par_chunks(w * nd))
-                .zip(disparity.as_mut_slice().par_chunks_mut(w))
-                .map(|((sum, other), out)| run_select(kernel, &shape, p, sum, other, out))
-                .reduce(MatchStats::default, MatchStats::add);
+            v.fit(cells, volumes);
+            let costs = if volumes == 0 {
+                CostSource::Census(&cl, &cr)
+            } else {
+                let volume = &mut v.cost[..cells];
+                volume
+                    .par_chunks_mut(row_cells)
+                    .enumerate()
+                    .for_each(|(y, row)| run_costs(kernel, s, cl.row(y), cr.row(y), row));
+                CostSource::Volume(&v.cost[..cells])
+            };
+            let out = &mut disparity;
+            match second {
+                None => {
+                    let mut sink = |y: usize, sum: &[u16]| {
+                        stats = stats.add(run_select(kernel, s, p, sum, None, out.row_mut(y)));
+                    };
+                    run_sweep(kernel, s, p, costs, first, None, &mut sink);
+                }
+                Some(second) if side_by_side => {
+                    let (a, b) = (&mut v.first[..cells], &mut v.second[..cells]);
+                    rayon::join(
+                        || run_sweep(kernel, s, p, costs, first, Some(a), &mut |_, _| {}),
+                        || run_sweep(kernel, s, p, costs, second, Some(b), &mut |_, _| {}),
+                    );
+                    let (a, b) = (&v.first[..cells], &v.second[..cells]);
+                    stats = a
+                        .par_chunks(row_cells)
+                        .zip(b.par_chunks(row_cells))
+                        .zip(out.as_mut_slice().par_chunks_mut(w))
+                        .map(|((a, b), out)| run_select(kernel, s, p, a, Some(b), out))
+                        .reduce(MatchStats::default, MatchStats::add);
+                }
+                Some(second) => {
+                    let a = &mut v.first[..cells];
+                    run_sweep(kernel, s, p, costs, first, Some(a), &mut |_, _| {});
+                    let a = &v.first[..cells];
+                    let mut sink = |y: usize, sum: &[u16]| {
+                        let other = &a[y * row_cells..][..row_cells];
+                        let row = out.row_mut(y);
+                        stats = stats.add(run_select(kernel, s, p, sum, Some(other), row));
+                    };
+                    run_sweep(kernel, s, p, costs, second, None, &mut sink);
+                }
+            }
         }
         if p.refine {
-            refine(left, right, &mut disparity);
+            refine(self.kernel, left, right, &mut disparity);
         }
         stats.speckle = filter_speckles(&mut disparity, p.speckle_window as usize, p.speckle_range);
         stats.count_valid_and_border(&disparity);
@@ -434,30 +489,183 @@ fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
     }
 }
 
-/// Which half of the paths a pass follows.
+/// One sweep over the rows and the paths it follows. Every path of a sweep comes from the
+/// row before it or from the same row, so a row's sums are complete as soon as the sweep
+/// has passed it.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Pass {
-    /// Rows top to bottom: left→right, down, and the two downward diagonals.
-    Down,
-    /// Rows bottom to top: right→left, up, and the two upward diagonals.
-    Up,
+struct Sweep {
+    /// Rows bottom to top (paths arriving from below) instead of top to bottom.
+    upward: bool,
+    /// Each row right to left, following the path along the row that way, instead of
+    /// left to right.
+    backwards: bool,
+    /// Also the path along the row the other way (a second run over the row).
+    both_ways: bool,
+    /// Paths from the row before: 1 (straight) or 3 (and the two diagonals).
+    from_row_before: usize,
 }
 
+impl Paths {
+    /// The sweeps that follow these paths: top to bottom, left to right; then, for 4 and 8
+    /// paths, bottom to top, right to left, with as many paths as the first.
+    fn sweeps(self) -> (Sweep, Option<Sweep>) {
+        let down = |from_row_before, both_ways| Sweep {
+            upward: false,
+            backwards: false,
+            both_ways,
+            from_row_before,
+        };
+        let up = |from_row_before| Sweep {
+            upward: true,
+            backwards: true,
+            both_ways: false,
+            from_row_before,
+        };
+        match self {
+            Paths::Four => (down(1, false), Some(up(1))),
+            Paths::Five => (down(3, true), None),
+            Paths::Eight => (down(3, false), Some(up(3))),
+        }
+    }
+}
+
+/// Where a sweep reads its census costs.
+#[derive(Clone, Copy)]
+enum CostSource<'a> {
+    /// Made a row at a time from the two views' census signatures.
+    Census(&'a Grid<u64>, &'a Grid<u64>),
+    /// Read from a volume made beforehand (`[y][x][k]`), for two sweeps over one volume.
+    Volume(&'a [u8]),
+}
+
+/// What a sweep hands each finished row to: its row number and the row's sums.
+type RowSink<'a> = &'a mut dyn FnMut(usize, &[u16]);
+
 #[allow(unsafe_code)]
-fn run_pass(kernel: Kernel, s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
+fn run_sweep(
+    kernel: Kernel,
+    s: &Shape,
+    p: &SgmParams,
+    costs: CostSource<'_>,
+    sweep: Sweep,
+    volume: Option<&mut [u16]>,
+    sink: RowSink<'_>,
+) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { pass_avx2(s, p, cost, pass, sum) };
+        return unsafe { sweep_avx2(s, p, costs, sweep, volume, sink) };
     }
     let _ = kernel;
-    aggregate(s, p, cost, pass, sum)
+    sweep_rows(s, p, costs, sweep, volume, sink)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn pass_avx2(s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
-    aggregate(s, p, cost, pass, sum)
+fn sweep_avx2(
+    s: &Shape,
+    p: &SgmParams,
+    costs: CostSource<'_>,
+    sweep: Sweep,
+    volume: Option<&mut [u16]>,
+    sink: RowSink<'_>,
+) {
+    sweep_rows(s, p, costs, sweep, volume, sink)
+}
+
+/// Follows `sweep`'s paths over every row: each row's census costs (from `source`), then
+/// the sum over the sweep's paths of every pixel's
+/// path costs (`[x][k]`; the first path writes, the others add), into that row of
+/// `volume` when one is given (a later sweep adds to it), else into a row of its own;
+/// then `sink(y, sums)`.
+#[inline(always)]
+fn sweep_rows(
+    s: &Shape,
+    p: &SgmParams,
+    source: CostSource<'_>,
+    sweep: Sweep,
+    mut volume: Option<&mut [u16]>,
+    sink: RowSink<'_>,
+) {
+    let (w, h, nd) = (s.w, s.h, s.nd);
+    let stride = nd + 2;
+    let used = sweep.from_row_before;
+    // Paths from the row before: that row's values and this row's.
+    let mut prev: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    let mut cur: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    // The path along the row: the previous pixel's values and this pixel's.
+    let mut along = vec![PAD; stride];
+    let mut along_next = vec![PAD; stride];
+    let mut made = match source {
+        CostSource::Census(..) => vec![0u8; w * nd],
+        CostSource::Volume(_) => Vec::new(),
+    };
+    let mut own = if volume.is_none() {
+        vec![0u16; w * nd]
+    } else {
+        Vec::new()
+    };
+    for i in 0..h {
+        let y = if sweep.upward { h - 1 - i } else { i };
+        let cost: &[u8] = match source {
+            CostSource::Census(left, right) => {
+                costs(s, left.row(y), right.row(y), &mut made);
+                &made
+            }
+            CostSource::Volume(v) => &v[y * w * nd..][..w * nd],
+        };
+        let sum: &mut [u16] = match volume.as_deref_mut() {
+            Some(v) => &mut v[y * w * nd..][..w * nd],
+            None => &mut own,
+        };
+        let mut along_min = 0u16;
+        for j in 0..w {
+            let (x, behind, ahead) = if sweep.backwards {
+                let x = w - 1 - j;
+                (x, (x + 1 < w).then_some(x + 1), x.checked_sub(1))
+            } else {
+                (j, j.checked_sub(1), (j + 1 < w).then_some(j + 1))
+            };
+            let c = &cost[x * nd..][..nd];
+            let out_sum = &mut sum[x * nd..][..nd];
+            // Along the row (writes the sums).
+            along_min = if j == 0 {
+                start::<true>(c, &mut along_next[1..=nd], out_sum)
+            } else {
+                step::<true>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
+            };
+            std::mem::swap(&mut along, &mut along_next);
+            // From the row before: straight, then the diagonals from the column behind
+            // and the one ahead.
+            let sources = [Some(x), behind, ahead];
+            for (path, source) in sources.iter().enumerate().take(used) {
+                let out = &mut cur[path].cost[x * stride + 1..][..nd];
+                let least = match *source {
+                    Some(sx) if i > 0 => {
+                        let from = &prev[path].cost[sx * stride..][..stride];
+                        step::<false>(c, from, prev[path].min[sx], p, out, out_sum)
+                    }
+                    _ => start::<false>(c, out, out_sum),
+                };
+                cur[path].min[x] = least;
+            }
+        }
+        std::mem::swap(&mut prev, &mut cur);
+        if sweep.both_ways {
+            for j in 0..w {
+                let x = if sweep.backwards { j } else { w - 1 - j };
+                let c = &cost[x * nd..][..nd];
+                let out_sum = &mut sum[x * nd..][..nd];
+                along_min = if j == 0 {
+                    start::<false>(c, &mut along_next[1..=nd], out_sum)
+                } else {
+                    step::<false>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
+                };
+                std::mem::swap(&mut along, &mut along_next);
+            }
+        }
+        sink(y, sum);
+    }
 }
 
 /// Padding either side of a pixel's path costs: `step` reads `d − 1` and `d + 1` for
@@ -476,62 +684,6 @@ impl PathRow {
             cost: vec![PAD; w * (nd + 2)],
             min: vec![0; w],
         }
-    }
-}
-
-/// Writes into `sum` the sum over this pass's paths of every pixel's path costs
-/// (`[y][x][k]`; the first path writes, the others add).
-#[inline(always)]
-fn aggregate(s: &Shape, p: &SgmParams, cost: &[u8], pass: Pass, sum: &mut [u16]) {
-    let (w, h, nd) = (s.w, s.h, s.nd);
-    let stride = nd + 2;
-    let used = if p.paths == Paths::Eight { 3 } else { 1 };
-    // Vertical and the two diagonal paths: the previous row's values and this row's.
-    let mut prev: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
-    let mut cur: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
-    let mut along = vec![PAD; stride];
-    let mut along_next = vec![PAD; stride];
-    for i in 0..h {
-        let y = if pass == Pass::Down { i } else { h - 1 - i };
-        let row_cost = &cost[y * w * nd..][..w * nd];
-        let row_sum = &mut sum[y * w * nd..][..w * nd];
-        let mut along_min = 0u16;
-        for j in 0..w {
-            // `behind` is the column the horizontal path comes from, `ahead` the other
-            // side.
-            let (x, behind, ahead) = if pass == Pass::Down {
-                (j, j.checked_sub(1), (j + 1 < w).then_some(j + 1))
-            } else {
-                (
-                    w - 1 - j,
-                    (j > 0).then_some(w - j),
-                    (w - 1 - j).checked_sub(1),
-                )
-            };
-            let c = &row_cost[x * nd..][..nd];
-            let out_sum = &mut row_sum[x * nd..][..nd];
-            // Along the row.
-            along_min = if j == 0 {
-                start::<true>(c, &mut along_next[1..=nd], out_sum)
-            } else {
-                step::<true>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
-            };
-            std::mem::swap(&mut along, &mut along_next);
-            // Down (or up) the column, then the diagonals from `behind` and `ahead`.
-            let sources = [Some(x), behind, ahead];
-            for (path, source) in sources.iter().enumerate().take(used) {
-                let out = &mut cur[path].cost[x * stride + 1..][..nd];
-                let least = match *source {
-                    Some(sx) if i > 0 => {
-                        let from = &prev[path].cost[sx * stride..][..stride];
-                        step::<false>(c, from, prev[path].min[sx], p, out, out_sum)
-                    }
-                    _ => start::<false>(c, out, out_sum),
-                };
-                cur[path].min[x] = least;
-            }
-        }
-        std::mem::swap(&mut prev, &mut cur);
     }
 }
 
@@ -586,7 +738,7 @@ fn run_select(
     s: &Shape,
     p: &SgmParams,
     sum: &[u16],
-    other: &[u16],
+    other: Option<&[u16]>,
     out: &mut [f32],
 ) -> MatchStats {
     #[cfg(target_arch = "x86_64")]
@@ -604,16 +756,23 @@ fn select_avx2(
     s: &Shape,
     p: &SgmParams,
     sum: &[u16],
-    other: &[u16],
+    other: Option<&[u16]>,
     out: &mut [f32],
 ) -> MatchStats {
     select(s, p, sum, other, out)
 }
 
-/// One row's disparities from the two passes' sums: winner takes all, uniqueness,
-/// sub-pixel fit, left–right check.
+/// One row's disparities from its aggregated sums (`sum`, plus `other` when the paths
+/// were summed in two volumes): winner takes all, uniqueness, sub-pixel fit, left–right
+/// check.
 #[inline(always)]
-fn select(s: &Shape, p: &SgmParams, sum: &[u16], other: &[u16], out: &mut [f32]) -> MatchStats {
+fn select(
+    s: &Shape,
+    p: &SgmParams,
+    sum: &[u16],
+    other: Option<&[u16]>,
+    out: &mut [f32],
+) -> MatchStats {
     let (w, nd) = (s.w, s.nd);
     let mut stats = MatchStats::default();
     let mut total = vec![0u16; nd];
@@ -627,11 +786,17 @@ fn select(s: &Shape, p: &SgmParams, sum: &[u16], other: &[u16], out: &mut [f32])
     let d_max = s.d_min + nd - 1;
     let mut best_k = vec![u16::MAX; w];
     for x in 0..w {
-        let (a, b) = (&sum[x * nd..][..nd], &other[x * nd..][..nd]);
-        for ((((t, q), &a), &b), &k) in total.iter_mut().zip(&mut packed).zip(a).zip(b).zip(&index)
-        {
-            *t = a + b;
-            *q = (u32::from(*t) << 16) | u32::from(k);
+        let a = &sum[x * nd..][..nd];
+        if let Some(other) = other {
+            let b = &other[x * nd..][..nd];
+            for ((t, &a), &b) in total.iter_mut().zip(a).zip(b) {
+                *t = a + b;
+            }
+        } else {
+            total.copy_from_slice(a);
+        }
+        for ((q, &t), &k) in packed.iter_mut().zip(&total).zip(&index) {
+            *q = (u32::from(t) << 16) | u32::from(k);
         }
         let cell = &total[..];
         if check && x >= s.d_min {
@@ -753,7 +918,7 @@ impl RefineSums {
 /// Kept only when it stays within 0.75 px of the nearest whole pixel and the window has
 /// gradient; otherwise the aggregated-cost estimate stays, as it does where the window
 /// (and the right-view pixels it reads) would leave the image.
-fn refine(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
+fn refine(kernel: Kernel, left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
     const R: usize = REFINE_RADIUS;
     let (w, h) = (left.width(), left.height());
     if h < 2 * R + 1 || w < 2 * R + 4 {
@@ -768,7 +933,7 @@ fn refine(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
             for (j, row) in rows.chunks_exact_mut(w).enumerate() {
                 let y = band * REFINE_BAND + j;
                 if y >= R && y + R < h {
-                    refine_row(left, right, y, row, &mut columns);
+                    run_refine_row(kernel, left, right, y, row, &mut columns);
                 }
             }
         });
@@ -839,7 +1004,40 @@ impl ColumnCache {
     }
 }
 
+#[allow(unsafe_code)]
+fn run_refine_row(
+    kernel: Kernel,
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    y: usize,
+    row: &mut [f32],
+    columns: &mut ColumnCache,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { refine_row_avx2(left, right, y, row, columns) };
+    }
+    let _ = kernel;
+    refine_row(left, right, y, row, columns)
+}
+
+/// With AVX2 (and so SSE4.1) the roundings are instructions instead of calls; the same
+/// results.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn refine_row_avx2(
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    y: usize,
+    row: &mut [f32],
+    columns: &mut ColumnCache,
+) {
+    refine_row(left, right, y, row, columns)
+}
+
 /// [`refine`] for row `y` (`row`: its disparities).
+#[inline(always)]
 fn refine_row(
     left: &Grid<u8>,
     right: &Grid<u8>,
@@ -963,7 +1161,7 @@ mod tests {
     #[test]
     fn a_constant_shift_is_found_exactly_by_every_variant() {
         let (l, r) = shifted_pair(160, 60, |_, _| 23.0);
-        for paths in [Paths::Four, Paths::Eight] {
+        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
             for kernel in [Kernel::Portable, Kernel::Avx2]
                 .into_iter()
                 .filter(|k| k.is_available())
@@ -995,6 +1193,187 @@ mod tests {
                 // Nothing in the invalid band.
                 assert!((0..60).all(|y| (0..63).all(|x| m.disparity.get(x, y).is_nan())));
             }
+        }
+    }
+
+    /// The definition of aggregation: for each path direction `(dx, dy)` (the previous
+    /// pixel is `(x − dx, y − dy)`), `L(p, d) = C(p, d) + min(L(p′, d), L(p′, d ± 1) + p1,
+    /// min L(p′) + p2) − min L(p′)`, starting with `C` where `p′` is off the image; the
+    /// sum over the directions, in i64 with no reuse of anything the sweeps share.
+    fn aggregated_by_definition(
+        left: &Grid<u64>,
+        right: &Grid<u64>,
+        p: &SgmParams,
+        directions: &[(isize, isize)],
+    ) -> Vec<i64> {
+        let (w, h) = (left.width(), left.height());
+        let nd = p.num_disparities as usize;
+        let cost = |x: usize, y: usize, k: usize| -> i64 {
+            let xr = x as isize - (p.min_disparity as usize + k) as isize;
+            if xr < 0 {
+                i64::from(CENSUS_BITS)
+            } else {
+                i64::from((left.get(x, y) ^ right.get(xr as usize, y)).count_ones())
+            }
+        };
+        let mut total = vec![0i64; w * h * nd];
+        for &(dx, dy) in directions {
+            let mut l = vec![0i64; w * h * nd];
+            // Rows and columns in the order the path runs, so p′ comes before p.
+            let ys: Vec<usize> = if dy < 0 {
+                (0..h).rev().collect()
+            } else {
+                (0..h).collect()
+            };
+            let xs: Vec<usize> = if dx < 0 {
+                (0..w).rev().collect()
+            } else {
+                (0..w).collect()
+            };
+            for &y in &ys {
+                for &x in &xs {
+                    let (px, py) = (x as isize - dx, y as isize - dy);
+                    let inside = px >= 0 && py >= 0 && px < w as isize && py < h as isize;
+                    for k in 0..nd {
+                        let c = cost(x, y, k);
+                        let v = if inside {
+                            let at = |k: usize| l[(py as usize * w + px as usize) * nd + k];
+                            let least = (0..nd).map(at).min().unwrap();
+                            let mut best = at(k).min(least + i64::from(p.p2));
+                            if k > 0 {
+                                best = best.min(at(k - 1) + i64::from(p.p1));
+                            }
+                            if k + 1 < nd {
+                                best = best.min(at(k + 1) + i64::from(p.p1));
+                            }
+                            c + best - least
+                        } else {
+                            c
+                        };
+                        l[(y * w + x) * nd + k] = v;
+                    }
+                }
+            }
+            for (t, v) in total.iter_mut().zip(&l) {
+                *t += v;
+            }
+        }
+        total
+    }
+
+    /// The sweeps' sums over every path, as `compute` combines them on one thread.
+    fn aggregated_by_sweeps(
+        kernel: Kernel,
+        left: &Grid<u64>,
+        right: &Grid<u64>,
+        p: &SgmParams,
+    ) -> Vec<i64> {
+        let s = Shape {
+            w: left.width(),
+            h: left.height(),
+            nd: p.num_disparities as usize,
+            d_min: p.min_disparity as usize,
+        };
+        let row_cells = s.w * s.nd;
+        let mut total = vec![0i64; row_cells * s.h];
+        let (first, second) = p.paths.sweeps();
+        let mut add = |y: usize, sum: &[u16]| {
+            for (t, &v) in total[y * row_cells..][..row_cells].iter_mut().zip(sum) {
+                *t += i64::from(v);
+            }
+        };
+        match second {
+            None => run_sweep(
+                kernel,
+                &s,
+                p,
+                CostSource::Census(left, right),
+                first,
+                None,
+                &mut add,
+            ),
+            Some(second) => {
+                let mut volume = vec![0u8; row_cells * s.h];
+                for (y, row) in volume.chunks_exact_mut(row_cells).enumerate() {
+                    run_costs(kernel, &s, left.row(y), right.row(y), row);
+                }
+                let costs = CostSource::Volume(&volume);
+                let mut sums = vec![0u16; row_cells * s.h];
+                run_sweep(kernel, &s, p, costs, first, Some(&mut sums), &mut |_, _| {});
+                for (y, row) in sums.chunks_exact(row_cells).enumerate() {
+                    add(y, row);
+                }
+                run_sweep(kernel, &s, p, costs, second, None, &mut add);
+            }
+        }
+        total
+    }
+
+    #[test]
+    fn the_sweeps_sum_each_path_as_defined() {
+        let (l, r) = shifted_pair(75, 23, |x, y| 9.0 + 0.1 * x as f32 - 0.2 * y as f32);
+        let (cl, cr) = (census(Kernel::Portable, &l), census(Kernel::Portable, &r));
+        let straight = [(1, 0), (-1, 0), (0, 1), (0, -1)];
+        let from_above = [(1, 0), (-1, 0), (0, 1), (1, 1), (-1, 1)];
+        let every = [
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (-1, 1),
+            (1, -1),
+            (-1, -1),
+        ];
+        for (paths, directions) in [
+            (Paths::Four, &straight[..]),
+            (Paths::Five, &from_above[..]),
+            (Paths::Eight, &every[..]),
+        ] {
+            let p = SgmParams {
+                min_disparity: 3,
+                num_disparities: 16,
+                paths,
+                ..SgmParams::default()
+            };
+            let expected = aggregated_by_definition(&cl, &cr, &p, directions);
+            for kernel in [Kernel::Portable, Kernel::Avx2]
+                .into_iter()
+                .filter(|k| k.is_available())
+            {
+                let got = aggregated_by_sweeps(kernel, &cl, &cr, &p);
+                let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
+                assert_eq!(first_miss, None, "{paths:?} {kernel:?}");
+            }
+        }
+    }
+
+    /// One thread (the second sweep matches each row as it goes) and two (the sweeps
+    /// side by side, then every row) give the same disparities, bit for bit.
+    #[test]
+    fn one_thread_and_two_threads_give_the_same_disparities() {
+        let (l, r) = shifted_pair(180, 50, |x, y| 20.0 + 0.05 * x as f32 + 0.1 * y as f32);
+        let pool = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        };
+        let (one, two) = (pool(1), pool(2));
+        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+            let m = matcher(paths, Kernel::best());
+            let a = one.install(|| m.compute(&l, &r).unwrap());
+            let b = two.install(|| m.compute(&l, &r).unwrap());
+            assert!(a.stats.valid > 180 * 50 / 2, "{paths:?}: {}", a.stats.valid);
+            let same = a
+                .disparity
+                .as_slice()
+                .iter()
+                .zip(b.disparity.as_slice())
+                .all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(same, "{paths:?}");
+            assert_eq!(a.stats.not_unique, b.stats.not_unique, "{paths:?}");
+            assert_eq!(a.stats.left_right, b.stats.left_right, "{paths:?}");
         }
     }
 
@@ -1052,27 +1431,33 @@ mod tests {
             u if u < 0.1 => truth(x, y).round() + 1.0,
             u => truth(x, y) + (u as f32 - 0.55) * 0.4,
         });
-        let (mut fast, mut slow) = (start.clone(), start.clone());
-        refine(&l, &r, &mut fast);
+        let mut slow = start.clone();
         refine_by_definition(&l, &r, &mut slow);
-        let changed = fast
-            .as_slice()
-            .iter()
-            .zip(start.as_slice())
-            .filter(|(a, b)| a.to_bits() != b.to_bits())
-            .count();
-        assert!(
-            changed > w * h / 3,
-            "refinement moved only {changed} pixels"
-        );
-        for (i, (a, b)) in fast.as_slice().iter().zip(slow.as_slice()).enumerate() {
-            assert_eq!(
-                a.to_bits(),
-                b.to_bits(),
-                "pixel ({}, {}): {a} vs {b}",
-                i % w,
-                i / w
+        for kernel in [Kernel::Portable, Kernel::Avx2]
+            .into_iter()
+            .filter(|k| k.is_available())
+        {
+            let mut fast = start.clone();
+            refine(kernel, &l, &r, &mut fast);
+            let changed = fast
+                .as_slice()
+                .iter()
+                .zip(start.as_slice())
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert!(
+                changed > w * h / 3,
+                "{kernel:?}: refinement moved only {changed} pixels"
             );
+            for (i, (a, b)) in fast.as_slice().iter().zip(slow.as_slice()).enumerate() {
+                assert_eq!(
+                    a.to_bits(),
+                    b.to_bits(),
+                    "{kernel:?}, pixel ({}, {}): {a} vs {b}",
+                    i % w,
+                    i / w
+                );
+            }
         }
     }
 
@@ -1151,20 +1536,24 @@ mod tests {
 
     #[test]
     fn odd_sizes_and_parameters_are_handled() {
-        let m = SemiGlobalMatcher::new(SgmParams::default()).unwrap();
-        for (w, h) in [(0, 0), (1, 1), (70, 7), (64, 100), (71, 6)] {
-            let g = Grid::filled(w, h, 9u8);
-            let d = m.compute(&g, &g).unwrap();
-            assert_eq!(
-                d.stats.valid
-                    + d.stats.border
-                    + d.stats.not_unique
-                    + d.stats.range_edge
-                    + d.stats.left_right
-                    + d.stats.speckle,
-                w * h
-            );
+        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+            let m = matcher(paths, Kernel::best());
+            for (w, h) in [(0, 0), (1, 1), (70, 7), (64, 100), (71, 6)] {
+                let g = Grid::filled(w, h, 9u8);
+                let d = m.compute(&g, &g).unwrap();
+                assert_eq!(
+                    d.stats.valid
+                        + d.stats.border
+                        + d.stats.not_unique
+                        + d.stats.range_edge
+                        + d.stats.left_right
+                        + d.stats.speckle,
+                    w * h,
+                    "{paths:?} {w}x{h}"
+                );
+            }
         }
+        let m = SemiGlobalMatcher::new(SgmParams::default()).unwrap();
         // A flat grey pair: nothing is unique, nothing is claimed.
         let g = Grid::filled(200, 40, 128u8);
         assert_eq!(m.compute(&g, &g).unwrap().stats.valid, 0);
