@@ -551,18 +551,29 @@ fn run_sweep(
     volume: Option<&mut [u16]>,
     sink: RowSink<'_>,
 ) {
+    let narrow = fits_a_byte(p);
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { sweep_avx2(s, p, costs, sweep, volume, sink) };
+        return unsafe {
+            if narrow {
+                sweep_avx2::<u8>(s, p, costs, sweep, volume, sink)
+            } else {
+                sweep_avx2::<u16>(s, p, costs, sweep, volume, sink)
+            }
+        };
     }
     let _ = kernel;
-    sweep_rows(s, p, costs, sweep, volume, sink)
+    if narrow {
+        sweep_rows::<u8>(s, p, costs, sweep, volume, sink)
+    } else {
+        sweep_rows::<u16>(s, p, costs, sweep, volume, sink)
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn sweep_avx2(
+fn sweep_avx2<T: Lane>(
     s: &Shape,
     p: &SgmParams,
     costs: CostSource<'_>,
@@ -570,7 +581,7 @@ fn sweep_avx2(
     volume: Option<&mut [u16]>,
     sink: RowSink<'_>,
 ) {
-    sweep_rows(s, p, costs, sweep, volume, sink)
+    sweep_rows::<T>(s, p, costs, sweep, volume, sink)
 }
 
 /// Follows `sweep`'s paths over every row: each row's census costs (from `source`), then
@@ -579,7 +590,7 @@ fn sweep_avx2(
 /// `volume` when one is given (a later sweep adds to it), else into a row of its own;
 /// then `sink(y, sums)`.
 #[inline(always)]
-fn sweep_rows(
+fn sweep_rows<T: Lane>(
     s: &Shape,
     p: &SgmParams,
     source: CostSource<'_>,
@@ -590,12 +601,13 @@ fn sweep_rows(
     let (w, h, nd) = (s.w, s.h, s.nd);
     let stride = nd + 2;
     let used = sweep.from_row_before;
+    let pen = Penalties::<T>::of(p);
     // Paths from the row before: that row's values and this row's.
-    let mut prev: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
-    let mut cur: Vec<PathRow> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    let mut prev: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
+    let mut cur: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
     // The path along the row: the previous pixel's values and this pixel's.
-    let mut along = vec![PAD; stride];
-    let mut along_next = vec![PAD; stride];
+    let mut along = vec![T::PAD; stride];
+    let mut along_next = vec![T::PAD; stride];
     let mut made = match source {
         CostSource::Census(..) => vec![0u8; w * nd],
         CostSource::Volume(_) => Vec::new(),
@@ -618,7 +630,7 @@ fn sweep_rows(
             Some(v) => &mut v[y * w * nd..][..w * nd],
             None => &mut own,
         };
-        let mut along_min = 0u16;
+        let mut along_min = T::ZERO;
         for j in 0..w {
             let (x, behind, ahead) = if sweep.backwards {
                 let x = w - 1 - j;
@@ -630,9 +642,9 @@ fn sweep_rows(
             let out_sum = &mut sum[x * nd..][..nd];
             // Along the row (writes the sums).
             along_min = if j == 0 {
-                start::<true>(c, &mut along_next[1..=nd], out_sum)
+                start::<T, true>(c, &mut along_next[1..=nd], out_sum)
             } else {
-                step::<true>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
+                step::<T, true>(c, &along, along_min, pen, &mut along_next[1..=nd], out_sum)
             };
             std::mem::swap(&mut along, &mut along_next);
             // From the row before: straight, then the diagonals from the column behind
@@ -643,9 +655,9 @@ fn sweep_rows(
                 let least = match *source {
                     Some(sx) if i > 0 => {
                         let from = &prev[path].cost[sx * stride..][..stride];
-                        step::<false>(c, from, prev[path].min[sx], p, out, out_sum)
+                        step::<T, false>(c, from, prev[path].min[sx], pen, out, out_sum)
                     }
-                    _ => start::<false>(c, out, out_sum),
+                    _ => start::<T, false>(c, out, out_sum),
                 };
                 cur[path].min[x] = least;
             }
@@ -657,9 +669,9 @@ fn sweep_rows(
                 let c = &cost[x * nd..][..nd];
                 let out_sum = &mut sum[x * nd..][..nd];
                 along_min = if j == 0 {
-                    start::<false>(c, &mut along_next[1..=nd], out_sum)
+                    start::<T, false>(c, &mut along_next[1..=nd], out_sum)
                 } else {
-                    step::<false>(c, &along, along_min, p, &mut along_next[1..=nd], out_sum)
+                    step::<T, false>(c, &along, along_min, pen, &mut along_next[1..=nd], out_sum)
                 };
                 std::mem::swap(&mut along, &mut along_next);
             }
@@ -668,21 +680,123 @@ fn sweep_rows(
     }
 }
 
-/// Padding either side of a pixel's path costs: `step` reads `d − 1` and `d + 1` for
-/// every `d` without edge cases. Large, so `+ p1` never wins, and far from overflow.
-const PAD: u16 = 0x3fff;
-
-/// Path costs of one row for every pixel (stride `nd + 2`, padded) and their minima.
-struct PathRow {
-    cost: Vec<u16>,
-    min: Vec<u16>,
+/// The integer type of path costs: `u8` where every value a step can reach fits a byte
+/// ([`fits_a_byte`]), twice the lanes of `u16` per vector, else `u16`. Path costs are at
+/// most `CENSUS_BITS + p2` and a step's candidates at most `CENSUS_BITS + 2·p2`.
+trait Lane: Copy + Ord {
+    /// Padding either side of a pixel's path costs: `step` reads `d − 1` and `d + 1` for
+    /// every `d` without edge cases. Large, so `+ p1` never wins.
+    const PAD: Self;
+    /// Larger than any path cost.
+    const MAX: Self;
+    const ZERO: Self;
+    /// A census cost.
+    fn of_cost(c: u8) -> Self;
+    /// A penalty (`p1` or `p2`), which fits when the type was chosen for it.
+    fn of_penalty(v: u16) -> Self;
+    fn widen(self) -> u16;
+    /// Sums that stay in range by the bounds above.
+    fn add(self, o: Self) -> Self;
+    /// Sums that may not (a padding lane plus `p1`): clamped at the type's maximum,
+    /// which no step ever needs to beat.
+    fn add_clamped(self, o: Self) -> Self;
+    fn sub(self, o: Self) -> Self;
 }
 
-impl PathRow {
+impl Lane for u8 {
+    const PAD: Self = u8::MAX;
+    const MAX: Self = u8::MAX;
+    const ZERO: Self = 0;
+    #[inline(always)]
+    fn of_cost(c: u8) -> Self {
+        c
+    }
+    #[inline(always)]
+    fn of_penalty(v: u16) -> Self {
+        v as u8
+    }
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        u16::from(self)
+    }
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        self + o
+    }
+    #[inline(always)]
+    fn add_clamped(self, o: Self) -> Self {
+        self.saturating_add(o)
+    }
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        self - o
+    }
+}
+
+impl Lane for u16 {
+    const PAD: Self = 0x3fff;
+    const MAX: Self = u16::MAX;
+    const ZERO: Self = 0;
+    #[inline(always)]
+    fn of_cost(c: u8) -> Self {
+        u16::from(c)
+    }
+    #[inline(always)]
+    fn of_penalty(v: u16) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        self
+    }
+    #[inline(always)]
+    fn add(self, o: Self) -> Self {
+        self + o
+    }
+    #[inline(always)]
+    fn add_clamped(self, o: Self) -> Self {
+        self.saturating_add(o)
+    }
+    #[inline(always)]
+    fn sub(self, o: Self) -> Self {
+        self - o
+    }
+}
+
+/// Whether path costs fit `u8` lanes: a step's largest candidate, `CENSUS_BITS + 2·p2`
+/// (the previous minimum, at most `CENSUS_BITS + p2`, plus `p2`), stays within a byte,
+/// so the clamped padding (255) is never below a candidate that could win.
+fn fits_a_byte(p: &SgmParams) -> bool {
+    u32::from(CENSUS_BITS) + 2 * u32::from(p.p2) <= u32::from(u8::MAX)
+}
+
+/// The penalties in a path cost's type.
+#[derive(Clone, Copy)]
+struct Penalties<T> {
+    p1: T,
+    p2: T,
+}
+
+impl<T: Lane> Penalties<T> {
+    fn of(p: &SgmParams) -> Self {
+        Self {
+            p1: T::of_penalty(p.p1),
+            p2: T::of_penalty(p.p2),
+        }
+    }
+}
+
+/// Path costs of one row for every pixel (stride `nd + 2`, padded) and their minima.
+struct PathRow<T> {
+    cost: Vec<T>,
+    min: Vec<T>,
+}
+
+impl<T: Lane> PathRow<T> {
     fn new(w: usize, nd: usize) -> Self {
         Self {
-            cost: vec![PAD; w * (nd + 2)],
-            min: vec![0; w],
+            cost: vec![T::PAD; w * (nd + 2)],
+            min: vec![T::ZERO; w],
         }
     }
 }
@@ -690,11 +804,11 @@ impl PathRow {
 /// A path's first pixel: its costs. Adds them to `sum` (or writes them, `SET`);
 /// returns their minimum.
 #[inline(always)]
-fn start<const SET: bool>(cost: &[u8], out: &mut [u16], sum: &mut [u16]) -> u16 {
-    let mut least = u16::MAX;
+fn start<T: Lane, const SET: bool>(cost: &[u8], out: &mut [T], sum: &mut [u16]) -> T {
+    let mut least = T::MAX;
     for ((o, s), &c) in out.iter_mut().zip(sum.iter_mut()).zip(cost) {
-        *o = u16::from(c);
-        *s = if SET { *o } else { *s + *o };
+        *o = T::of_cost(c);
+        *s = if SET { o.widen() } else { *s + o.widen() };
         least = least.min(*o);
     }
     least
@@ -704,29 +818,30 @@ fn start<const SET: bool>(cost: &[u8], out: &mut [u16], sum: &mut [u16]) -> u16 
 /// with `L'` the previous pixel's values (`prev`, padded: `prev[d + 1]` is `L'(d)`,
 /// minimum `prev_min`). Writes `L` into `out`, adds it to `sum` (or writes it, `SET`),
 /// returns its minimum. Values are at most `CENSUS_BITS + p2` (≤ 1072), so eight paths
-/// sum to at most 8576.
+/// sum to at most 8576. The minimum is taken before `C` is added, so no intermediate
+/// exceeds `CENSUS_BITS + 2·p2`.
 #[inline(always)]
-fn step<const SET: bool>(
+fn step<T: Lane, const SET: bool>(
     cost: &[u8],
-    prev: &[u16],
-    prev_min: u16,
-    p: &SgmParams,
-    out: &mut [u16],
+    prev: &[T],
+    prev_min: T,
+    pen: Penalties<T>,
+    out: &mut [T],
     sum: &mut [u16],
-) -> u16 {
+) -> T {
     let n = out.len();
-    let (p1, jump) = (p.p1, prev_min + p.p2);
+    let jump = prev_min.add(pen.p2);
     let (below, here, above) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
-    let mut least = u16::MAX;
+    let mut least = T::MAX;
     let lanes = out
         .iter_mut()
         .zip(sum.iter_mut())
         .zip(cost)
         .zip(below.iter().zip(here).zip(above));
     for (((o, s), &c), ((&b, &m), &a)) in lanes {
-        let best = m.min(b.min(a) + p1).min(jump);
-        *o = u16::from(c) + best - prev_min;
-        *s = if SET { *o } else { *s + *o };
+        let best = m.min(b.min(a).add_clamped(pen.p1)).min(jump);
+        *o = T::of_cost(c).add(best.sub(prev_min));
+        *s = if SET { o.widen() } else { *s + o.widen() };
         least = least.min(*o);
     }
     least
@@ -1330,20 +1445,26 @@ mod tests {
             (Paths::Five, &from_above[..]),
             (Paths::Eight, &every[..]),
         ] {
-            let p = SgmParams {
-                min_disparity: 3,
-                num_disparities: 16,
-                paths,
-                ..SgmParams::default()
-            };
-            let expected = aggregated_by_definition(&cl, &cr, &p, directions);
-            for kernel in [Kernel::Portable, Kernel::Avx2]
-                .into_iter()
-                .filter(|k| k.is_available())
-            {
-                let got = aggregated_by_sweeps(kernel, &cl, &cr, &p);
-                let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
-                assert_eq!(first_miss, None, "{paths:?} {kernel:?}");
+            // p2 = 103: the largest with byte lanes; 104 and 300: 16-bit lanes.
+            for (p1, p2) in [(8, 96), (30, 103), (8, 104), (40, 300)] {
+                let p = SgmParams {
+                    min_disparity: 3,
+                    num_disparities: 16,
+                    paths,
+                    p1,
+                    p2,
+                    ..SgmParams::default()
+                };
+                assert_eq!(fits_a_byte(&p), p2 <= 103);
+                let expected = aggregated_by_definition(&cl, &cr, &p, directions);
+                for kernel in [Kernel::Portable, Kernel::Avx2]
+                    .into_iter()
+                    .filter(|k| k.is_available())
+                {
+                    let got = aggregated_by_sweeps(kernel, &cl, &cr, &p);
+                    let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
+                    assert_eq!(first_miss, None, "{paths:?} {kernel:?} p1 {p1} p2 {p2}");
+                }
             }
         }
     }
