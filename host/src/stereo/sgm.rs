@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::block_match::{
-    DisparityMap, Kernel, MatchError, MatchStats, SubpixelFit, locate, pair_size, subpixel_offset,
+    DisparityMap, Kernel, MatchError, MatchStats, SubpixelFit, pair_size, subpixel_offset,
 };
 use super::speckle::filter_speckles;
 use crate::grid::Grid;
@@ -902,18 +902,23 @@ fn select(
     let mut best_k = vec![u16::MAX; w];
     for x in 0..w {
         let a = &sum[x * nd..][..nd];
-        if let Some(other) = other {
-            let b = &other[x * nd..][..nd];
-            for ((t, &a), &b) in total.iter_mut().zip(a).zip(b) {
-                *t = a + b;
+        let cell: &[u16] = match other {
+            Some(other) => {
+                let b = &other[x * nd..][..nd];
+                for ((t, &a), &b) in total.iter_mut().zip(a).zip(b) {
+                    *t = a + b;
+                }
+                &total
             }
-        } else {
-            total.copy_from_slice(a);
-        }
-        for ((q, &t), &k) in packed.iter_mut().zip(&total).zip(&index) {
+            None => a,
+        };
+        // The best candidate comes with the packing: the smallest `cost << 16 | k` is
+        // the least cost at its smallest k.
+        let mut least = u32::MAX;
+        for ((q, &t), &k) in packed.iter_mut().zip(cell).zip(&index) {
             *q = (u32::from(t) << 16) | u32::from(k);
+            least = least.min(*q);
         }
-        let cell = &total[..];
         if check && x >= s.d_min {
             // Candidates whose right column is inside the image.
             let n = (x - s.d_min).min(nd - 1) + 1;
@@ -925,12 +930,12 @@ fn select(
         if x < d_max {
             continue; // candidates off the right image: the invalid band
         }
-        let best = cell.iter().copied().fold(u16::MAX, u16::min);
+        let (best, k) = ((least >> 16) as u16, (least & 0xffff) as usize);
         // Not unique: another candidate, not next to the best, within the ratio. A best
         // cost of 0 tied elsewhere counts as not unique (OpenCV's strict test keeps it).
         let limit = (u32::from(best) * 100).saturating_sub(1) / (100 - p.uniqueness_ratio);
         let t = limit.min(u32::from(u16::MAX)) as u16;
-        let (k, within) = locate(cell, &index, best, t);
+        let within = cell.iter().filter(|&&c| c <= t).count();
         let near = (k.saturating_sub(1)..=(k + 1).min(nd - 1))
             .filter(|&i| cell[i] <= t)
             .count();
