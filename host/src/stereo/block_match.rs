@@ -218,9 +218,9 @@ pub enum MatchError {
         /// Far limit.
         far_mm: f64,
     },
-    /// A cost volume larger than the matcher may allocate.
+    /// Cost and sum volumes larger than the matcher may allocate.
     #[error(
-        "{width}×{height} px over {disparities} disparities needs {mib} MiB of cost volume \
+        "{width}×{height} px over {disparities} disparities needs {mib} MiB of cost and sum volumes \
          (at most {limit_mib} MiB): search fewer disparities (--near-mm/--far-mm) or use \
          --matcher bm"
     )]

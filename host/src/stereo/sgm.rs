@@ -13,16 +13,17 @@
 //!   and offset a hazy skin adds to one view.
 //! - **Layout**: as the block matcher's, the disparities of one pixel contiguous
 //!   (`[y][x][k]`, `d = min_disparity + k`), so every path step is a straight run over
-//!   `u16` lanes the compiler vectorises; compiled portable and for AVX2, chosen at run
+//!   `u8` lanes (`u16` for large penalties, see [`Lane`]) the compiler vectorises; compiled portable and for AVX2, chosen at run
 //!   time.
-//! - **Sweeps**: a sweep takes the rows in order, making each row's census costs as it
-//!   comes to it (no cost volume). The first, top to bottom, follows the paths along the
-//!   row both ways and those from the row above (straight down, and for 5 and 8 paths
-//!   the two downward diagonals); for 4 and 8 paths a second, bottom to top, follows
-//!   the paths from below. With one sweep (5 paths) each row is matched as soon as it
-//!   is passed and no sums are kept; with two, the first keeps its sums in a volume
-//!   that the second adds to row by row (on one thread), or both keep a volume and run
-//!   side by side (on more).
+//! - **Sweeps**: a sweep takes the rows in order. The first, top to bottom, follows the
+//!   paths along the row and those from the row above (straight down, and for 5 and 8
+//!   paths the two downward diagonals); for 4 and 8 paths a second, bottom to top,
+//!   follows the paths from below. With one sweep (5 paths: along the row both ways)
+//!   each row's census costs are made as the sweep comes to it and the row is matched
+//!   as soon as it is passed: no volume is kept. Two sweeps read one cost volume made
+//!   beforehand; the first keeps its sums in a volume that the second adds to row by
+//!   row (on one thread), or both keep a volume and run side by side (on more, when
+//!   that fits: [`Schedule`]).
 //! - **Boundaries**: a path starts afresh at the image edge (its first value is the
 //!   pixel's cost). Candidates that fall off the right image cost the most a census
 //!   can; as with block matching, the `max disparity` leftmost columns are invalid.
@@ -45,8 +46,7 @@ const CENSUS_RADIUS: usize = 3;
 /// Largest census cost (every comparison differs); also the cost of a candidate off the
 /// right image.
 const CENSUS_BITS: u8 = 48;
-/// Largest sum volume the matcher allocates (the first sweep's sums, and the second's
-/// when the two run side by side).
+/// Most memory the matcher allocates for a frame's costs and sums ([`Schedule`]).
 const MAX_VOLUME_MIB: usize = 2048;
 
 /// Image paths the costs are aggregated along.
@@ -251,7 +251,8 @@ impl SemiGlobalMatcher {
 
     /// Matches a rectified pair (8-bit grey, same size) on rayon's current pool. Images
     /// narrower than the disparity range plus a census window come out all invalid;
-    /// a cost volume over 2 GiB is refused.
+    /// a frame whose volumes (or, for 5 paths, rows) would take over 2 GiB is refused,
+    /// whatever the thread count.
     pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
         let (w, h) = pair_size(left, right)?;
         let p = &self.params;
@@ -261,19 +262,8 @@ impl SemiGlobalMatcher {
         let mut stats = MatchStats::default();
         if w > d_max + 2 * CENSUS_RADIUS && h > 2 * CENSUS_RADIUS {
             let (first, second) = p.paths.sweeps();
-            // On more than one thread the two sweeps run side by side, each into a
-            // volume of its own, and the rows are then matched in parallel; on one, the
-            // second sweep matches each row as it finishes it, from its own sums and
-            // the first sweep's volume. The sums are integers: the same either way.
-            let side_by_side = second.is_some() && rayon::current_num_threads() > 1;
-            let volumes = match second {
-                None => 0,
-                Some(_) => 1 + usize::from(side_by_side),
-            };
-            let cells = w.saturating_mul(h).saturating_mul(nd);
-            // Two sweeps read one cost volume (a byte a cell) made beforehand.
-            let bytes_per_cell = if volumes == 0 { 0 } else { 1 + 2 * volumes };
-            let mib = cells.saturating_mul(bytes_per_cell) >> 20;
+            let schedule = Schedule::choose(p.paths, rayon::current_num_threads(), w, h, nd);
+            let mib = schedule.bytes >> 20;
             if mib > MAX_VOLUME_MIB {
                 return Err(MatchError::TooLarge {
                     width: w,
@@ -293,9 +283,11 @@ impl SemiGlobalMatcher {
             let s = &shape;
             let kernel = self.kernel;
             let row_cells = w * nd;
-            // The volumes are kept between frames (a fresh 40 MB per frame costs page
-            // faults and TLB flushes); a matcher shared by several threads at once
-            // takes fresh ones.
+            let cells = row_cells * h;
+            let volumes = schedule.sum_volumes;
+            // The volumes are kept between frames (a fresh 59–98 MB per frame at 640×480
+            // and 64 disparities costs page faults and TLB flushes); a matcher shared by
+            // several threads at once takes fresh ones.
             let mut kept = match self.scratch.0.try_lock() {
                 Ok(v) => Some(v),
                 // A frame that panicked while holding them: the volumes are overwritten
@@ -324,7 +316,7 @@ impl SemiGlobalMatcher {
                     };
                     run_sweep(kernel, s, p, costs, first, None, &mut sink);
                 }
-                Some(second) if side_by_side => {
+                Some(second) if volumes == 2 => {
                     let (a, b) = (&mut v.first[..cells], &mut v.second[..cells]);
                     rayon::join(
                         || run_sweep(kernel, s, p, costs, first, Some(a), &mut |_, _| {}),
@@ -357,6 +349,55 @@ impl SemiGlobalMatcher {
         stats.speckle = filter_speckles(&mut disparity, p.speckle_window as usize, p.speckle_range);
         stats.count_valid_and_border(&disparity);
         Ok(DisparityMap { disparity, stats })
+    }
+}
+
+/// How [`SemiGlobalMatcher::compute`] runs the sweeps and the memory that takes, beyond
+/// the two census images (16 bytes a pixel) and the disparity map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Schedule {
+    /// Sum volumes kept: 0 (one sweep: each row matched as it is passed), 1 (the second
+    /// sweep matches each row from its own sums and the first sweep's volume), 2 (the
+    /// two sweeps side by side, each into its own volume, then the rows in parallel).
+    /// The sums are integers, so every schedule gives the same disparities.
+    sum_volumes: usize,
+    /// Bytes that grow with the frame: for two sweeps the cost volume (a byte a cell)
+    /// and the sum volumes (two bytes a cell each); for one sweep its rows.
+    bytes: usize,
+}
+
+/// Bytes one sweep keeps per cell of a row (`w · nd`), at most: two rows of path costs
+/// for three paths in 16-bit lanes, padded (6 · 2 · (nd + 2) / nd ≤ 13.5 for nd ≥ 16),
+/// the row's costs (1) and sums (2).
+const ONE_SWEEP_BYTES_PER_ROW_CELL: usize = 17;
+
+impl Schedule {
+    /// Two sweeps run side by side on more than one thread when their volumes fit under
+    /// [`MAX_VOLUME_MIB`]; otherwise (and on one thread) one after the other, so whether
+    /// a frame fits does not depend on the thread count.
+    fn choose(paths: Paths, threads: usize, w: usize, h: usize, nd: usize) -> Self {
+        let row_cells = w.saturating_mul(nd);
+        let cells = row_cells.saturating_mul(h);
+        match paths.sweeps().1 {
+            None => Self {
+                sum_volumes: 0,
+                bytes: row_cells.saturating_mul(ONE_SWEEP_BYTES_PER_ROW_CELL),
+            },
+            Some(_) => {
+                let side_by_side = cells.saturating_mul(5);
+                if threads > 1 && side_by_side >> 20 <= MAX_VOLUME_MIB {
+                    Self {
+                        sum_volumes: 2,
+                        bytes: side_by_side,
+                    }
+                } else {
+                    Self {
+                        sum_volumes: 1,
+                        bytes: cells.saturating_mul(3),
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -605,9 +646,7 @@ fn sweep_rows<T: Lane>(
     // Paths from the row before: that row's values and this row's.
     let mut prev: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
     let mut cur: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
-    // The path along the row: the previous pixel's values and this pixel's.
-    let mut along = vec![T::PAD; stride];
-    let mut along_next = vec![T::PAD; stride];
+    let mut along = AlongRow::<T>::new(nd);
     let mut made = match source {
         CostSource::Census(..) => vec![0u8; w * nd],
         CostSource::Volume(_) => Vec::new(),
@@ -630,7 +669,6 @@ fn sweep_rows<T: Lane>(
             Some(v) => &mut v[y * w * nd..][..w * nd],
             None => &mut own,
         };
-        let mut along_min = T::ZERO;
         for j in 0..w {
             let (x, behind, ahead) = if sweep.backwards {
                 let x = w - 1 - j;
@@ -641,12 +679,7 @@ fn sweep_rows<T: Lane>(
             let c = &cost[x * nd..][..nd];
             let out_sum = &mut sum[x * nd..][..nd];
             // Along the row (writes the sums).
-            along_min = if j == 0 {
-                start::<T, true>(c, &mut along_next[1..=nd], out_sum)
-            } else {
-                step::<T, true>(c, &along, along_min, pen, &mut along_next[1..=nd], out_sum)
-            };
-            std::mem::swap(&mut along, &mut along_next);
+            along.pixel::<true>(j == 0, c, pen, out_sum);
             // From the row before: straight, then the diagonals from the column behind
             // and the one ahead.
             let sources = [Some(x), behind, ahead];
@@ -668,12 +701,7 @@ fn sweep_rows<T: Lane>(
                 let x = if sweep.backwards { j } else { w - 1 - j };
                 let c = &cost[x * nd..][..nd];
                 let out_sum = &mut sum[x * nd..][..nd];
-                along_min = if j == 0 {
-                    start::<T, false>(c, &mut along_next[1..=nd], out_sum)
-                } else {
-                    step::<T, false>(c, &along, along_min, pen, &mut along_next[1..=nd], out_sum)
-                };
-                std::mem::swap(&mut along, &mut along_next);
+                along.pixel::<false>(j == 0, c, pen, out_sum);
             }
         }
         sink(y, sum);
@@ -798,6 +826,43 @@ impl<T: Lane> PathRow<T> {
             cost: vec![T::PAD; w * (nd + 2)],
             min: vec![T::ZERO; w],
         }
+    }
+}
+
+/// The path along a row: the previous pixel's values (padded as [`PathRow`]'s), room for
+/// this pixel's, and the previous minimum.
+struct AlongRow<T> {
+    prev: Vec<T>,
+    next: Vec<T>,
+    min: T,
+}
+
+impl<T: Lane> AlongRow<T> {
+    fn new(nd: usize) -> Self {
+        Self {
+            prev: vec![T::PAD; nd + 2],
+            next: vec![T::PAD; nd + 2],
+            min: T::ZERO,
+        }
+    }
+
+    /// The next pixel along the row (`first`: where the path starts): its path costs
+    /// from its census costs `c`, added to its sums (or written, `SET`).
+    #[inline(always)]
+    fn pixel<const SET: bool>(
+        &mut self,
+        first: bool,
+        c: &[u8],
+        pen: Penalties<T>,
+        sum: &mut [u16],
+    ) {
+        let out = &mut self.next[1..=c.len()];
+        self.min = if first {
+            start::<T, SET>(c, out, sum)
+        } else {
+            step::<T, SET>(c, &self.prev, self.min, pen, out, sum)
+        };
+        std::mem::swap(&mut self.prev, &mut self.next);
     }
 }
 
@@ -1381,12 +1446,15 @@ mod tests {
         total
     }
 
-    /// The sweeps' sums over every path, as `compute` combines them on one thread.
+    /// The sweeps' sums over every path, as `compute` combines them: the second sweep
+    /// adding its rows as it goes (one thread), or into a volume of its own
+    /// (`side_by_side`).
     fn aggregated_by_sweeps(
         kernel: Kernel,
         left: &Grid<u64>,
         right: &Grid<u64>,
         p: &SgmParams,
+        side_by_side: bool,
     ) -> Vec<i64> {
         let s = Shape {
             w: left.width(),
@@ -1423,7 +1491,15 @@ mod tests {
                 for (y, row) in sums.chunks_exact(row_cells).enumerate() {
                     add(y, row);
                 }
-                run_sweep(kernel, &s, p, costs, second, None, &mut add);
+                if side_by_side {
+                    let mut own = vec![0u16; row_cells * s.h];
+                    run_sweep(kernel, &s, p, costs, second, Some(&mut own), &mut |_, _| {});
+                    for (y, row) in own.chunks_exact(row_cells).enumerate() {
+                        add(y, row);
+                    }
+                } else {
+                    run_sweep(kernel, &s, p, costs, second, None, &mut add);
+                }
             }
         }
         total
@@ -1466,12 +1542,102 @@ mod tests {
                     .into_iter()
                     .filter(|k| k.is_available())
                 {
-                    let got = aggregated_by_sweeps(kernel, &cl, &cr, &p);
-                    let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
-                    assert_eq!(first_miss, None, "{paths:?} {kernel:?} p1 {p1} p2 {p2}");
+                    for side_by_side in [false, true] {
+                        let got = aggregated_by_sweeps(kernel, &cl, &cr, &p, side_by_side);
+                        let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
+                        assert_eq!(
+                            first_miss, None,
+                            "{paths:?} {kernel:?} p1 {p1} p2 {p2} side by side {side_by_side}"
+                        );
+                    }
                 }
             }
         }
+    }
+
+    /// Byte lanes at their bound (p2 = 103): previous path costs at the largest a path
+    /// can hold (`CENSUS_BITS + p2`) or 0, census costs 0 or the largest, next to the
+    /// padding; every step equals the 16-bit one.
+    #[test]
+    fn byte_lanes_at_their_bound_equal_16_bit_lanes() {
+        let p = SgmParams {
+            p1: 30,
+            p2: 103,
+            ..SgmParams::default()
+        };
+        assert!(fits_a_byte(&p));
+        let high = u16::from(CENSUS_BITS) + p.p2;
+        let nd = 16;
+        let mut rng = crate::rng::Rng::new(5);
+        for round in 0..200 {
+            let mut prev16 = vec![<u16 as Lane>::PAD; nd + 2];
+            let mut prev8 = vec![<u8 as Lane>::PAD; nd + 2];
+            for k in 0..nd {
+                let v = if rng.uniform() < 0.5 { high } else { 0 };
+                prev16[k + 1] = v;
+                prev8[k + 1] = v as u8;
+            }
+            // A previous minimum as a step leaves it: the least of the values.
+            let min16 = prev16[1..=nd].iter().copied().min().unwrap();
+            let cost: Vec<u8> = (0..nd)
+                .map(|_| if rng.uniform() < 0.5 { CENSUS_BITS } else { 0 })
+                .collect();
+            let (mut out16, mut out8) = (vec![0u16; nd], vec![0u8; nd]);
+            let (mut sum16, mut sum8) = (vec![round; nd], vec![round; nd]);
+            let least16 = step::<u16, false>(
+                &cost,
+                &prev16,
+                min16,
+                Penalties::of(&p),
+                &mut out16,
+                &mut sum16,
+            );
+            let least8 = step::<u8, false>(
+                &cost,
+                &prev8,
+                min16 as u8,
+                Penalties::of(&p),
+                &mut out8,
+                &mut sum8,
+            );
+            assert_eq!(u16::from(least8), least16);
+            assert!(out16.iter().zip(&out8).all(|(&a, &b)| a == u16::from(b)));
+            assert_eq!(sum16, sum8);
+            assert!(out16.iter().all(|&v| v <= high));
+        }
+    }
+
+    /// Whether a frame fits does not depend on the thread count: side by side only
+    /// where its two volumes fit too.
+    #[test]
+    fn the_schedule_fits_whatever_the_threads() {
+        let fits = |s: Schedule| s.bytes >> 20 <= MAX_VOLUME_MIB;
+        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+            for (w, h, nd) in [
+                (640, 480, 64),
+                (4096, 2000, 64),
+                (4096, 3000, 256),
+                (8192, 100, 1024),
+                (100_000, 10, 1024),
+            ] {
+                let one = Schedule::choose(paths, 1, w, h, nd);
+                let two = Schedule::choose(paths, 2, w, h, nd);
+                assert_eq!(fits(one), fits(two), "{paths:?} {w}x{h}x{nd}");
+                assert!(one.sum_volumes <= 1 && two.sum_volumes <= 2);
+            }
+        }
+        // 4096×2000×64: 524 M cells; three bytes a cell fit in 2 GiB, five do not.
+        let big = Schedule::choose(Paths::Eight, 2, 4096, 2000, 64);
+        assert_eq!(big.sum_volumes, 1);
+        assert!(fits(big));
+        assert_eq!(
+            Schedule::choose(Paths::Eight, 2, 640, 480, 64).sum_volumes,
+            2
+        );
+        assert_eq!(
+            Schedule::choose(Paths::Five, 2, 640, 480, 64).sum_volumes,
+            0
+        );
     }
 
     /// One thread (the second sweep matches each row as it goes) and two (the sweeps
