@@ -13,8 +13,8 @@
 //!   and offset a hazy skin adds to one view.
 //! - **Layout**: as the block matcher's, the disparities of one pixel contiguous
 //!   (`[y][x][k]`, `d = min_disparity + k`), so every path step is a straight run over
-//!   `u8` lanes (`u16` for large penalties, see [`Lane`]) the compiler vectorises; compiled portable and for AVX2, chosen at run
-//!   time.
+//!   `u8` lanes (`u16` for large penalties, see [`Lane`]) the compiler vectorises;
+//!   compiled portable and for AVX2, chosen at run time.
 //! - **Sweeps**: a sweep takes the rows in order. The first, top to bottom, follows the
 //!   paths along the row and those from the row above (straight down, and for 5 and 8
 //!   paths the two downward diagonals); for 4 and 8 paths a second, bottom to top,
@@ -56,7 +56,7 @@ pub enum Paths {
     Four,
     /// Along the row both ways and the three paths from the row above (straight down
     /// and the two downward diagonals): one sweep, each row matched as soon as the
-    /// sweep has passed it, no sum volume (as OpenCV's StereoSGBM does). Fastest.
+    /// sweep has passed it, no cost or sum volume. Fastest on one thread.
     Five,
     /// Every direction and diagonal, in two sweeps: fewest streaks along rows and
     /// columns.
