@@ -535,11 +535,9 @@ fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
 /// has passed it.
 #[derive(Clone, Copy, PartialEq, Eq)]
 struct Sweep {
-    /// Rows bottom to top (paths arriving from below) instead of top to bottom.
+    /// Rows bottom to top (paths arriving from below), each right to left (following
+    /// the path along the row that way), instead of top to bottom, left to right.
     upward: bool,
-    /// Each row right to left, following the path along the row that way, instead of
-    /// left to right.
-    backwards: bool,
     /// Also the path along the row the other way (a second run over the row).
     both_ways: bool,
     /// Paths from the row before: 1 (straight) or 3 (and the two diagonals).
@@ -552,13 +550,11 @@ impl Paths {
     fn sweeps(self) -> (Sweep, Option<Sweep>) {
         let down = |from_row_before, both_ways| Sweep {
             upward: false,
-            backwards: false,
             both_ways,
             from_row_before,
         };
         let up = |from_row_before| Sweep {
             upward: true,
-            backwards: true,
             both_ways: false,
             from_row_before,
         };
@@ -626,10 +622,9 @@ fn sweep_avx2<T: Lane>(
 }
 
 /// Follows `sweep`'s paths over every row: each row's census costs (from `source`), then
-/// the sum over the sweep's paths of every pixel's
-/// path costs (`[x][k]`; the first path writes, the others add), into that row of
-/// `volume` when one is given (a later sweep adds to it), else into a row of its own;
-/// then `sink(y, sums)`.
+/// the sum over the sweep's paths of every pixel's path costs (`[x][k]`; the first path
+/// writes, the others add), into that row of `volume` when one is given, else into a row
+/// of its own; then `sink(y, sums)`.
 #[inline(always)]
 fn sweep_rows<T: Lane>(
     s: &Shape,
@@ -670,7 +665,7 @@ fn sweep_rows<T: Lane>(
             None => &mut own,
         };
         for j in 0..w {
-            let (x, behind, ahead) = if sweep.backwards {
+            let (x, behind, ahead) = if sweep.upward {
                 let x = w - 1 - j;
                 (x, (x + 1 < w).then_some(x + 1), x.checked_sub(1))
             } else {
@@ -698,7 +693,7 @@ fn sweep_rows<T: Lane>(
         std::mem::swap(&mut prev, &mut cur);
         if sweep.both_ways {
             for j in 0..w {
-                let x = if sweep.backwards { j } else { w - 1 - j };
+                let x = if sweep.upward { j } else { w - 1 - j };
                 let c = &cost[x * nd..][..nd];
                 let out_sum = &mut sum[x * nd..][..nd];
                 along.pixel::<false>(j == 0, c, pen, out_sum);
