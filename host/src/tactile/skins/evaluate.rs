@@ -39,6 +39,8 @@ pub struct EvalConfig {
     pub rest_frames: usize,
     /// Diameter of the disks' flat bottom (mm); the is 13.
     pub disk_diameter_mm: f64,
+    /// Diameter of the calibration ball (mm); `None`: the family's own.
+    pub ball_diameter_mm: Option<f64>,
     /// Gradient model.
     pub model: ModelKind,
     /// Solver.
@@ -62,6 +64,7 @@ impl Default for EvalConfig {
             placements: 30,
             rest_frames: 10,
             disk_diameter_mm: 13.0,
+            ball_diameter_mm: None,
             model: ModelKind::Lut,
             solver: SolverKind::Dct,
             dark: false,
@@ -131,6 +134,8 @@ pub struct FamilyReport {
     pub role: String,
     /// Skin seed.
     pub skin_seed: u64,
+    /// Diameter of the ball the skin was calibrated with (mm).
+    pub ball_diameter_mm: f64,
     /// LEDs-off frames used ([`EvalConfig::dark`]).
     pub dark: bool,
     /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
@@ -165,7 +170,8 @@ pub fn evaluate(
     progress: &mut dyn FnMut(&str),
 ) -> FamilyReport {
     let skin = family.skin(config.width, config.height, config.skin_seed);
-    let mut report = evaluate_skin(&skin, family.ball_diameter_mm, config, progress);
+    let ball = config.ball_diameter_mm.unwrap_or(family.ball_diameter_mm);
+    let mut report = evaluate_skin(&skin, ball, config, progress);
     report.family = family.name.to_string();
     report.role = family.role.to_string();
     report
@@ -185,6 +191,7 @@ pub fn evaluate_skin(
         family: String::new(),
         role: String::new(),
         skin_seed: config.skin_seed,
+        ball_diameter_mm,
         dark: config.dark,
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         calibration: CalibrationOutcome {
@@ -538,10 +545,11 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}; {}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball; {}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
+        r.ball_diameter_mm,
         if r.dark {
             "LEDs-off frames subtracted"
         } else {

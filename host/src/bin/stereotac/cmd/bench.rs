@@ -63,6 +63,10 @@ pub struct SkinsArgs {
     /// Placements of each disk.
     #[arg(long, default_value_t = 30)]
     pub placements: usize,
+    /// Calibrate with a ball of this diameter (mm, 2–20) instead of the family's own
+    /// (`--list` gives it).
+    #[arg(long, value_parser = parse_ball_mm)]
+    pub ball_diameter_mm: Option<f64>,
     /// Frame size.
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
     pub size: (u32, u32),
@@ -199,6 +203,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 skin_seed: seed,
                 presses: a.presses,
                 placements: a.placements,
+                ball_diameter_mm: a.ball_diameter_mm,
                 model: a.model,
                 dark: a.dark,
                 ambient: a.ambient,
@@ -220,6 +225,17 @@ fn skins(a: SkinsArgs) -> Result<()> {
         println!("{json}");
     }
     Ok(())
+}
+
+/// A calibration ball's diameter: a number of mm between 2 and 20 (the presses are
+/// 0.8–1.2 mm deep and must fit in the frame).
+fn parse_ball_mm(s: &str) -> Result<f64, String> {
+    let d: f64 = s.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    if (2.0..=20.0).contains(&d) {
+        Ok(d)
+    } else {
+        Err(format!("expected a diameter between 2 and 20 mm, got {s}"))
+    }
 }
 
 /// `DX,DY,DARK` ambient scales, each finite and non-negative.
