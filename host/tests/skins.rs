@@ -92,27 +92,27 @@ fn the_chain_holds_on_a_tuning_and_an_independent_family() {
 }
 
 /// A ball larger than the family's teaches gentler slopes: the disk's wall (0.79) sits at
-/// the top of what an 8 mm ball makes, where a plain average of slopes per colour reads
-/// short (here 0.92 mm on skin 1; 0.95-0.97 at 640×480). The debiased table holds the
-/// depth (0.96 and 0.99 here).
+/// the top of what an 8 mm ball makes, where a plain mean of slopes per colour reads
+/// short (0.949 mm on this skin at 640×480). The debiased table holds the depth (0.986
+/// over 10 placements). At full size: a smaller frame has too few samples per slope
+/// to show it.
 #[test]
 fn a_large_calibration_ball_still_reads_the_disk_deep_enough() {
     let f = family("ours-random").unwrap();
-    for seed in [1, 4] {
-        let config = EvalConfig {
-            skin_seed: seed,
-            ball_diameter_mm: Some(8.0),
-            ..small()
-        };
-        let r = evaluate(&f, &config, &mut |_| {});
-        let table = format_report(&r);
-        let disk = r.disk.expect("disks fit the frame");
-        assert!((disk.mean - 1.0).abs() < 0.05, "{table}");
-    }
+    let config = EvalConfig {
+        ball_diameter_mm: Some(8.0),
+        placements: 4,
+        rest_frames: 1,
+        ..Default::default()
+    };
+    let r = evaluate(&f, &config, &mut |_| {});
+    let table = format_report(&r);
+    let disk = r.disk.expect("disks fit the frame");
+    assert!((disk.mean - 1.0).abs() < 0.03, "{table}");
 }
 
 /// The issue's depth goal on the independent renderer, not met yet: a 1 mm disk reads
-/// 0.89 mm there (steep walls 0.71). Run with `--ignored` to see the table.
+/// 0.89 mm there with the table (steep walls 0.69). Run with `--ignored` to see it.
 #[test]
 #[ignore = "issue 19 open: the independent renderer reads a 1 mm disk 0.89 mm"]
 fn independent_renderer_reads_a_disk_within_the_goal() {

@@ -15,16 +15,16 @@
 //! near the steepest slope the calibration ball made there are far fewer samples of that
 //! slope than of gentler ones whose noise lands in the same entry (regression dilution;
 //! on our renderer's tuning skins a 1 mm disk read 0.90–0.97 mm from an 8–10 mm ball).
-//! So the table is then *debiased*: the table's mean reading of each true slope,
-//! `m(t) = E[table | t]`, is measured on the training samples (the true slope has no
-//! noise, so this direction of the fit is not diluted), made monotone, and every entry
-//! `v` replaced by `m⁻¹(v)`. The gain is fitted in the same direction. Both stay folded
-//! into the table and gains: the model file and the evaluation are unchanged.
+//! So the table is then *debiased* ([`ResponseCurve`]): every entry `v` is replaced by
+//! `m⁻¹(v)`, `m(t)` the table's mean reading of the true slope `t` on the training
+//! samples. The gain is fitted in the same direction. Both stay folded into the table
+//! and gains: the model file and the evaluation are unchanged.
 
 use serde::{Deserialize, Serialize};
 
 use super::Sample;
 use super::cells::{cell_weights, locate};
+use super::response::ResponseCurve;
 
 /// The table and its axes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -259,103 +259,16 @@ impl Lut {
     }
 }
 
-/// Width of the slope bins [`debias`] measures the table's response in.
-const DEBIAS_BIN: f32 = 0.05;
-/// Fewest samples behind one point of that response.
-const DEBIAS_MIN_SAMPLES: usize = 30;
-
-/// The table's entries mapped through the inverse of `m(t) = E[table | slope t]`
-/// (see the module doc).
-///
-/// `m` is measured in slope bins of [`DEBIAS_BIN`], each holding at least
-/// [`DEBIAS_MIN_SAMPLES`] samples (sparse bins are merged towards the middle of the
-/// range), and made non-decreasing by pooling adjacent violators. Between its points
-/// `m⁻¹` is linear; beyond them it keeps differences as they are (slope 1), so the
-/// table still saturates past the slopes the ball made, only no longer short of them.
-/// With fewer than two points (too few samples or slopes) the table is returned as it
-/// is.
+/// The table's entries mapped through the inverse of its mean reading of each true
+/// slope ([`ResponseCurve`]); unchanged when the samples give no curve.
 fn debias(lut: &Lut, samples: &[Sample]) -> Vec<f32> {
-    const WIDTH: f32 = DEBIAS_BIN;
-    const MIN_COUNT: f64 = DEBIAS_MIN_SAMPLES as f64;
-    let samples: Vec<&Sample> = samples.iter().filter(|s| s.target.is_finite()).collect();
-    if samples.is_empty() {
-        return lut.table.clone();
-    }
-    let lo = samples
+    let readings = samples
         .iter()
-        .map(|s| s.target)
-        .fold(f32::INFINITY, f32::min);
-    let hi = samples
-        .iter()
-        .map(|s| s.target)
-        .fold(f32::NEG_INFINITY, f32::max);
-    if !(hi - lo).is_finite() || hi - lo < 2.0 * WIDTH {
-        return lut.table.clone();
+        .map(|s| (s.target, lut.colour(s.features[0], s.features[1])));
+    match ResponseCurve::fit(readings) {
+        Some(curve) => lut.table.iter().map(|&v| curve.invert(v)).collect(),
+        None => lut.table.clone(),
     }
-    // Bins of DEBIAS_BIN, or wider when the slopes span more than 4096 of them.
-    let width = WIDTH.max((hi - lo) / 4096.0);
-    let n = ((hi - lo) / width).ceil() as usize + 1;
-    let mut acc = vec![(0.0f64, 0.0f64, 0.0f64); n];
-    for s in &samples {
-        let k = (((s.target - lo) / width) as usize).min(n - 1);
-        let g = lut.colour(s.features[0], s.features[1]) as f64;
-        acc[k].0 += s.target as f64;
-        acc[k].1 += g;
-        acc[k].2 += 1.0;
-    }
-    // Bins with too few samples are merged into their neighbour towards the middle.
-    let mut pts: Vec<(f64, f64, f64)> = Vec::new();
-    let mut pending = (0.0, 0.0, 0.0);
-    for a in &acc {
-        pending = (pending.0 + a.0, pending.1 + a.1, pending.2 + a.2);
-        if pending.2 >= MIN_COUNT {
-            pts.push(pending);
-            pending = (0.0, 0.0, 0.0);
-        }
-    }
-    if pending.2 > 0.0
-        && let Some(last) = pts.last_mut()
-    {
-        *last = (last.0 + pending.0, last.1 + pending.1, last.2 + pending.2);
-    }
-    // (mean slope, mean table value, weight), made monotone by pooling adjacent violators.
-    let mut pool: Vec<(f64, f64, f64)> = Vec::new();
-    for (st, sg, c) in pts {
-        let mut cur = (st / c, sg / c, c);
-        while let Some(&prev) = pool.last() {
-            if prev.1 < cur.1 {
-                break;
-            }
-            pool.pop();
-            let w = prev.2 + cur.2;
-            cur = (
-                (prev.0 * prev.2 + cur.0 * cur.2) / w,
-                (prev.1 * prev.2 + cur.1 * cur.2) / w,
-                w,
-            );
-        }
-        pool.push(cur);
-    }
-    if pool.len() < 2 {
-        return lut.table.clone();
-    }
-    let inverse = |v: f64| -> f64 {
-        let first = pool[0];
-        let last = pool[pool.len() - 1];
-        if v <= first.1 {
-            return first.0 + (v - first.1);
-        }
-        if v >= last.1 {
-            return last.0 + (v - last.1);
-        }
-        let k = pool.partition_point(|p| p.1 <= v).clamp(1, pool.len() - 1);
-        let (a, b) = (pool[k - 1], pool[k]);
-        a.0 + (v - a.1) * (b.0 - a.0) / (b.1 - a.1)
-    };
-    lut.table
-        .iter()
-        .map(|&v| inverse(v as f64) as f32)
-        .collect()
 }
 
 /// Mean per entry where samples fell; elsewhere the mean of already-filled neighbours,

@@ -1,5 +1,7 @@
 //! A small multilayer perceptron from `(r, b, x, y)` to slope: three hidden ReLU layers,
-//! trained in Rust with Adam (decoupled weight decay) on mean squared error.
+//! trained in Rust with Adam (decoupled weight decay) on mean squared error. Its output
+//! goes through the inverse of its mean reading of each true slope
+//! ([`ResponseCurve`]): least squares on noisy colours reads steep slopes short.
 //!
 //! Inference runs in blocks of pixels with activations laid out neuron-major
 //! (`[neuron][pixel]`), so each weight multiplies a contiguous run of pixels and the
@@ -8,6 +10,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Sample;
+use super::response::ResponseCurve;
 use crate::rng::Rng;
 
 /// Pixels evaluated together.
@@ -37,6 +40,11 @@ pub struct Mlp {
     pub input_scale: [f32; 4],
     /// Hidden layers (ReLU) then the linear output layer.
     pub layers: Vec<Layer>,
+    /// The network's mean reading of each true slope on its training samples; outputs
+    /// are mapped through its inverse. Absent from models calibrated before it existed
+    /// (their outputs stand as they are).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub response: Option<ResponseCurve>,
 }
 
 /// Training settings.
@@ -104,6 +112,7 @@ impl Mlp {
             input_offset,
             input_scale,
             layers: Vec::new(),
+            response: None,
         };
         if samples.is_empty() {
             mlp.layers = layers;
@@ -171,6 +180,10 @@ impl Mlp {
             progress(epoch + 1, (sq / samples.len() as f64).sqrt() as f32);
         }
         mlp.layers = layers;
+        let features: Vec<[f32; 4]> = samples.iter().map(|s| s.features).collect();
+        let mut readings = vec![0.0; samples.len()];
+        mlp.eval_batch(&features, &mut readings);
+        mlp.response = ResponseCurve::fit(samples.iter().map(|s| s.target).zip(readings));
         mlp
     }
 
@@ -213,6 +226,9 @@ impl Mlp {
                 std::mem::swap(&mut a, &mut b);
             }
             out[..n].copy_from_slice(&a[..n]);
+        }
+        if let Some(curve) = &self.response {
+            out.iter_mut().for_each(|o| *o = curve.invert(*o));
         }
     }
 }

@@ -12,6 +12,7 @@ mod cells;
 pub mod light;
 pub mod lut;
 pub mod mlp;
+pub mod response;
 pub mod validate;
 
 use std::fmt;
