@@ -507,9 +507,24 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 14] = [
+    let cases: [(&str, Damage); 17] = [
         ("dx.light.response", |m| {
             m["dx"]["light"]["response"].as_array_mut().unwrap().pop();
+        }),
+        ("dx.mlp.response.points", |m| {
+            m["dx"]["mlp"]["response"]["points"]
+                .as_array_mut()
+                .unwrap()
+                .truncate(1)
+        }),
+        ("dy.mlp.response.points", |m| {
+            m["dy"]["mlp"]["response"]["points"][1] = serde_json::json!([-1e30, 0.0])
+        }),
+        ("dy.mlp.response.points", |m| {
+            m["dy"]["mlp"]["response"]["points"]
+                .as_array_mut()
+                .unwrap()
+                .reverse()
         }),
         ("dy.light.cells_x", |m| {
             m["dy"]["light"]["cells_x"] = 0.into()
@@ -559,6 +574,8 @@ fn model_files_round_trip_and_refuse_other_versions() {
     let mut old = good.clone();
     for axis in ["dx", "dy"] {
         old[axis].as_object_mut().unwrap().remove("light");
+        // Nor had the MLP its response curve: its outputs stand as they are.
+        old[axis]["mlp"].as_object_mut().unwrap().remove("response");
     }
     let old = TactileModel::from_json("m.json", &serde_json::to_vec(&old).unwrap()).unwrap();
     let err = Reconstructor::new(old.clone(), ModelKind::Light, SolverKind::Dct, None)
@@ -569,7 +586,9 @@ fn model_files_round_trip_and_refuse_other_versions() {
         err.contains("dx.light") && err.contains("calibrate again"),
         "{err}"
     );
-    assert!(Reconstructor::new(old, ModelKind::Lut, SolverKind::Dct, None).is_ok());
+    assert!(Reconstructor::new(old.clone(), ModelKind::Lut, SolverKind::Dct, None).is_ok());
+    assert!(old.dx.mlp.response.is_none());
+    assert!(Reconstructor::new(old, ModelKind::Mlp, SolverKind::Dct, None).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -499,6 +499,7 @@ mod tests {
             })
             .collect();
         let lut = Lut::fit(&one, 16, 4.0, 2, 2);
+        assert_eq!(lut.table, Lut::averaged(&one, 16, 4.0, 2, 2).table);
         assert!((lut.eval(1.05, 1.0, 0.5, 0.5) - 0.4).abs() < 1e-5);
         let mut wild = one.clone();
         wild.extend([

@@ -365,5 +365,17 @@ mod tests {
             / 200.0)
             .sqrt();
         assert!(rms < 0.04, "batched inference rms {rms}");
+        // The outputs went through the network's response curve, fitted on its samples.
+        let curve = mlp.response.clone().expect("a response curve");
+        curve.check().unwrap();
+        let mut raw = vec![0.0; probe.len()];
+        let bare = Mlp {
+            response: None,
+            ..mlp.clone()
+        };
+        bare.eval_batch(&probe, &mut raw);
+        for (r, o) in raw.iter().zip(&out) {
+            assert_eq!(curve.invert(*r).to_bits(), o.to_bits());
+        }
     }
 }

@@ -13,10 +13,14 @@ use serde::{Deserialize, Serialize};
 
 /// Width of the slope bins the response is measured in.
 const BIN: f32 = 0.05;
-/// Fewest samples behind one point (sparse bins are merged towards the middle).
+/// Fewest samples behind one point: a sparse bin joins the next one up, and sparse
+/// bins left at the top join the last point.
 const MIN_SAMPLES: f64 = 30.0;
-/// Most bins: wider ones when the slopes span more.
-const MAX_BINS: f32 = 4096.0;
+/// Most points a curve has (bins are wider when the slopes span more); a model file's
+/// curve is refused beyond it ([`ResponseCurve::check`]).
+pub const MAX_POINTS: usize = 1024;
+/// Largest magnitude of a point's reading or slope a model file may hold.
+const MAX_VALUE: f32 = 1.0e4;
 /// Steepest `m⁻¹` may be: where a model's reading barely changes with the slope (it
 /// saturates near the top of the calibrated slopes), inverting it exactly would turn a
 /// little colour noise into a large slope. Chosen on the tuning families (caps 2, 4 and
@@ -39,15 +43,15 @@ impl ResponseCurve {
     pub fn fit(pairs: impl IntoIterator<Item = (f32, f32)>) -> Option<Self> {
         let pairs: Vec<(f32, f32)> = pairs
             .into_iter()
-            .filter(|(t, v)| t.is_finite() && v.is_finite())
+            .filter(|(t, v)| t.abs() <= MAX_VALUE && v.abs() <= MAX_VALUE)
             .collect();
         let lo = pairs.iter().map(|p| p.0).fold(f32::INFINITY, f32::min);
         let hi = pairs.iter().map(|p| p.0).fold(f32::NEG_INFINITY, f32::max);
         if !(hi - lo).is_finite() || hi - lo < 2.0 * BIN {
             return None;
         }
-        let width = BIN.max((hi - lo) / MAX_BINS);
-        let n = ((hi - lo) / width).ceil() as usize + 1;
+        let width = BIN.max((hi - lo) / (MAX_POINTS - 2) as f32);
+        let n = (((hi - lo) / width).ceil() as usize + 1).min(MAX_POINTS);
         // (Σ slope, Σ reading, count) per bin.
         let mut bins = vec![(0.0f64, 0.0f64, 0.0f64); n];
         for &(t, v) in &pairs {
@@ -100,15 +104,21 @@ impl ResponseCurve {
             return None;
         }
         limit_stretch(&mut strict);
-        Some(Self { points: strict })
+        // In f32 a stretch-limited step may vanish: keep the slopes strictly increasing.
+        strict.dedup_by(|b, a| b[1] <= a[1]);
+        (strict.len() >= 2).then_some(Self { points: strict })
     }
 
     /// The slope whose mean reading is `v`: linear between points; beyond them the
     /// differences are kept as they are (slope 1), so a model that saturates past the
     /// calibrated slopes still saturates, only no longer short of them. NaN stays NaN.
+    /// A curve [`Self::check`] refuses (fewer than two points) leaves `v` as it is.
     #[inline]
     pub fn invert(&self, v: f32) -> f32 {
         let p = &self.points;
+        if p.len() < 2 {
+            return v;
+        }
         let (first, last) = (p[0], p[p.len() - 1]);
         if v <= first[0] {
             return first[1] + (v - first[0]);
@@ -119,6 +129,32 @@ impl ResponseCurve {
         let k = p.partition_point(|q| q[0] <= v).clamp(1, p.len() - 1);
         let (a, b) = (p[k - 1], p[k]);
         a[1] + (v - a[0]) * (b[1] - a[1]) / (b[0] - a[0])
+    }
+}
+
+impl ResponseCurve {
+    /// Why a curve read from a file cannot be used: a point count outside
+    /// `2..=MAX_POINTS`, values that are not finite or beyond ±[`MAX_VALUE`], readings or
+    /// slopes that do not increase strictly.
+    pub fn check(&self) -> Result<(), String> {
+        let p = &self.points;
+        if !(2..=MAX_POINTS).contains(&p.len()) {
+            return Err(format!("{} points, expected 2..={MAX_POINTS}", p.len()));
+        }
+        if p.iter()
+            .flatten()
+            .any(|v| !v.is_finite() || v.abs() > MAX_VALUE)
+        {
+            return Err(format!(
+                "holds a value that is not finite or beyond ±{MAX_VALUE}"
+            ));
+        }
+        if p.windows(2)
+            .any(|w| w[1][0] <= w[0][0] || w[1][1] <= w[0][1])
+        {
+            return Err("readings and slopes must both increase strictly".into());
+        }
+        Ok(())
     }
 }
 
@@ -205,11 +241,27 @@ mod tests {
                 .windows(2)
                 .all(|w| w[1][0] > w[0][0] && w[1][1] > w[0][1])
         );
+        c.check().unwrap();
         // One slope, too few samples, non-finite values: no curve, no panic.
         assert!(ResponseCurve::fit((0..500).map(|_| (0.4, 0.3))).is_none());
         assert!(ResponseCurve::fit((0..20).map(|i| (i as f32 * 0.1, i as f32))).is_none());
         assert!(ResponseCurve::fit([(f32::NAN, 1.0), (1.0, f32::INFINITY)]).is_none());
         let huge = (0..100).map(|i| (if i % 2 == 0 { -3e38 } else { 3e38 }, i as f32));
         assert!(ResponseCurve::fit(huge).is_none());
+        // A wide spread of slopes stays within the points a model file may hold.
+        let wide = ResponseCurve::fit((0..200_000).map(|i| {
+            let t = -500.0 + i as f32 * 5e-3;
+            (t, t)
+        }))
+        .unwrap();
+        assert!(wide.points.len() <= MAX_POINTS);
+        wide.check().unwrap();
+        // A curve no fit makes (as a hand-edited file might hold) never panics.
+        for points in [vec![], vec![[0.5, 0.5]]] {
+            let c = ResponseCurve { points };
+            assert!(c.check().is_err());
+            assert_eq!(c.invert(0.25), 0.25);
+            assert!(c.invert(f32::NAN).is_nan());
+        }
     }
 }

@@ -239,26 +239,8 @@ fn check_mlp(m: &Mlp) -> Result<(), (String, String)> {
             format!("the last layer gives {} outputs, not 1", last.outputs),
         );
     }
-    if let Some(curve) = &m.response {
-        let p = &curve.points;
-        if !(2..=MAX_TABLE).contains(&p.len()) {
-            return fail(
-                "response.points".into(),
-                format!("{} points, expected 2..={MAX_TABLE}", p.len()),
-            );
-        }
-        if p.iter().flatten().any(|v| !v.is_finite()) {
-            return fail(
-                "response.points".into(),
-                "holds a value that is not finite".into(),
-            );
-        }
-        if p.windows(2).any(|w| w[1][0] <= w[0][0]) {
-            return fail(
-                "response.points".into(),
-                "readings (first values) must increase strictly".into(),
-            );
-        }
+    if let Some(why) = m.response.as_ref().and_then(|c| c.check().err()) {
+        return fail("response.points".into(), why);
     }
     Ok(())
 }
