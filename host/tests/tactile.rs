@@ -507,7 +507,19 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 17] = [
+    let cases: [(&str, Damage); 19] = [
+        ("dx.lut.gain_negative", |m| {
+            m["dx"]["lut"]["gain_negative"]
+                .as_array_mut()
+                .unwrap()
+                .pop();
+        }),
+        ("dy.lut.gain_negative", |m| {
+            m["dy"]["lut"]["gain_negative"]
+                .as_array_mut()
+                .unwrap()
+                .push(1.0.into())
+        }),
         ("dx.light.response", |m| {
             m["dx"]["light"]["response"].as_array_mut().unwrap().pop();
         }),
@@ -576,6 +588,11 @@ fn model_files_round_trip_and_refuse_other_versions() {
         old[axis].as_object_mut().unwrap().remove("light");
         // Nor had the MLP its response curve: its outputs stand as they are.
         old[axis]["mlp"].as_object_mut().unwrap().remove("response");
+        // Nor the table its gains of negative readings: `gain` serves both signs.
+        old[axis]["lut"]
+            .as_object_mut()
+            .unwrap()
+            .remove("gain_negative");
     }
     let old = TactileModel::from_json("m.json", &serde_json::to_vec(&old).unwrap()).unwrap();
     let err = Reconstructor::new(old.clone(), ModelKind::Light, SolverKind::Dct, None)
@@ -588,6 +605,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
     );
     assert!(Reconstructor::new(old.clone(), ModelKind::Lut, SolverKind::Dct, None).is_ok());
     assert!(old.dx.mlp.response.is_none());
+    assert!(old.dx.lut.gain_negative.is_empty());
     assert!(Reconstructor::new(old, ModelKind::Mlp, SolverKind::Dct, None).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -16,7 +16,7 @@ use image::RgbImage;
 
 use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
-use super::model::{Lut, cross_factor};
+use super::model::{GainPlanes, Lut, cross_factor};
 use super::sanitize::sanitize;
 use crate::timing::ms_between as ms;
 
@@ -36,6 +36,9 @@ pub struct Features {
     pub axes: [AxisFeatures; 2],
     /// Pixels the colour filter rejected, summed over both phases.
     pub rejected: usize,
+    /// Region indices (row-major) of the touched pixels the filter rejected, per axis:
+    /// slopes to fill from their neighbours ([`super::unread`]).
+    pub unread: [Vec<usize>; 2],
     row: RowScratch,
 }
 
@@ -60,9 +63,9 @@ pub struct Inputs<'a> {
     pub refs: &'a References,
     /// Colour filter.
     pub filter: &'a ColourFilter,
-    /// Position gain of every pixel of the frame per axis ([`super::model::Lut::gain_plane`]),
-    /// or `None`.
-    pub gains: Option<&'a [Vec<f32>; 2]>,
+    /// Position gains of every pixel of the frame per axis
+    /// ([`super::model::Lut::gain_planes`]), or `None`.
+    pub gains: Option<&'a [GainPlanes; 2]>,
 }
 
 /// Calls `visit(ry, first, span)` for every run of set pixels of `mask` (row-major over
@@ -107,7 +110,8 @@ impl Features {
             axis.targets.resize(touched + 1, 0);
         }
         let mut next = [0usize; 2];
-        let (row, axes) = (&mut self.row, &mut self.axes);
+        let (row, axes, unread) = (&mut self.row, &mut self.axes, &mut self.unread);
+        unread.iter_mut().for_each(Vec::clear);
         for_each_run(mask, roi, w, |ry, first, span| {
             row.fill(inputs, span.clone());
             let yn = (roi.y + ry) as f32 * inv_h;
@@ -120,6 +124,9 @@ impl Features {
                     out.rows[j] = [r, b, (roi.x + rx) as f32 * inv_w, yn];
                     out.targets[j] = ry * roi.width + rx;
                     j += usize::from(ok);
+                    if !ok {
+                        unread[axis].push(ry * roi.width + rx);
+                    }
                 }
                 next[axis] = j;
             }
@@ -150,10 +157,11 @@ impl Features {
         let mut timings = FusedTimings::default();
         let mut changed = 0;
         self.rejected = 0;
+        self.unread.iter_mut().for_each(Vec::clear);
         let Some(gains) = inputs.gains else {
             return (0, timings);
         };
-        let (row, rejected) = (&mut self.row, &mut self.rejected);
+        let (row, rejected, unread) = (&mut self.row, &mut self.rejected, &mut self.unread);
         let [p, q] = slopes;
         let mut clock = Instant::now();
         for_each_run(mask, roi, w, |ry, first, span| {
@@ -166,12 +174,17 @@ impl Features {
                 .enumerate()
             {
                 let [red, blue] = &row.colour[axis];
-                luts[axis].eval_planes(red, blue, &gains[axis][span.clone()], out);
+                luts[axis].eval_planes(red, blue, &gains[axis].0[span.clone()], out);
                 let lit = &row.lit[axis];
                 for (o, &ok) in out.iter_mut().zip(lit) {
                     *o = if ok { *o } else { 0.0 };
                 }
-                *rejected += lit.iter().filter(|ok| !**ok).count();
+                let refused = lit.iter().filter(|ok| !**ok).count();
+                if refused > 0 {
+                    let refused = at.clone().zip(lit).filter(|(_, ok)| !**ok);
+                    unread[axis].extend(refused.map(|(i, _)| i));
+                }
+                *rejected += refused;
                 let fixed = sanitize(out, max_slope);
                 changed += fixed.non_finite + fixed.clamped;
             }
@@ -401,7 +414,7 @@ mod tests {
             .collect();
         let lut = Lut::fit(&samples, 24, 4.0, 4, 3);
         let (w, h) = (dx.width() as usize, dx.height() as usize);
-        let gain = lut.gain_plane(w, h).expect("a whole table");
+        let gain = lut.gain_planes(w, h).expect("a whole table");
         let gains = [gain.clone(), gain];
         let inputs = Inputs {
             dx: &dx,
@@ -415,9 +428,21 @@ mod tests {
         let (changed, _) =
             features.lut_slopes(&inputs, &roi, &mask, [&lut, &lut], [&mut p, &mut q], 3.0);
         let fused_rejected = features.rejected;
+        let fused_unread = features.unread.clone();
 
         features.collect(&inputs, &roi, &mask);
         assert_eq!(features.rejected, fused_rejected);
+        // Both paths list the same refused pixels, and with the accepted ones they are
+        // every touched pixel, once.
+        assert_eq!(features.unread, fused_unread);
+        assert!(fused_rejected > 0, "the scene crosses the filter's rules");
+        for (axis, unread) in features.unread.iter().enumerate() {
+            let mut all: Vec<usize> = features.axes[axis].targets.clone();
+            all.extend(unread);
+            all.sort_unstable();
+            let touched: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
+            assert_eq!(all, touched, "axis {axis}");
+        }
         let mut want_changed = 0;
         for (axis, got) in [&p, &q].into_iter().enumerate() {
             let rows = &features.axes[axis];

@@ -28,3 +28,4 @@ pub mod sanitize;
 pub mod skins;
 pub mod smooth;
 pub mod synthetic;
+pub mod unread;

@@ -21,10 +21,11 @@ use super::ambient::{
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
-use super::model::{ModelKind, TactileModel, light, validate};
+use super::model::{GainPlanes, ModelKind, TactileModel, light, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
+use super::unread::UnreadFill;
 use crate::grid::Grid;
 use crate::timing::ms_between as ms;
 
@@ -227,9 +228,11 @@ pub struct Reconstructor {
     ambient: Option<RgbImage>,
     /// Model features and their pixel in the region, per axis.
     features: Features,
+    /// Fills the slopes the colour filter could not read.
+    unread_fill: UnreadFill,
     /// The lookup table's position gain at every pixel, per axis (LUT only: computed
     /// once, so the model does not blend it per pixel).
-    lut_gains: Option<Arc<[Vec<f32>; 2]>>,
+    lut_gains: Option<Arc<[GainPlanes; 2]>>,
     slopes: Vec<f32>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
@@ -249,6 +252,7 @@ impl Reconstructor {
             max_slope: self.max_slope,
             ambient: self.ambient.clone(),
             features: Default::default(),
+            unread_fill: UnreadFill::default(),
             lut_gains: self.lut_gains.clone(),
             slopes: Vec::new(),
             led: Default::default(),
@@ -331,8 +335,8 @@ impl Reconstructor {
         };
         let lut_gains = match kind {
             ModelKind::Lut => match (
-                model.dx.lut.gain_plane(model.width, model.height),
-                model.dy.lut.gain_plane(model.width, model.height),
+                model.dx.lut.gain_planes(model.width, model.height),
+                model.dy.lut.gain_planes(model.width, model.height),
             ) {
                 (Some(dx), Some(dy)) => Some(Arc::new([dx, dy])),
                 _ => None,
@@ -362,6 +366,7 @@ impl Reconstructor {
             max_slope: DEFAULT_MAX_SLOPE,
             ambient,
             features: Default::default(),
+            unread_fill: UnreadFill::default(),
             slopes: Vec::new(),
             led: Default::default(),
         })
@@ -567,6 +572,15 @@ impl Reconstructor {
             t2
         };
 
+        // Slopes the colour filter could not read (a saturated or unlit phase) are
+        // unknown, not flat: filled from their neighbours.
+        for (grid, unread) in [
+            (&mut p, &self.features.unread[0]),
+            (&mut q, &self.features.unread[1]),
+        ] {
+            self.unread_fill
+                .fill(grid.as_mut_slice(), roi.width, unread);
+        }
         let depth_px = self.solver.integrate(self.solver_kind, &p, &q)?;
         // The imprint is the touched pixels with the holes they enclose (a flat-bottomed
         // object's plateau has no slope but is pressed in). Skin outside it is at rest:

@@ -22,7 +22,7 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 pub use light::LightModel;
-pub use lut::Lut;
+pub use lut::{GainPlanes, Lut};
 pub use mlp::{Mlp, MlpTraining};
 
 use super::ambient::AmbientEstimate;

@@ -167,10 +167,18 @@ fn check_lut(l: &Lut) -> Result<(), (String, String)> {
             return fail(field, format!("{v} is outside 1..=64"));
         }
     }
+    let gain_negative = if l.gain_negative.is_empty() {
+        None
+    } else {
+        Some(("gain_negative", &l.gain_negative, l.cells_x * l.cells_y))
+    };
     for (field, values, want) in [
         ("table", &l.table, l.bins * l.bins),
         ("gain", &l.gain, l.cells_x * l.cells_y),
-    ] {
+    ]
+    .into_iter()
+    .chain(gain_negative)
+    {
         if values.len() != want {
             return fail(field, format!("{} values, {want} declared", values.len()));
         }
