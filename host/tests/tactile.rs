@@ -606,6 +606,21 @@ fn model_files_round_trip_and_refuse_other_versions() {
     assert!(Reconstructor::new(old.clone(), ModelKind::Lut, SolverKind::Dct, None).is_ok());
     assert!(old.dx.mlp.response.is_none());
     assert!(old.dx.lut.gain_negative.is_empty());
+    // ...and reads both signs with `gain`: the depth of a file whose negative gains are a
+    // copy of `gain`, bit for bit, and not that of the signed model.
+    let pair = render(&optics, &ball(10.0, 8.0, 1.0), 3);
+    let depth = |m: TactileModel| {
+        let mut rec = Reconstructor::new(m, ModelKind::Lut, SolverKind::Dct, None).unwrap();
+        let d = rec.reconstruct(&pair.dx, &pair.dy).unwrap().depth_mm;
+        d.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+    let mut copied = old.clone();
+    for axis in [&mut copied.dx, &mut copied.dy] {
+        axis.lut.gain_negative = axis.lut.gain.clone();
+    }
+    let unsigned = depth(old.clone());
+    assert_eq!(unsigned, depth(copied));
+    assert_ne!(unsigned, depth(model.clone()));
     assert!(Reconstructor::new(old, ModelKind::Mlp, SolverKind::Dct, None).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -7,9 +7,10 @@
 //! slope on that axis is unknown, not zero: a band of zero slopes across an imprint's
 //! wall is read as a flat step and the whole imprint comes out shallow (on a tuning skin
 //! whose blue strip saturated the wall of a ball at the frame's left edge, 0.89 of its
-//! depth). Each unread slope takes the mean of its already known 4-neighbours, the
-//! nearest first (a breadth-first order from the read pixels), so a band is bridged
-//! from both sides. Pixels outside the touched set are skin at rest and count as read
+//! depth). Each unread slope takes the mean of its 4-neighbours known when its turn
+//! comes, in breadth-first order from the read pixels (so the nearest come first, and a
+//! pixel may also use a neighbour of its own layer filled before it), and a band is
+//! bridged from both sides. Pixels outside the touched set are skin at rest and count as read
 //! (slope 0). O(pixels of the region).
 
 use std::collections::VecDeque;
