@@ -34,8 +34,6 @@ pub struct AxisFeatures {
 pub struct Features {
     /// dx phase (x slopes) and dy phase (y slopes).
     pub axes: [AxisFeatures; 2],
-    /// Pixels the colour filter rejected, summed over both phases.
-    pub rejected: usize,
     /// Region indices (row-major) of the touched pixels the filter rejected, per axis:
     /// slopes to fill from their neighbours ([`super::unread`]).
     pub unread: [Vec<usize>; 2],
@@ -95,6 +93,11 @@ pub struct FusedTimings {
 }
 
 impl Features {
+    /// Pixels the colour filter rejected in the last region, summed over both phases.
+    pub fn rejected(&self) -> usize {
+        self.unread.iter().map(Vec::len).sum()
+    }
+
     /// The features of `mask`'s pixels (row-major over `roi`) in `roi`. Only the runs
     /// of touched pixels are read (the references are large).
     pub fn collect(&mut self, inputs: &Inputs<'_>, roi: &Roi, mask: &[bool]) {
@@ -135,7 +138,6 @@ impl Features {
             axis.rows.truncate(n);
             axis.targets.truncate(n);
         }
-        self.rejected = 2 * touched - next[0] - next[1];
     }
 
     /// The lookup tables' slopes of `mask`'s pixels straight into `slopes` (`[p, q]`,
@@ -156,12 +158,11 @@ impl Features {
         let w = inputs.dx.width() as usize;
         let mut timings = FusedTimings::default();
         let mut changed = 0;
-        self.rejected = 0;
         self.unread.iter_mut().for_each(Vec::clear);
         let Some(gains) = inputs.gains else {
             return (0, timings);
         };
-        let (row, rejected, unread) = (&mut self.row, &mut self.rejected, &mut self.unread);
+        let (row, unread) = (&mut self.row, &mut self.unread);
         let [p, q] = slopes;
         let mut clock = Instant::now();
         for_each_run(mask, roi, w, |ry, first, span| {
@@ -179,12 +180,8 @@ impl Features {
                 for (o, &ok) in out.iter_mut().zip(lit) {
                     *o = if ok { *o } else { 0.0 };
                 }
-                let refused = lit.iter().filter(|ok| !**ok).count();
-                if refused > 0 {
-                    let refused = at.clone().zip(lit).filter(|(_, ok)| !**ok);
-                    unread[axis].extend(refused.map(|(i, _)| i));
-                }
-                *rejected += refused;
+                let refused = at.clone().zip(lit).filter(|(_, ok)| !**ok);
+                unread[axis].extend(refused.map(|(i, _)| i));
                 let fixed = sanitize(out, max_slope);
                 changed += fixed.non_finite + fixed.clamped;
             }
@@ -370,7 +367,7 @@ mod tests {
                 }
             }
         }
-        assert_eq!(features.rejected, rejected);
+        assert_eq!(features.rejected(), rejected);
         assert!(rejected > 0 && want[0].len() > 100 && want[1].len() > 100);
         for (axis, want) in want.iter().enumerate() {
             let got = &features.axes[axis];
@@ -427,11 +424,11 @@ mod tests {
         let (mut p, mut q) = (vec![0.0f32; roi.area()], vec![0.0f32; roi.area()]);
         let (changed, _) =
             features.lut_slopes(&inputs, &roi, &mask, [&lut, &lut], [&mut p, &mut q], 3.0);
-        let fused_rejected = features.rejected;
+        let fused_rejected = features.rejected();
         let fused_unread = features.unread.clone();
 
         features.collect(&inputs, &roi, &mask);
-        assert_eq!(features.rejected, fused_rejected);
+        assert_eq!(features.rejected(), fused_rejected);
         // Both paths list the same refused pixels, and with the accepted ones they are
         // every touched pixel, once.
         assert_eq!(features.unread, fused_unread);

@@ -518,7 +518,7 @@ impl Reconstructor {
                 self.max_slope,
             );
             out.sanitized_slopes += changed;
-            out.rejected_pixels += self.features.rejected;
+            out.rejected_pixels += self.features.rejected();
             let t2 = Instant::now();
             let overhead = ms(t0, t2) - times.colour_ms - times.model_ms;
             out.timings.colour_ms += times.colour_ms + overhead;
@@ -528,7 +528,7 @@ impl Reconstructor {
             // Each axis' model features of the touched pixels the colour filter accepts;
             // the others get no slope on that axis.
             self.features.collect(&inputs, roi, &mask);
-            out.rejected_pixels += self.features.rejected;
+            out.rejected_pixels += self.features.rejected();
             let t1 = Instant::now();
             out.timings.colour_ms += ms(t0, t1);
             if let (ModelKind::Light, Some(lx), Some(ly)) =

@@ -178,9 +178,6 @@ impl Lut {
             return 0.0;
         };
         let gains = if colour < 0.0 { negative } else { positive };
-        if gains.len() == 1 {
-            return colour * gains[0];
-        }
         colour * blended_gain(gains, x, y, self.cells_x, self.cells_y)
     }
 
@@ -212,13 +209,9 @@ impl Lut {
             let mut plane = Vec::with_capacity(width * height);
             for y in 0..height {
                 let yn = y as f32 * inv_h;
-                plane.extend((0..width).map(|x| {
-                    if gains.len() == 1 {
-                        gains[0]
-                    } else {
-                        blended_gain(gains, x as f32 * inv_w, yn, cells_x, cells_y)
-                    }
-                }));
+                plane.extend(
+                    (0..width).map(|x| blended_gain(gains, x as f32 * inv_w, yn, cells_x, cells_y)),
+                );
             }
             plane
         };
@@ -239,9 +232,13 @@ impl Lut {
     }
 }
 
-/// The position gain at normalised position `(x, y)`, bilinear between cells.
+/// The position gain at normalised position `(x, y)`, bilinear between cells (a single
+/// cell's gain as it is).
 #[inline]
 fn blended_gain(gains: &[f32], x: f32, y: f32, cells_x: usize, cells_y: usize) -> f32 {
+    if let [gain] = gains {
+        return *gain;
+    }
     cell_weights(x, y, cells_x, cells_y)
         .iter()
         .map(|&(cell, w)| gains[cell] * w)
@@ -260,11 +257,7 @@ impl Lut {
         };
         self.eval_colours(features, out, |f, colour| {
             let gains = if colour < 0.0 { negative } else { positive };
-            if gains.len() == 1 {
-                gains[0]
-            } else {
-                blended_gain(gains, f[2], f[3], cells_x, cells_y)
-            }
+            blended_gain(gains, f[2], f[3], cells_x, cells_y)
         });
     }
 
