@@ -115,55 +115,98 @@ pub enum PoissonError {
 
 /// Divergence of the slope field on the pixel grid, with slopes averaged onto half-pixel
 /// positions. At the border the flux through the boundary is `0` for Neumann and the
-/// border pixel's own slope (one-sided) for Dirichlet.
-pub fn divergence<T: Real>(kind: SolverKind, p: &Grid<T>, q: &Grid<T>, out: &mut Vec<T>) {
+/// border pixel's own slope (one-sided) for Dirichlet. Non-finite slopes are refused
+/// ([`PoissonError::NonFinite`] names the first one, `p` before `q`; `out` is then not a
+/// divergence). Sizes are the caller's to check (`p` and `q` alike).
+pub fn divergence<T: Real>(
+    kind: SolverKind,
+    p: &Grid<T>,
+    q: &Grid<T>,
+    out: &mut Vec<T>,
+) -> Result<(), PoissonError> {
     let (w, h) = (p.width(), p.height());
     out.clear();
     out.resize(w * h, T::zero());
+    let mut finite = true;
+    for (y, row) in out.chunks_exact_mut(w.max(1)).enumerate().take(h) {
+        finite &= divergence_row(kind, p, q, y, row);
+    }
+    if finite {
+        Ok(())
+    } else {
+        Err(first_non_finite(p, q))
+    }
+}
+
+/// Row `y` of [`divergence`] into `o` (length `p.width()`); `false` when the slope rows
+/// it read (row `y` of `p` and `q`) hold a NaN or an infinity. Rows are made one at a
+/// time so that the solver can take each as it reorders it, while its slope rows are in
+/// cache, and the check costs no pass of its own.
+fn divergence_row<T: Real>(
+    kind: SolverKind,
+    p: &Grid<T>,
+    q: &Grid<T>,
+    y: usize,
+    o: &mut [T],
+) -> bool {
+    let (w, h) = (p.width(), p.height());
     let half = T::from(0.5).expect("0.5 fits");
     let edge = |v: T| match kind {
         SolverKind::Dct => T::zero(),
         SolverKind::Dst => v,
     };
-    for y in 0..h {
-        let pr = p.row(y);
-        let o = &mut out[y * w..(y + 1) * w];
-        if w == 1 {
-            o[0] = edge(pr[0]) - edge(pr[0]);
-            continue;
-        }
+    let finite = |row: &[T]| !row.iter().fold(false, |bad, v| bad | !v.is_finite());
+    let (pr, here) = (p.row(y), q.row(y));
+    if w == 1 {
+        o[0] = edge(pr[0]) - edge(pr[0]);
+    } else {
         // Flux (p[x] + p[x+1]) / 2 out of the right side minus the same into the left
         // side: (p[x+1] − p[x−1]) / 2 inside, written without a carried value so that
         // the loop runs in vector lanes.
         o[0] = (pr[0] + pr[1]) * half - edge(pr[0]);
-        for (o, window) in o[1..w - 1].iter_mut().zip(pr.windows(3)) {
-            *o = (window[2] - window[0]) * half;
+        for ((o, right), left) in o[1..w - 1].iter_mut().zip(&pr[2..]).zip(pr) {
+            *o = (*right - *left) * half;
         }
         o[w - 1] = edge(pr[w - 1]) - (pr[w - 2] + pr[w - 1]) * half;
     }
-    // y fluxes row by row (contiguous): flux below row y is (q[y] + q[y+1]) / 2.
-    for y in 0..h {
-        let o = &mut out[y * w..(y + 1) * w];
-        let here = q.row(y);
-        if y + 1 < h {
-            for ((o, a), b) in o.iter_mut().zip(here).zip(q.row(y + 1)) {
-                *o = *o + (*a + *b) * half;
-            }
-        } else {
-            for (o, a) in o.iter_mut().zip(here) {
-                *o = *o + edge(*a);
+    // y fluxes: (q[y] + q[y+1]) / 2 out of the bottom, the same from the row above into
+    // the top; inside, (q[y+1] − q[y−1]) / 2.
+    match (
+        y.checked_sub(1).map(|a| q.row(a)),
+        (y + 1 < h).then(|| q.row(y + 1)),
+    ) {
+        (Some(above), Some(below)) => {
+            for ((o, a), b) in o.iter_mut().zip(above).zip(below) {
+                *o = *o + (*b - *a) * half;
             }
         }
-        if y > 0 {
-            for ((o, a), b) in o.iter_mut().zip(q.row(y - 1)).zip(here) {
-                *o = *o - (*a + *b) * half;
+        (None, Some(below)) => {
+            for ((o, c), b) in o.iter_mut().zip(here).zip(below) {
+                *o = *o + (*c + *b) * half - edge(*c);
             }
-        } else {
-            for (o, a) in o.iter_mut().zip(here) {
-                *o = *o - edge(*a);
+        }
+        (Some(above), None) => {
+            for ((o, a), c) in o.iter_mut().zip(above).zip(here) {
+                *o = *o + edge(*c) - (*a + *c) * half;
+            }
+        }
+        (None, None) => {
+            for (o, c) in o.iter_mut().zip(here) {
+                *o = *o + (edge(*c) - edge(*c));
             }
         }
     }
+    finite(pr) & finite(here)
+}
+
+/// The error for the first non-finite slope, `p` before `q` (one is known to hold one).
+fn first_non_finite<T: Real>(p: &Grid<T>, q: &Grid<T>) -> PoissonError {
+    let w = p.width().max(1);
+    let i = [p, q]
+        .into_iter()
+        .find_map(|g| g.as_slice().iter().position(|v| !v.is_finite()))
+        .unwrap_or(0);
+    PoissonError::NonFinite { x: i % w, y: i / w }
 }
 
 /// Integrates slope fields; owns the cached plans and work buffers, so reuse one per
@@ -246,20 +289,25 @@ impl<T: Real> PoissonSolver<T> {
                 height: h,
             });
         }
-        for grid in [p, q] {
-            // One pass without an early exit runs in vector lanes; the position is looked
-            // for only when there is something to report.
-            let values = grid.as_slice();
-            if values.iter().fold(false, |bad, v| bad | !v.is_finite()) {
-                let i = values.iter().position(|v| !v.is_finite()).unwrap_or(0);
-                return Err(PoissonError::NonFinite { x: i % w, y: i / w });
-            }
-        }
         self.prepare(kind, w, h);
-        let mut f = Vec::new();
-        divergence(kind, p, q, &mut f);
-        self.solve_in_place(kind, &mut f, w, h);
-        let mut z = Grid::from_vec(w, h, f).expect("length is w*h");
+        // The divergence goes into the transform row by row, as the solver reorders it:
+        // no divergence image is written and read back.
+        let mut z = vec![T::zero(); w * h];
+        let mut finite = true;
+        let plan = &self.plans[&(w, h)];
+        let (ex, ey) = (&self.eigen[&(kind, w)], &self.eigen[&(kind, h)]);
+        plan.solve_rows(
+            |y, row| finite &= divergence_row(kind, p, q, y, row),
+            &mut z,
+            signs(kind),
+            ex,
+            ey,
+            &mut self.buffers,
+        );
+        if !finite {
+            return Err(first_non_finite(p, q));
+        }
+        let mut z = Grid::from_vec(w, h, z).expect("length is w*h");
         if kind == SolverKind::Dct {
             anchor_border_median(&mut z);
         }
@@ -269,14 +317,19 @@ impl<T: Real> PoissonSolver<T> {
     /// Solves `L z = f` in place (row-major `w × h`), `L` the 5-point Laplacian with the
     /// boundary of `kind`. For Neumann the zero-frequency term is dropped (mean 0).
     /// [`Self::prepare`] must have been called for this size.
+    #[cfg(test)]
     fn solve_in_place(&mut self, kind: SolverKind, f: &mut [T], w: usize, h: usize) {
-        let signs = match kind {
-            SolverKind::Dct => Signs::Plain,
-            SolverKind::Dst => Signs::Checkerboard,
-        };
         let plan = &self.plans[&(w, h)];
         let (ex, ey) = (&self.eigen[&(kind, w)], &self.eigen[&(kind, h)]);
-        plan.solve(f, signs, ex, ey, &mut self.buffers);
+        plan.solve(f, signs(kind), ex, ey, &mut self.buffers);
+    }
+}
+
+/// The sign pattern that makes the DCT solve `kind`'s boundary.
+fn signs(kind: SolverKind) -> Signs {
+    match kind {
+        SolverKind::Dct => Signs::Plain,
+        SolverKind::Dst => Signs::Checkerboard,
     }
 }
 

@@ -339,7 +339,7 @@ fn divergence_is_the_difference_of_half_pixel_fluxes() {
                 }
             };
             let mut got = Vec::new();
-            divergence(kind, &p, &q, &mut got);
+            divergence(kind, &p, &q, &mut got).unwrap();
             for y in 0..h {
                 for x in 0..w {
                     let row = |i: usize| p.get(i, y);
@@ -376,4 +376,54 @@ fn many_region_sizes_outgrow_the_plan_caches_safely() {
     }
     assert!(solver.plans.len() <= PLAN_CACHE_LIMIT);
     assert!(solver.eigen.len() <= 2 * PLAN_CACHE_LIMIT);
+}
+
+#[test]
+fn integrating_row_by_row_equals_divergence_then_solve() {
+    // `integrate` hands the divergence to the transform one row at a time; the result is
+    // the same, bit for bit, as the divergence image solved in place.
+    let mut rng = crate::rng::Rng::new(11);
+    for (w, h) in EXACT_SIZES {
+        let p = Grid::from_fn(w, h, |_, _| rng.range(-1.0, 1.0) as f32);
+        let q = Grid::from_fn(w, h, |_, _| rng.range(-1.0, 1.0) as f32);
+        for kind in SolverKind::ALL {
+            let mut solver = PoissonSolver::<f32>::new();
+            let got = solver.integrate(kind, &p, &q).unwrap();
+            let mut f = Vec::new();
+            divergence(kind, &p, &q, &mut f).unwrap();
+            solver.solve_in_place(kind, &mut f, w, h);
+            let mut want = Grid::from_vec(w, h, f).unwrap();
+            if kind == SolverKind::Dct {
+                anchor_border_median(&mut want);
+            }
+            assert_eq!(got, want, "{kind} {w}x{h}");
+        }
+    }
+}
+
+#[test]
+fn a_non_finite_slope_anywhere_is_named() {
+    // The check rides along the divergence's rows: every row of both fields, both
+    // borders, is looked at; the first bad value of p is named before any of q.
+    let (w, h) = (5, 4);
+    let mut solver = PoissonSolver::<f32>::new();
+    for (x, y) in [(0, 0), (4, 0), (0, 3), (4, 3), (2, 2)] {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            for kind in SolverKind::ALL {
+                let fine = Grid::filled(w, h, 0.1f32);
+                let mut broken = fine.clone();
+                broken.set(x, y, bad);
+                let want = Err(PoissonError::NonFinite { x, y });
+                assert_eq!(solver.integrate(kind, &broken, &fine), want, "p {kind}");
+                assert_eq!(solver.integrate(kind, &fine, &broken), want, "q {kind}");
+                let mut also = fine.clone();
+                also.set(0, 0, bad);
+                assert_eq!(
+                    solver.integrate(kind, &broken, &also),
+                    want,
+                    "p first {kind}"
+                );
+            }
+        }
+    }
 }

@@ -45,6 +45,8 @@ pub struct Buffers<T: Real> {
     /// The same transposed: `w/2 + 1` rows (one per x frequency) of `h` bins.
     columns: Vec<Complex<T>>,
     scratch: Vec<Complex<T>>,
+    /// One row of the input, as its producer writes it.
+    source: Vec<T>,
     /// One row's bin pairs split into planes (see [`PairPlanes`]).
     pairs: PairPlanes<T>,
 }
@@ -201,6 +203,7 @@ impl<T: Real> Dct2d<T> {
         .max()
         .unwrap_or(0);
         buffers.real.resize(w * h, T::zero());
+        buffers.source.resize(w, T::zero());
         buffers.rows.resize(half * h, Complex::default());
         buffers.columns.resize(half * h, Complex::default());
         buffers.scratch.resize(scratch, Complex::default());
@@ -209,15 +212,32 @@ impl<T: Real> Dct2d<T> {
     /// Reorders `x` in both dimensions and takes its real 2-D FFT into
     /// `buffers.columns` (one row per x frequency).
     fn to_spectrum(&self, x: &[T], signs: Signs, buffers: &mut Buffers<T>) {
+        let w = self.width;
+        debug_assert_eq!(x.len(), w * self.height);
+        self.rows_to_spectrum(
+            |y, row| row.copy_from_slice(&x[y * w..(y + 1) * w]),
+            signs,
+            buffers,
+        );
+    }
+
+    /// [`Self::to_spectrum`] of the grid whose row `y` `source_row(y, out)` writes into
+    /// `out` (each row asked for once, in Makhoul's order).
+    fn rows_to_spectrum(
+        &self,
+        mut source_row: impl FnMut(usize, &mut [T]),
+        signs: Signs,
+        buffers: &mut Buffers<T>,
+    ) {
         let (w, h) = (self.width, self.height);
         let half = w / 2 + 1;
-        debug_assert_eq!(x.len(), w * h);
         self.fit(buffers);
         let Buffers {
             real,
             rows,
             columns,
             scratch,
+            source,
             ..
         } = buffers;
         for (m, (v, spectrum)) in real
@@ -225,10 +245,11 @@ impl<T: Real> Dct2d<T> {
             .zip(rows.chunks_exact_mut(half))
             .enumerate()
         {
-            let source = makhoul_source(m, h);
-            reorder(&x[source * w..(source + 1) * w], v);
+            let y = makhoul_source(m, h);
+            source_row(y, source);
+            reorder(source, v);
             if signs == Signs::Checkerboard {
-                checkerboard_row(v, source);
+                checkerboard_row(v, y);
             }
             self.rows_forward
                 .process_with_scratch(v, spectrum, scratch)
@@ -348,10 +369,36 @@ impl<T: Real> Dct2d<T> {
         eigen_y: &[T],
         buffers: &mut Buffers<T>,
     ) {
+        self.to_spectrum(f, signs, buffers);
+        self.divide_spectrum(eigen_x, eigen_y, buffers);
+        self.spectrum_into(f, signs, buffers);
+    }
+
+    /// [`Self::solve`] of the right-hand side whose row `y` `source_row(y, out)` writes
+    /// into `out` (each row asked for once), the solution into `z`: a caller that makes
+    /// the right-hand side row by row hands each row over while it is in cache, and no
+    /// image of it is written and read back.
+    pub fn solve_rows(
+        &self,
+        source_row: impl FnMut(usize, &mut [T]),
+        z: &mut [T],
+        signs: Signs,
+        eigen_x: &[T],
+        eigen_y: &[T],
+        buffers: &mut Buffers<T>,
+    ) {
+        debug_assert_eq!(z.len(), self.width * self.height);
+        self.rows_to_spectrum(source_row, signs, buffers);
+        self.divide_spectrum(eigen_x, eigen_y, buffers);
+        self.spectrum_into(z, signs, buffers);
+    }
+
+    /// The pass over the spectrum: to DCT coefficients, each divided by its eigenvalue
+    /// sum (and the `1 / (N1·N2)` of the inverse), back to bins.
+    fn divide_spectrum(&self, eigen_x: &[T], eigen_y: &[T], buffers: &mut Buffers<T>) {
         let (w, h) = (self.width, self.height);
         debug_assert_eq!(eigen_x.len(), w + 1);
         debug_assert_eq!(eigen_y.len(), h + 1);
-        self.to_spectrum(f, signs, buffers);
         let scale = T::one() / cast::<T>((w * h) as f64);
         // `scale / denominator`, zero for the constant mode of Neumann.
         let ratio = |denominator: T| {
@@ -393,7 +440,6 @@ impl<T: Real> Dct2d<T> {
                 row[k2] = rescale_pair(row[k2], row[k2], tx, ty, [a, b, a, b]).0;
             }
         }
-        self.spectrum_into(f, signs, buffers);
     }
 }
 
