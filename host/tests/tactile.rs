@@ -989,3 +989,45 @@ fn leds_off_frames_make_a_model_on_led_light() {
         .unwrap();
     assert_eq!(r.ambient, AmbientSource::ColourFilter);
 }
+
+#[test]
+fn calibration_warns_when_presses_saturate_the_camera() {
+    // The nominal skin's steepest walls facing a strip saturate a few % of a contact:
+    // no warning. With the exposure raised, walls facing a strip clip: the warning names
+    // the worst press, and the per-press shares are in the presses' fits.
+    let nominal = Optics::resolution(320, 240);
+    let bright = Optics {
+        exposure: 1.3,
+        ..nominal.clone()
+    };
+    for (optics, warned) in [(nominal, false), (bright, true)] {
+        let pairs = ball_presses(&optics, 10, 6.0, 11);
+        let refs = reference_frames(&optics);
+        let cal = calibrate(
+            &pairs,
+            Some((&refs.0, &refs.1).into()),
+            &settings(&optics),
+            |_| {},
+        )
+        .unwrap();
+        let worst = cal
+            .presses
+            .iter()
+            .map(|p| p.saturated[0].max(p.saturated[1]))
+            .fold(0.0, f64::max);
+        let warning = cal
+            .report
+            .warnings
+            .iter()
+            .find(|w| w.contains("saturate the camera"));
+        assert_eq!(
+            warning.is_some(),
+            warned,
+            "exposure {}: worst press {:.1}% saturated, warnings {:?}",
+            optics.exposure,
+            100.0 * worst,
+            cal.report.warnings
+        );
+        assert_eq!(worst >= 0.10, warned, "worst press {worst}");
+    }
+}

@@ -50,6 +50,11 @@ pub struct PressFit {
     pub overridden: bool,
     /// RMS distance of the outline pixels from the circle (px).
     pub fit_rms_px: f64,
+    /// Fraction of the contact's pixels saturated (a channel at or above the colour
+    /// filter's `saturation`) in the raw dx and dy frames: the filter refuses them, so
+    /// the press teaches nothing there and such pixels are filled from their neighbours
+    /// at run time.
+    pub saturated: [f64; 2],
 }
 
 /// Why a press was not used.
@@ -366,6 +371,8 @@ pub fn calibrate(
             check("reference dark", d)?;
         }
     }
+    // Saturation is judged on the frames as the camera gave them.
+    let raw_pairs = pairs;
     // LED light alone when every press has its LEDs-off frame.
     let light = led_light(pairs, references);
     let (ambient, ambient_warning) = (light.ambient, light.warning);
@@ -572,6 +579,7 @@ pub fn calibrate(
             depth_mm,
             overridden,
             fit_rms_px,
+            saturated: saturated_in_contact(&raw_pairs[done], &circle, settings.filter.saturation),
         });
         used.push(pair);
     }
@@ -792,6 +800,31 @@ pub fn rms_error(model: &AxisModel, kind: ModelKind, set: &[Sample]) -> f32 {
     (sq / set.len() as f64).sqrt() as f32
 }
 
+/// Fraction of the pixels inside circle `c` with a channel at or above `saturation`, in
+/// the dx and in the dy frame (0 for a circle with no pixel inside the frame).
+fn saturated_in_contact(pair: &CalibrationPair, c: &Circle, saturation: u8) -> [f64; 2] {
+    let (w, h) = (pair.dx.width() as f64, pair.dx.height() as f64);
+    let x0 = (c.cx - c.r).floor().clamp(0.0, w) as u32;
+    let x1 = (c.cx + c.r).ceil().clamp(0.0, w) as u32;
+    let y0 = (c.cy - c.r).floor().clamp(0.0, h) as u32;
+    let y1 = (c.cy + c.r).ceil().clamp(0.0, h) as u32;
+    let mut inside = 0usize;
+    let mut saturated = [0usize; 2];
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let (dx, dy) = (x as f64 + 0.5 - c.cx, y as f64 + 0.5 - c.cy);
+            if dx * dx + dy * dy >= c.r * c.r {
+                continue;
+            }
+            inside += 1;
+            for (count, img) in saturated.iter_mut().zip([&pair.dx, &pair.dy]) {
+                *count += usize::from(img.get_pixel(x, y).0.iter().any(|&v| v >= saturation));
+            }
+        }
+    }
+    saturated.map(|n| n as f64 / inside.max(1) as f64)
+}
+
 /// Training samples of one pair: pixels inside the contact with the sphere's slopes, and
 /// a ring of flat skin around it with slope 0.
 fn samples(
@@ -834,4 +867,46 @@ fn samples(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn saturation_inside_the_contact_is_a_share_of_its_pixels() {
+        // A 40×30 pair: the dx frame saturated (one channel at the line) on the left half
+        // of the frame, the dy frame one channel short of it everywhere.
+        let dx = RgbImage::from_fn(40, 30, |x, _| {
+            if x < 20 {
+                image::Rgb([10, 250, 10])
+            } else {
+                image::Rgb([200, 20, 90])
+            }
+        });
+        let dy = RgbImage::from_pixel(40, 30, image::Rgb([249, 249, 249]));
+        let pair = CalibrationPair {
+            name: "p".into(),
+            dx,
+            dy,
+            dark: None,
+        };
+        // Centred on the boundary: half of the pixel centres inside lie left of it.
+        let c = Circle {
+            cx: 20.0,
+            cy: 15.0,
+            r: 8.0,
+        };
+        let [sx, sy] = saturated_in_contact(&pair, &c, 250);
+        assert_eq!(sx, 0.5);
+        assert_eq!(sy, 0.0);
+        // Wholly inside the saturated half, partly outside the frame, and outside it.
+        let left = Circle { cx: 2.0, ..c };
+        assert_eq!(saturated_in_contact(&pair, &left, 250), [1.0, 0.0]);
+        assert_eq!(saturated_in_contact(&pair, &left, 251), [0.0, 0.0]);
+        let gone = Circle { cx: -50.0, ..c };
+        assert_eq!(saturated_in_contact(&pair, &gone, 250), [0.0, 0.0]);
+        let nan = Circle { r: f64::NAN, ..c };
+        assert_eq!(saturated_in_contact(&pair, &nan, 250), [0.0, 0.0]);
+    }
 }

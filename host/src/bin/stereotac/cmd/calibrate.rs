@@ -144,12 +144,12 @@ pub fn run(a: Args) -> Result<()> {
     progress.finish_and_clear();
     let cal = result?;
     println!(
-        "{:<16} {:>8} {:>8} {:>8} {:>9} {:>8}",
-        "pair", "cx px", "cy px", "r px", "depth mm", "fit px"
+        "{:<16} {:>8} {:>8} {:>8} {:>9} {:>8} {:>7}",
+        "pair", "cx px", "cy px", "r px", "depth mm", "fit px", "sat %"
     );
     for p in &cal.presses {
         println!(
-            "{:<16} {:>8.1} {:>8.1} {:>8.1} {:>9.3} {:>8}",
+            "{:<16} {:>8.1} {:>8.1} {:>8.1} {:>9.3} {:>8} {:>7.1}",
             p.name,
             p.circle.cx,
             p.circle.cy,
@@ -159,7 +159,8 @@ pub fn run(a: Args) -> Result<()> {
                 "given".to_string()
             } else {
                 format!("{:.2}", p.fit_rms_px)
-            }
+            },
+            100.0 * p.saturated[0].max(p.saturated[1])
         );
     }
     for r in &cal.rejected {
