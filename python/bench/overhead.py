@@ -8,10 +8,11 @@ of the medians is the overhead: conversion in, result out, the call. Goal (issue
 at most 5 % or 0.2 ms, whichever is larger.
 
     python bench/overhead.py --model DEMO/model.json --pair DX.png DY.png [DARK.png] \
-        --stereo STEREO_DIR [--rounds 15]   (calls: 20x rounds tactile, 4x stereo)
+        --stereo STEREO_DIR [--rounds 15] [--dev-build]   (calls: 20x rounds tactile, 4x stereo)
 
 (inputs as the pytest fixtures make them: `stereotac demo`, `stereotac export`,
-`stereotac stereo --synthetic 150`). Build the package in release for real figures.
+`stereotac stereo --synthetic 150`). Build the package in release for real figures; `--dev-build` (CI's smoke run of a
+package built with the dev profile) prints the figures without judging them.
 """
 
 import argparse
@@ -22,7 +23,7 @@ from pathlib import Path
 import stereotac
 
 
-def compare(name, python_call, library_ms, calls):
+def compare(name, python_call, library_ms, calls, judge=True):
     """Median of `calls` Python calls against the median of as many library calls,
     alternating one of each (the machine's drift and noise fall on both alike)."""
     python_call()  # warm: plans, buffers
@@ -35,7 +36,10 @@ def compare(name, python_call, library_ms, calls):
     p, l = statistics.median(py), statistics.median(lib)
     over = p - l
     goal = max(0.05 * l, 0.2)
-    verdict = "meets" if over <= goal else "MISSES"
+    if not judge:
+        verdict = "not judged: dev build"
+    else:
+        verdict = "meets" if over <= goal else "MISSES"
     print(
         f"{name:<8} python {p:8.3f} ms  library {l:8.3f} ms  overhead {over:+.3f} ms "
         f"({100 * over / l:+.1f} %)  goal <= {goal:.3f} ms: {verdict}  ({calls} calls each)"
@@ -49,6 +53,11 @@ def main():
     ap.add_argument("--pair", type=Path, nargs="+", required=True, metavar="PNG")
     ap.add_argument("--stereo", type=Path, required=True, help="a `stereo --synthetic` output folder")
     ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument(
+        "--dev-build",
+        action="store_true",
+        help="the package was built with the dev profile: print the figures, judge nothing",
+    )
     a = ap.parse_args()
     if len(a.pair) not in (2, 3):
         ap.error(f"--pair takes DX.png DY.png [DARK.png], got {len(a.pair)} file(s)")
@@ -65,6 +74,7 @@ def main():
         lambda: rec.reconstruct(dx, dy, dark=dark),
         lambda n: rec._library_ms(dx, dy, dark=dark, repeats=n),
         20 * a.rounds,
+        judge=not a.dev_build,
     )
     rig = stereotac.StereoRig.load(a.stereo / "input_calibration.yaml")
     left = stereotac.load_grey(a.stereo / "input_left.png")
@@ -75,8 +85,12 @@ def main():
         lambda: rig.compute(left, right),
         lambda n: rig._library_ms(left, right, repeats=n),
         4 * a.rounds,
+        judge=not a.dev_build,
     )
-    print("all goals met" if ok else "some goals missed")
+    if a.dev_build:
+        print("dev build: goals not judged (a release build gives the figures: pip install ./python)")
+    else:
+        print("all goals met" if ok else "some goals missed")
 
 
 if __name__ == "__main__":
