@@ -4,6 +4,7 @@
 use image::RgbImage;
 use stereotac::tactile::ambient::{AmbientSource, PhaseFrames};
 use stereotac::tactile::bench::errors;
+use stereotac::tactile::calibrate::report::SATURATED_FRACTION;
 use stereotac::tactile::calibrate::{
     CalibrationError, CalibrationPair, CalibrationSettings, Rejection, calibrate,
 };
@@ -1028,6 +1029,6 @@ fn calibration_warns_when_presses_saturate_the_camera() {
             100.0 * worst,
             cal.report.warnings
         );
-        assert_eq!(worst >= 0.10, warned, "worst press {worst}");
+        assert_eq!(worst >= SATURATED_FRACTION, warned, "worst press {worst}");
     }
 }

@@ -50,10 +50,10 @@ pub struct PressFit {
     pub overridden: bool,
     /// RMS distance of the outline pixels from the circle (px).
     pub fit_rms_px: f64,
-    /// Fraction of the contact's pixels saturated (a channel at or above the colour
-    /// filter's `saturation`) in the raw dx and dy frames: the filter refuses them, so
-    /// the press teaches nothing there and such pixels are filled from their neighbours
-    /// at run time.
+    /// Fraction of the contact's pixels at or near clipping (a channel at or above the
+    /// colour filter's `saturation`) in the camera's raw dx and dy frames: their colour
+    /// says nothing reliable about the slope. (The filter refuses them on raw frames; with
+    /// LEDs-off frames subtracted it refuses only those at 255.)
     pub saturated: [f64; 2],
 }
 

@@ -18,10 +18,10 @@ const SUGGESTED_PRESSES: usize = 10;
 /// A press counts as near an edge when its centre is within this fraction of the frame.
 const EDGE_FRACTION: f64 = 0.15;
 /// A press is called saturated when this fraction of its contact is, in either phase. On
-/// the tuning skins presses saturated up to 7 % did no measurable harm (our nominal skin's
-/// steepest walls facing a strip saturate 5–6 % of a contact), while `ours-random` skin
-/// 1's presses by the left strip (14 %) cost its edge ball 7 % of its depth before
-/// refused slopes were filled.
+/// the tuning skins presses saturated up to 8 % did no measurable harm (our nominal skin's
+/// steepest walls facing a strip saturate 5–8 % of a contact, `ours-random` skin 4's 7 %),
+/// while with `ours-random` skin 1's (14 %, by the left strip) its edge ball read 7 %
+/// short before refused slopes were filled.
 pub const SATURATED_FRACTION: f64 = 0.10;
 
 /// The LUT's fit in one region of the frame (both axes together).
@@ -206,7 +206,8 @@ impl CalibrationReport {
 }
 
 /// The warning when presses saturate the camera inside their contact: the user can fix
-/// it (exposure, LED brightness), and the pixels cost the model its steepest slopes.
+/// it (exposure, LED brightness), and the pixels cost the model the steepest slopes it
+/// would learn there.
 fn saturation_warning(presses: &[PressFit]) -> Option<String> {
     let worst_phase = |p: &PressFit| p.saturated[0].max(p.saturated[1]);
     let count = presses
@@ -225,7 +226,7 @@ fn saturation_warning(presses: &[PressFit]) -> Option<String> {
         "dy"
     };
     Some(format!(
-        "{count} of {} presses saturate the camera in {:.0}% or more of their contact (worst: {} at ({:.0}, {:.0}) px, {:.0}% in the {phase} frame): those slopes cannot be read and are filled from their neighbours, so steep walls facing a strip read shallow; lower the camera's exposure or the LEDs' brightness",
+        "{count} of {} presses saturate the camera in {:.0}% or more of their contact (worst: {} at ({:.0}, {:.0}) px, {:.0}% in the {phase} frame): the colour there says nothing reliable about the slope, so the model does not learn the steep walls facing a strip there, and such pixels are filled from their neighbours when measuring; lower the camera's exposure or the LEDs' brightness",
         presses.len(),
         100.0 * SATURATED_FRACTION,
         worst.name,

@@ -138,10 +138,11 @@ pub fn divergence<T: Real>(
     }
 }
 
-/// Row `y` of [`divergence`] into `o` (length `p.width()`); `false` when the slope rows
-/// it read (row `y` of `p` and `q`) hold a NaN or an infinity. Rows are made one at a
-/// time so that the solver can take each as it reorders it, while its slope rows are in
-/// cache, and the check costs no pass of its own.
+/// Row `y` of [`divergence`] into `o` (length `p.width()`); `false` when row `y` of `p`
+/// or of `q` holds a NaN or an infinity (only row `y` is checked, though the rows of `q`
+/// above and below are read: every row is checked on its own turn, and a solve asks for
+/// each once). Rows are made one at a time so that the solver can take each as it
+/// reorders it, while its slope rows are in cache, and the check costs no pass of its own.
 fn divergence_row<T: Real>(
     kind: SolverKind,
     p: &Grid<T>,
@@ -269,7 +270,9 @@ impl<T: Real> PoissonSolver<T> {
     }
 
     /// Integrates `p = ∂z/∂x`, `q = ∂z/∂y` into `z` (same size) with the given boundary
-    /// condition. See the module documentation for conventions.
+    /// condition. See the module documentation for conventions. A NaN or infinite slope
+    /// is found on the way through the solve (no pass of its own), so a refused input
+    /// costs a solve (and plans for its size) before the error.
     pub fn integrate(
         &mut self,
         kind: SolverKind,

@@ -53,7 +53,7 @@ fn five_point_laplacian(w: usize, h: usize, at: impl Fn(isize, isize) -> f64) ->
 
 /// Sizes for the exact-inversion checks: odd and even each way, single rows and
 /// columns, prime lengths.
-const EXACT_SIZES: [(usize, usize); 7] = [
+const EXACT_SIZES: [(usize, usize); 8] = [
     (37, 24),
     (29, 40),
     (1, 7),
@@ -61,6 +61,7 @@ const EXACT_SIZES: [(usize, usize); 7] = [
     (2, 2),
     (13, 13),
     (64, 45),
+    (1, 1),
 ];
 
 #[test]
@@ -405,17 +406,40 @@ fn integrating_row_by_row_equals_divergence_then_solve() {
 fn a_non_finite_slope_anywhere_is_named() {
     // The check rides along the divergence's rows: every row of both fields, both
     // borders, is looked at; the first bad value of p is named before any of q.
-    let (w, h) = (5, 4);
+    // Sizes where a Neumann divergence ignores some slopes (one column: p; one row: q)
+    // are checked the same.
     let mut solver = PoissonSolver::<f32>::new();
-    for (x, y) in [(0, 0), (4, 0), (0, 3), (4, 3), (2, 2)] {
+    let places = |w: usize, h: usize| {
+        let mut v = vec![
+            (0, 0),
+            (w - 1, 0),
+            (0, h - 1),
+            (w - 1, h - 1),
+            (w / 2, h / 2),
+        ];
+        v.dedup();
+        v.into_iter().map(move |p| (w, h, p))
+    };
+    let cases = [(5, 4), (1, 4), (6, 1), (1, 1)]
+        .into_iter()
+        .flat_map(|(w, h)| places(w, h));
+    for (w, h, (x, y)) in cases {
         for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
             for kind in SolverKind::ALL {
                 let fine = Grid::filled(w, h, 0.1f32);
                 let mut broken = fine.clone();
                 broken.set(x, y, bad);
                 let want = Err(PoissonError::NonFinite { x, y });
-                assert_eq!(solver.integrate(kind, &broken, &fine), want, "p {kind}");
-                assert_eq!(solver.integrate(kind, &fine, &broken), want, "q {kind}");
+                assert_eq!(
+                    solver.integrate(kind, &broken, &fine),
+                    want,
+                    "p {kind} {w}x{h}"
+                );
+                assert_eq!(
+                    solver.integrate(kind, &fine, &broken),
+                    want,
+                    "q {kind} {w}x{h}"
+                );
                 let mut also = fine.clone();
                 also.set(0, 0, bad);
                 assert_eq!(
