@@ -1032,3 +1032,94 @@ fn calibration_warns_when_presses_saturate_the_camera() {
         assert_eq!(worst >= SATURATED_FRACTION, warned, "worst press {worst}");
     }
 }
+
+#[test]
+fn saturation_is_judged_press_by_press_on_the_raw_frames() {
+    // Presses with LEDs-off frames (the model works on LED light) and one press with
+    // nothing in it, set aside: each used press's share is the one of its own raw frames,
+    // not of the frames minus their LEDs-off light, nor of a neighbouring press.
+    let optics = Optics {
+        ambient: 20.0,
+        exposure: 1.3,
+        ..optics()
+    };
+    let frames = |shapes: Vec<Shape>, frame| {
+        let truth = Scene { shapes }.truth(optics.width, optics.height, optics.px_per_mm);
+        render_truth(&optics, &truth, frame, [1.0; 3])
+    };
+    let presses: Vec<CalibrationPair> = (0..9)
+        .map(|k| {
+            let shapes = if k == 2 {
+                Vec::new()
+            } else {
+                vec![Shape::Ball {
+                    cx: 3.5 + 1.7 * k as f64,
+                    cy: 4.0 + (k % 3) as f64 * 3.0,
+                    diameter: 6.0,
+                    depth: 0.8 + 0.05 * k as f64,
+                }]
+            };
+            let (dx, dy, dark) = frames(shapes, 200 + k);
+            CalibrationPair {
+                name: format!("p{k}"),
+                dx,
+                dy,
+                dark: Some(dark),
+            }
+        })
+        .collect();
+    let (rdx, rdy, rdark) = frames(Vec::new(), 1);
+    let references = PhaseFrames {
+        dx: &rdx,
+        dy: &rdy,
+        dark: Some(&rdark),
+    };
+    let cal = calibrate(&presses, Some(references), &settings(&optics), |_| {}).unwrap();
+    assert!(cal.model.ambient.is_some(), "calibrated on LED light");
+    assert!(
+        cal.rejected.iter().any(|r| r.name == "p2"),
+        "{:?}",
+        cal.rejected
+    );
+    // The share by its definition, on any pair of frames.
+    let share = |img: &RgbImage, c: &stereotac::tactile::calibrate::Circle| {
+        let (mut inside, mut hot) = (0usize, 0usize);
+        for (x, y, px) in img.enumerate_pixels() {
+            let (dx, dy) = (x as f64 + 0.5 - c.cx, y as f64 + 0.5 - c.cy);
+            if dx * dx + dy * dy < c.r * c.r {
+                inside += 1;
+                hot += usize::from(px.0.iter().any(|&v| v >= 250));
+            }
+        }
+        hot as f64 / inside.max(1) as f64
+    };
+    let minus = |a: &RgbImage, b: &RgbImage| {
+        RgbImage::from_fn(a.width(), a.height(), |x, y| {
+            let (p, q) = (a.get_pixel(x, y).0, b.get_pixel(x, y).0);
+            image::Rgb([0, 1, 2].map(|i| p[i].saturating_sub(q[i])))
+        })
+    };
+    let mut differs = false;
+    for p in &cal.presses {
+        let pair = presses.iter().find(|q| q.name == p.name).unwrap();
+        let dark = pair.dark.as_ref().unwrap();
+        let want = [share(&pair.dx, &p.circle), share(&pair.dy, &p.circle)];
+        assert_eq!(p.saturated, want, "{}", p.name);
+        let led = [
+            share(&minus(&pair.dx, dark), &p.circle),
+            share(&minus(&pair.dy, dark), &p.circle),
+        ];
+        differs |= led != want;
+    }
+    assert!(
+        cal.presses
+            .iter()
+            .any(|p| p.saturated[0].max(p.saturated[1]) > 0.05),
+        "some press saturates: {:?}",
+        cal.presses.iter().map(|p| p.saturated).collect::<Vec<_>>()
+    );
+    assert!(
+        differs,
+        "the frames minus their LEDs-off light would give other shares"
+    );
+}
