@@ -319,12 +319,15 @@ impl<T: Real> PoissonSolver<T> {
 
     /// Solves `L z = f` in place (row-major `w × h`), `L` the 5-point Laplacian with the
     /// boundary of `kind`. For Neumann the zero-frequency term is dropped (mean 0).
-    /// [`Self::prepare`] must have been called for this size.
+    /// [`Self::prepare`] must have been called for this size. (Tests: `integrate` hands
+    /// its rows to the transform as it makes them.)
     #[cfg(test)]
     fn solve_in_place(&mut self, kind: SolverKind, f: &mut [T], w: usize, h: usize) {
         let plan = &self.plans[&(w, h)];
         let (ex, ey) = (&self.eigen[&(kind, w)], &self.eigen[&(kind, h)]);
-        plan.solve(f, signs(kind), ex, ey, &mut self.buffers);
+        let input = f.to_vec();
+        let rows = |y: usize, row: &mut [T]| row.copy_from_slice(&input[y * w..][..w]);
+        plan.solve_rows(rows, f, signs(kind), ex, ey, &mut self.buffers);
     }
 }
 

@@ -357,27 +357,13 @@ impl<T: Real> Dct2d<T> {
         self.spectrum_into(coefficients, Signs::Plain, buffers);
     }
 
-    /// Solves `L z = f` in place, `L` the 5-point Laplacian whose 1-D parts have the
+    /// Solves `L z = f` into `z`, `L` the 5-point Laplacian whose 1-D parts have the
     /// eigenvalues `eigen_x` (length `width + 1`) and `eigen_y` (length `height + 1`,
-    /// the last entry of each unused) in DCT order. A zero eigenvalue sum (the constant
-    /// mode of Neumann) gives a zero coefficient.
-    pub fn solve(
-        &self,
-        f: &mut [T],
-        signs: Signs,
-        eigen_x: &[T],
-        eigen_y: &[T],
-        buffers: &mut Buffers<T>,
-    ) {
-        self.to_spectrum(f, signs, buffers);
-        self.divide_spectrum(eigen_x, eigen_y, buffers);
-        self.spectrum_into(f, signs, buffers);
-    }
-
-    /// [`Self::solve`] of the right-hand side whose row `y` `source_row(y, out)` writes
-    /// into `out` (each row asked for once), the solution into `z`: a caller that makes
-    /// the right-hand side row by row hands each row over while it is in cache, and no
-    /// image of it is written and read back.
+    /// the last entry of each unused) in DCT order; a zero eigenvalue sum (the constant
+    /// mode of Neumann) gives a zero coefficient. Row `y` of the right-hand side `f` is
+    /// what `source_row(y, out)` writes into `out` (each row asked for once): a caller
+    /// that makes `f` row by row hands each row over while it is in cache, and no image
+    /// of it is written and read back.
     pub fn solve_rows(
         &self,
         source_row: impl FnMut(usize, &mut [T]),
