@@ -30,8 +30,6 @@
 //!
 //! Output: disparity in pixels (`x_left − x_right`, f32, NaN where invalid).
 
-use std::ops::Range;
-
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -183,12 +181,15 @@ pub struct SemiGlobalMatcher {
     scratch: Scratch,
 }
 
-/// The cost volume and the sweeps' sums, for paths that take two sweeps.
+/// The cost volume and the sweeps' sums, for paths that take two sweeps; the census
+/// images and the refinement's planes, for every frame.
 #[derive(Default)]
 struct Volumes {
     cost: Vec<u8>,
     first: Vec<u16>,
     second: Vec<u16>,
+    census: [Vec<u64>; 2],
+    refine: RefinePlanes,
 }
 
 impl Volumes {
@@ -260,6 +261,19 @@ impl SemiGlobalMatcher {
         let d_max = p.max_disparity() as usize;
         let mut disparity = Grid::filled(w, h, f32::NAN);
         let mut stats = MatchStats::default();
+        // The volumes are kept between frames (a fresh 59–98 MB per frame at 640×480
+        // and 64 disparities costs page faults and TLB flushes, the census images and
+        // refinement planes 9 MB); a matcher shared by several threads at once takes
+        // fresh ones.
+        let mut kept = match self.scratch.0.try_lock() {
+            Ok(v) => Some(v),
+            // A frame that panicked while holding them: the volumes are overwritten
+            // before they are read, so they are still good.
+            Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        };
+        let mut fresh = Volumes::default();
+        let v: &mut Volumes = kept.as_deref_mut().unwrap_or(&mut fresh);
         if w > d_max + 2 * CENSUS_RADIUS && h > 2 * CENSUS_RADIUS {
             let (first, second) = p.paths.sweeps();
             let schedule = Schedule::choose(p.paths, rayon::current_num_threads(), w, h, nd);
@@ -273,7 +287,11 @@ impl SemiGlobalMatcher {
                     limit_mib: MAX_VOLUME_MIB,
                 });
             }
-            let (cl, cr) = rayon::join(|| census(self.kernel, left), || census(self.kernel, right));
+            let [kl, kr] = &mut v.census;
+            let (cl, cr) = rayon::join(
+                || census(self.kernel, left, std::mem::take(kl)),
+                || census(self.kernel, right, std::mem::take(kr)),
+            );
             let shape = Shape {
                 w,
                 h,
@@ -285,18 +303,6 @@ impl SemiGlobalMatcher {
             let row_cells = w * nd;
             let cells = row_cells * h;
             let volumes = schedule.sum_volumes;
-            // The volumes are kept between frames (a fresh 59–98 MB per frame at 640×480
-            // and 64 disparities costs page faults and TLB flushes); a matcher shared by
-            // several threads at once takes fresh ones.
-            let mut kept = match self.scratch.0.try_lock() {
-                Ok(v) => Some(v),
-                // A frame that panicked while holding them: the volumes are overwritten
-                // before they are read, so they are still good.
-                Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
-                Err(std::sync::TryLockError::WouldBlock) => None,
-            };
-            let mut fresh = Volumes::default();
-            let v: &mut Volumes = kept.as_deref_mut().unwrap_or(&mut fresh);
             v.fit(cells, volumes);
             let costs = if volumes == 0 {
                 CostSource::Census(&cl, &cr)
@@ -342,9 +348,10 @@ impl SemiGlobalMatcher {
                     run_sweep(kernel, s, p, costs, second, None, &mut sink);
                 }
             }
+            v.census = [cl.into_vec(), cr.into_vec()];
         }
         if p.refine {
-            refine(self.kernel, left, right, &mut disparity);
+            refine(self.kernel, left, right, &mut disparity, &mut v.refine);
         }
         stats.speckle = filter_speckles(&mut disparity, p.speckle_window as usize, p.speckle_range);
         stats.count_valid_and_border(&disparity);
@@ -410,10 +417,13 @@ struct Shape {
 }
 
 /// 7×7 census signatures: bit set where the neighbour is brighter than the centre
-/// (neighbours outside the image are read at the nearest edge pixel). Rows in parallel.
-fn census(kernel: Kernel, img: &Grid<u8>) -> Grid<u64> {
+/// (neighbours outside the image are read at the nearest edge pixel). Rows in parallel,
+/// into `kept` (its contents are overwritten).
+fn census(kernel: Kernel, img: &Grid<u8>, mut kept: Vec<u64>) -> Grid<u64> {
     let (w, h) = (img.width(), img.height());
-    let mut out = Grid::filled(w, h, 0u64);
+    kept.clear();
+    kept.resize(w * h, 0);
+    let mut out = Grid::from_vec(w, h, kept).expect("sized just above");
     out.as_mut_slice()
         .par_chunks_mut(w.max(1))
         .enumerate()
@@ -503,20 +513,35 @@ fn costs_avx2(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
     costs(s, left, right, out)
 }
 
+/// Bytes in a census signature (48 comparisons).
+const CENSUS_BYTES: usize = CENSUS_BITS as usize / 8;
+
 /// One row of census costs: `out[x·nd + k]` compares left `x` with right `x − d`.
+///
+/// Where every candidate lies inside the right image, the right row's signatures are
+/// read as six byte planes stored right to left, so a pixel's candidates (right columns
+/// `x − d_min` down to `x − d_min − nd + 1`) are one forward run of each plane: the
+/// Hamming distance is the sum of six byte population counts, in vector lanes. Pixels
+/// with candidates off the right image take them one at a time.
 #[inline(always)]
 fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+    let w = right.len();
+    // planes[j][m]: byte j of right[w − 1 − m].
+    let mut planes = vec![0u8; CENSUS_BYTES * w];
+    for (m, &r) in right.iter().rev().enumerate() {
+        for j in 0..CENSUS_BYTES {
+            planes[j * w + m] = (r >> (8 * j)) as u8;
+        }
+    }
+    let plane = |j: usize| &planes[j * w..][..w];
+    let (p0, p1, p2, p3, p4, p5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
     for (x, (&l, cell)) in left.iter().zip(out.chunks_exact_mut(s.nd)).enumerate() {
         let first = x as isize - s.d_min as isize; // right x for k = 0
         if first - s.nd as isize + 1 >= 0 {
-            // Every candidate inside the right image: k walks the right row backwards.
-            let from = first as usize + 1 - s.nd;
-            for (c, &r) in cell
-                .iter_mut()
-                .zip(right[from..=first as usize].iter().rev())
-            {
-                *c = (l ^ r).count_ones() as u8;
-            }
+            // Every candidate inside the right image: k runs forward in the planes.
+            let m = w - 1 - first as usize;
+            let runs = [p0, p1, p2, p3, p4, p5].map(|p| &p[m..m + s.nd]);
+            hamming_runs(l.to_le_bytes(), runs, cell);
         } else {
             for (k, c) in cell.iter_mut().enumerate() {
                 let xr = first - k as isize;
@@ -527,6 +552,24 @@ fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
                 };
             }
         }
+    }
+}
+
+/// `out[k]`: the Hamming distance between the signature whose bytes are `b` and the one
+/// whose bytes are `runs[j][k]`. Byte population counts, which the compiler keeps in
+/// vector lanes (a table lookup per nibble with AVX2).
+#[inline(always)]
+fn hamming_runs(b: [u8; 8], runs: [&[u8]; CENSUS_BYTES], out: &mut [u8]) {
+    let n = out.len();
+    let [r0, r1, r2, r3, r4, r5] = runs.map(|r| &r[..n]);
+    let ones = |a: u8, r: u8| (a ^ r).count_ones() as u8;
+    for k in 0..n {
+        out[k] = ones(b[0], r0[k])
+            + ones(b[1], r1[k])
+            + ones(b[2], r2[k])
+            + ones(b[3], r3[k])
+            + ones(b[4], r4[k])
+            + ones(b[5], r5[k]);
     }
 }
 
@@ -1034,257 +1077,275 @@ const REFINE_RADIUS: usize = 4;
 /// Gauss–Newton steps of [`refine`].
 const REFINE_STEPS: usize = 2;
 
-/// Window sums [`refine`] needs at one whole-pixel shift `b`: with `i = x − b` the
-/// right-view column of left column `x`, `A = R[i+1] − R[i−1]`, `B = R[i+2] − R[i]`,
-/// `E = L[x] − R[i]`, `F = L[x] − R[i+1]`, the sums of `AE, AF, BE, BF, AA, AB, BB`.
-#[derive(Clone, Copy, Default)]
-struct RefineSums([i32; 7]);
+/// One pixel's least-squares terms for [`refine`], linearised at its own estimate `d`:
+/// the right view is read at `x − d` by linear interpolation between its two whole
+/// pixels there, `R[i]` and `R[i + 1]` with `i = x − ⌈d⌉`, and `g = R[i + 1] − R[i]` is
+/// that interpolant's slope, so the linearisation is exact while the estimate stays
+/// between them. With `e = L(x) − R(x − d)`, the window's shift `D` that minimises
+/// `Σ (e + (D − d)·g)²` is `Σ (g²·d − g·e) / Σ g²`, and `g²·d − g·e` is the integer
+/// `g²·⌈d⌉ − g·(L(x) − R[i])`: `weight = g²`, `moment` that. Integers, so window sums
+/// slide exactly and in any order; each fits 31 bits.
+#[derive(Clone, Copy, Default, PartialEq, Debug)]
+struct RefineTerm {
+    weight: i32,
+    moment: i32,
+}
 
-impl RefineSums {
-    /// One window column (`rows` of left column `x`, right column `i = x − b`).
+impl RefineTerm {
+    /// The terms of left column `x` (row `left`) at disparity `d`, or `None` when `d` is
+    /// not finite or a right-view pixel read (`x − ⌈d⌉` and the one after) is off the
+    /// row.
     #[inline(always)]
-    fn column(left: &Grid<u8>, right: &Grid<u8>, rows: Range<usize>, x: usize, i: usize) -> Self {
-        let mut s = Self::default();
-        for y in rows {
-            s.add(Self::pixel(left.row(y), right.row(y), x, i), 1);
+    fn of(left: &[u8], right: &[u8], x: usize, d: f32) -> Option<Self> {
+        let b = d.ceil();
+        let i = x as f32 - b;
+        // Matched disparities are below 4096 and a step stays within a pixel of one, so
+        // the bound on `b` only guards the 31 bits (255²·8192 + 255² < 2³¹).
+        if !(i >= 0.0 && i + 1.0 < right.len() as f32 && b.abs() <= 8192.0) {
+            return None;
         }
-        s
+        let (i, b) = (i as usize, b as i32);
+        let (r0, r1) = (i32::from(right[i]), i32::from(right[i + 1]));
+        let g = r1 - r0;
+        let weight = g * g;
+        Some(Self {
+            weight,
+            moment: weight * b - g * (i32::from(left[x]) - r0),
+        })
     }
 
-    /// One pixel's terms (left column `x` of `left`, right column `i` of `right`).
+    /// The step's disparity from window sums, or `None` without gradient.
     #[inline(always)]
-    fn pixel(left: &[u8], right: &[u8], x: usize, i: usize) -> Self {
-        let (l, r) = (i32::from(left[x]), &right[i - 1..i + 3]);
-        let r: [i32; 4] = [r[0].into(), r[1].into(), r[2].into(), r[3].into()];
-        let (a, b, e, f) = (r[2] - r[0], r[3] - r[1], l - r[1], l - r[2]);
-        Self([a * e, a * f, b * e, b * f, a * a, a * b, b * b])
-    }
-
-    fn add(&mut self, o: Self, sign: i32) {
-        for (a, b) in self.0.iter_mut().zip(o.0) {
-            *a += sign * b;
-        }
-    }
-
-    /// `(Σ g·e, Σ g²)` for the right view read at `x − b + t`: linear interpolation
-    /// between the whole-pixel columns makes `g = ((1−t)A + tB)/2`, `e = (1−t)E + tF`.
-    fn at(&self, t: f32) -> (f32, f32) {
-        let [ae, af, be, bf, aa, ab, bb] = self.0.map(|v| v as f32);
-        let u = 1.0 - t;
-        let num = 0.5 * (u * u * ae + t * u * (af + be) + t * t * bf);
-        let den = 0.25 * (u * u * aa + 2.0 * t * u * ab + t * t * bb);
-        (num, den)
-    }
-
-    /// One Gauss–Newton step from disparity `d` with these sums at whole shift `b`:
-    /// the new disparity, or `None` where the window has no gradient or the estimate
-    /// strays more than 0.75 px from `whole`, the whole pixel it started at.
-    fn step(&self, b: f32, d: f32, whole: f32) -> Option<f32> {
-        let (num, den) = self.at(b - d);
-        let next = d - num / den;
-        (den > 1.0 && (next - whole).abs() <= 0.75).then_some(next)
+    fn solve(weight: i64, moment: i64) -> Option<f32> {
+        (weight > 1).then(|| (moment as f64 / weight as f64) as f32)
     }
 }
 
-/// Least-squares sub-pixel refinement (Lucas–Kanade along the row, 9×9 window). For a
-/// valid disparity `D`, `L(x) ≈ R(x − D) − δ·R′(x − D)` gives the update
-/// `δ = −Σ R′·(L − R(x − D)) / Σ R′²`, with `R` read between pixels by linear
-/// interpolation and `R′` its central difference; two steps from the aggregated-cost
-/// estimate. Each step reads the right view between the whole pixels around its
-/// estimate; the window sums for those are slid from the previous pixel's when it used
-/// the same shift, and each window column is slid down from the row above
-/// ([`ColumnCache`]), so a pixel usually costs two window columns of two pixels each
-/// (640×480, 64 disparities: 38 → 16 ms on one core, the same result bit for bit).
-/// Kept only when it stays within 0.75 px of the nearest whole pixel and the window has
-/// gradient; otherwise the aggregated-cost estimate stays, as it does where the window
-/// (and the right-view pixels it reads) would leave the image.
-fn refine(kernel: Kernel, left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
+/// Least-squares sub-pixel refinement (Lucas–Kanade along the row, 9×9 window, two
+/// Gauss–Newton steps from the aggregated-cost estimate). `L(x) ≈ R(x − D)`: each step
+/// expands every pixel's `R(x − D)` around that pixel's own current estimate
+/// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
+/// integer terms, made once per pixel and slid down the columns and along the rows
+/// (rows in bands of [`REFINE_BAND`] taken in order, bands in parallel). Where every
+/// pixel of a window has the same estimate this is the classic step. That step reads
+/// the whole window at the centre's estimate, so each pixel needs window sums of its
+/// own; these are shared (640×480, 64 disparities, one core: 17.5 → about 7 ms). The
+/// slope is the interpolant's own, so a step is exact while the estimates stay between
+/// the same two whole pixels and the steps settle (a third changes nothing on
+/// `stereo-eval`); the central difference read between pixels, used before, made the
+/// steps swing about the answer.
+///
+/// Pixels without a disparity, or whose reads would leave the image, add nothing to the
+/// windows around them. A step is kept only when the window has gradient (`Σ g² > 1`)
+/// and the result stays within 0.75 px of the nearest whole pixel of the starting
+/// estimate; otherwise the pixel keeps that estimate and takes no further steps (it
+/// still lends its terms, at that estimate, to its neighbours). Only pixels whose whole
+/// window lies in the image are refined. The sums are exact, so results do not depend
+/// on the thread count.
+fn refine(
+    kernel: Kernel,
+    left: &Grid<u8>,
+    right: &Grid<u8>,
+    disparity: &mut Grid<f32>,
+    planes: &mut RefinePlanes,
+) {
     const R: usize = REFINE_RADIUS;
     let (w, h) = (left.width(), left.height());
     if h < 2 * R + 1 || w < 2 * R + 4 {
         return;
     }
-    disparity
-        .as_mut_slice()
-        .par_chunks_mut(w * REFINE_BAND)
-        .enumerate()
-        .for_each(|(band, rows)| {
-            let mut columns = ColumnCache::new(w);
-            for (j, row) in rows.chunks_exact_mut(w).enumerate() {
-                let y = band * REFINE_BAND + j;
-                if y >= R && y + R < h {
-                    run_refine_row(kernel, left, right, y, row, &mut columns);
+    let RefinePlanes { start, live, terms } = planes;
+    start.clear();
+    start.extend_from_slice(disparity.as_slice());
+    let start = Grid::from_vec(w, h, std::mem::take(start)).expect("a copy of the map");
+    // Pixels still taking steps: 1; those that stopped keep their starting estimate.
+    live.clear();
+    live.resize(w * h, 1);
+    // Every pixel's terms are written before they are read.
+    terms.resize(w * h, RefineTerm::default());
+    let mut terms = Grid::from_vec(w, h, std::mem::take(terms)).expect("sized just above");
+    for _ in 0..REFINE_STEPS {
+        terms
+            .as_mut_slice()
+            .par_chunks_mut(w)
+            .zip(disparity.as_slice().par_chunks(w))
+            .enumerate()
+            .for_each(|(y, (out, d))| {
+                run_refine_terms(kernel, (left.row(y), right.row(y)), d, out)
+            });
+        let terms = &terms;
+        disparity
+            .as_mut_slice()
+            .par_chunks_mut(w * REFINE_BAND)
+            .zip(live.par_chunks_mut(w * REFINE_BAND))
+            .enumerate()
+            .for_each(|(band, (rows, live))| {
+                let first = band * REFINE_BAND;
+                let mut columns = ColumnSums::new(w);
+                let rows = rows.chunks_exact_mut(w).zip(live.chunks_exact_mut(w));
+                for (j, (row, live)) in rows.enumerate() {
+                    let y = first + j;
+                    if y < R || y + R >= h {
+                        continue;
+                    }
+                    columns.slide_to(terms, y);
+                    let images = (left.row(y), right.row(y), start.row(y));
+                    run_refine_step(kernel, &columns, images, row, live);
                 }
-            }
-        });
+            });
+    }
+    planes.start = start.into_vec();
+    planes.terms = terms.into_vec();
 }
 
-/// Rows [`refine`] takes in order on one thread, so a window column slides down from the
-/// row above (two pixel rows instead of nine); bands run in parallel.
+/// The planes [`refine`] works in, kept between frames.
+#[derive(Default)]
+struct RefinePlanes {
+    /// The aggregated-cost estimates.
+    start: Vec<f32>,
+    /// Which pixels still take steps.
+    live: Vec<u8>,
+    /// Every pixel's terms at its current estimate.
+    terms: Vec<RefineTerm>,
+}
+
+/// Rows [`refine`] takes in order on one thread, so the window's column sums slide down
+/// from the row above; bands run in parallel.
 const REFINE_BAND: usize = 32;
 
-/// Window column sums by column, the last two shifts each was needed at: `(row, shift,
-/// sums)`, row `usize::MAX` when empty. A column needed at the same shift as in the row
-/// above is slid down from there; the sums are integers, so they are exact either way.
-struct ColumnCache(Vec<[(usize, usize, RefineSums); 2]>);
+/// The [`RefineTerm`]s of every column summed over the nine rows of a window, for the
+/// window around row `row` (`usize::MAX` before the first).
+struct ColumnSums {
+    row: usize,
+    weight: Vec<i64>,
+    moment: Vec<i64>,
+}
 
-impl ColumnCache {
+impl ColumnSums {
     fn new(w: usize) -> Self {
-        Self(vec![[(usize::MAX, 0, RefineSums::default()); 2]; w])
+        Self {
+            row: usize::MAX,
+            weight: vec![0; w],
+            moment: vec![0; w],
+        }
     }
 
-    /// The window column of left column `x` at shift `b` for the window around row `y`.
-    #[inline(always)]
-    fn get(
-        &mut self,
-        left: &Grid<u8>,
-        right: &Grid<u8>,
-        y: usize,
-        x: usize,
-        b: usize,
-    ) -> RefineSums {
+    /// The sums for the window around row `y`: slid down a row from the window around
+    /// `y − 1`, else summed afresh.
+    fn slide_to(&mut self, terms: &Grid<RefineTerm>, y: usize) {
         const R: usize = REFINE_RADIUS;
-        let slots = &mut self.0[x];
-        let i = x - b;
-        let mut found = None;
-        for (k, slot) in slots.iter().enumerate() {
-            if slot.1 == b && slot.0 == y {
-                return slot.2;
-            }
-            if slot.1 == b && slot.0.wrapping_add(1) == y {
-                found = Some(k);
-            }
-        }
-        let (k, sums) = match found {
-            Some(k) => {
-                let mut s = slots[k].2;
-                s.add(
-                    RefineSums::pixel(left.row(y + R), right.row(y + R), x, i),
-                    1,
-                );
-                s.add(
-                    RefineSums::pixel(left.row(y - R - 1), right.row(y - R - 1), x, i),
-                    -1,
-                );
-                (k, s)
-            }
-            None => {
-                // Replace the slot of this shift, else the older one.
-                let k = slots
-                    .iter()
-                    .position(|slot| slot.1 == b)
-                    .unwrap_or(usize::from(
-                        slots[1].0.wrapping_add(1) < slots[0].0.wrapping_add(1),
-                    ));
-                (k, RefineSums::column(left, right, y - R..y + R + 1, x, i))
+        let add = |sums: &mut Self, row: usize, sign: i64| {
+            let cols = sums.weight.iter_mut().zip(sums.moment.iter_mut());
+            for ((w, m), t) in cols.zip(terms.row(row)) {
+                *w += sign * i64::from(t.weight);
+                *m += sign * i64::from(t.moment);
             }
         };
-        slots[k] = (y, b, sums);
-        sums
+        if self.row.wrapping_add(1) == y {
+            add(self, y + R, 1);
+            add(self, y - R - 1, -1);
+        } else {
+            self.weight.fill(0);
+            self.moment.fill(0);
+            for row in y - R..=y + R {
+                add(self, row, 1);
+            }
+        }
+        self.row = y;
     }
 }
 
 #[allow(unsafe_code)]
-fn run_refine_row(
-    kernel: Kernel,
-    left: &Grid<u8>,
-    right: &Grid<u8>,
-    y: usize,
-    row: &mut [f32],
-    columns: &mut ColumnCache,
-) {
+fn run_refine_terms(kernel: Kernel, rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { refine_row_avx2(left, right, y, row, columns) };
+        return unsafe { refine_terms_avx2(rows, d, out) };
     }
     let _ = kernel;
-    refine_row(left, right, y, row, columns)
+    refine_terms(rows, d, out)
 }
 
 /// With AVX2 (and so SSE4.1) the roundings are instructions instead of calls; the same
 /// results.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn refine_row_avx2(
-    left: &Grid<u8>,
-    right: &Grid<u8>,
-    y: usize,
-    row: &mut [f32],
-    columns: &mut ColumnCache,
-) {
-    refine_row(left, right, y, row, columns)
+fn refine_terms_avx2(rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
+    refine_terms(rows, d, out)
 }
 
-/// [`refine`] for row `y` (`row`: its disparities).
+/// One row's [`RefineTerm`]s at the disparities `d` (zero where there are none).
 #[inline(always)]
-fn refine_row(
-    left: &Grid<u8>,
-    right: &Grid<u8>,
-    y: usize,
+fn refine_terms(rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
+    let (left, right) = rows;
+    for (x, (&d, o)) in d.iter().zip(out).enumerate() {
+        *o = RefineTerm::of(left, right, x, d).unwrap_or_default();
+    }
+}
+
+#[allow(unsafe_code)]
+fn run_refine_step(
+    kernel: Kernel,
+    columns: &ColumnSums,
+    images: (&[u8], &[u8], &[f32]),
     row: &mut [f32],
-    columns: &mut ColumnCache,
+    live: &mut [u8],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
+        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
+        return unsafe { refine_step_avx2(columns, images, row, live) };
+    }
+    let _ = kernel;
+    refine_step(columns, images, row, live)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
+fn refine_step_avx2(
+    columns: &ColumnSums,
+    images: (&[u8], &[u8], &[f32]),
+    row: &mut [f32],
+    live: &mut [u8],
+) {
+    refine_step(columns, images, row, live)
+}
+
+/// One Gauss–Newton step of [`refine`] for a row (`row`: its current estimates, `live`:
+/// which still take steps; `images`: the left and right image rows and the starting
+/// estimates), its window sums slid along the row from `columns`.
+#[inline(always)]
+fn refine_step(
+    columns: &ColumnSums,
+    images: (&[u8], &[u8], &[f32]),
+    row: &mut [f32],
+    live: &mut [u8],
 ) {
     const R: usize = REFINE_RADIUS;
-    let w = left.width();
-    // Window sums by shift: this pixel's, and the previous pixel's (column x − 1), which
-    // slide to this one by two columns.
-    let mut prev: Vec<(usize, RefineSums)> = Vec::new();
-    let mut here: Vec<(usize, RefineSums)> = Vec::new();
-    let mut prev_x = usize::MAX;
-    let mut column = |x: usize, b: usize| columns.get(left, right, y, x, b);
-    for (x, v) in row.iter_mut().enumerate().take(w - R).skip(R) {
-        if !v.is_finite() {
+    let (left, right, start) = images;
+    let w = row.len();
+    let (cw, cm) = (&columns.weight, &columns.moment);
+    let mut weight: i64 = cw[..2 * R].iter().sum();
+    let mut moment: i64 = cm[..2 * R].iter().sum();
+    for x in R..w - R {
+        weight += cw[x + R];
+        moment += cm[x + R];
+        if x > R {
+            weight -= cw[x - R - 1];
+            moment -= cm[x - R - 1];
+        }
+        let v = row[x];
+        if live[x] == 0 || !v.is_finite() {
             continue;
         }
-        if prev_x.wrapping_add(1) != x {
-            prev.clear();
-        }
-        here.clear();
-        let whole = v.round();
-        let mut d = *v;
-        let mut ok = true;
-        for _ in 0..REFINE_STEPS {
-            let b = d.ceil();
-            // Right columns x − R − b − 1 ..= x + R − b + 2 must exist.
-            if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
-                ok = false;
-                break;
-            }
-            let b = b as usize;
-            let sums = if let Some(&(_, s)) = here.iter().find(|(k, _)| *k == b) {
-                s
-            } else {
-                let s = match prev.iter().find(|(k, _)| *k == b) {
-                    Some(&(_, mut s)) => {
-                        s.add(column(x + R, b), 1);
-                        s.add(column(x - R - 1, b), -1);
-                        s
-                    }
-                    None => {
-                        let mut s = RefineSums::default();
-                        for xx in x - R..=x + R {
-                            s.add(column(xx, b), 1);
-                        }
-                        s
-                    }
-                };
-                here.push((b, s));
-                s
-            };
-            match sums.step(b as f32, d, whole) {
-                Some(next) => d = next,
-                None => {
-                    ok = false;
-                    break;
-                }
+        let reads = RefineTerm::of(left, right, x, v).is_some();
+        match RefineTerm::solve(weight, moment) {
+            Some(next) if reads && (next - start[x].round()).abs() <= 0.75 => row[x] = next,
+            _ => {
+                row[x] = start[x];
+                live[x] = 0;
             }
         }
-        if ok {
-            *v = d;
-        }
-        std::mem::swap(&mut prev, &mut here);
-        prev_x = x;
     }
 }
 
@@ -1503,7 +1564,10 @@ mod tests {
     #[test]
     fn the_sweeps_sum_each_path_as_defined() {
         let (l, r) = shifted_pair(75, 23, |x, y| 9.0 + 0.1 * x as f32 - 0.2 * y as f32);
-        let (cl, cr) = (census(Kernel::Portable, &l), census(Kernel::Portable, &r));
+        let (cl, cr) = (
+            census(Kernel::Portable, &l, Vec::new()),
+            census(Kernel::Portable, &r, Vec::new()),
+        );
         let straight = [(1, 0), (-1, 0), (0, 1), (0, -1)];
         let from_above = [(1, 0), (-1, 0), (0, 1), (1, 1), (-1, 1)];
         let every = [
@@ -1664,47 +1728,50 @@ mod tests {
         }
     }
 
-    /// The definition of [`refine`]: every window sum from its 81 pixels, no reuse.
+    /// The definition of [`refine`]: every window's sums from its 81 pixels' terms at
+    /// the previous step's estimates, no reuse.
     fn refine_by_definition(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
         const R: usize = REFINE_RADIUS;
         let (w, h) = (left.width(), left.height());
-        for y in R..h.saturating_sub(R) {
-            for x in R..w - R {
-                let v = disparity.get(x, y);
-                if !v.is_finite() {
-                    continue;
-                }
-                let (whole, mut d, mut ok) = (v.round(), v, true);
-                for _ in 0..REFINE_STEPS {
-                    let b = d.ceil();
-                    if b < 0.0 || (x - R) as f32 - b < 1.0 || (x + R) as f32 - b + 2.0 >= w as f32 {
-                        ok = false;
-                        break;
+        let start = disparity.clone();
+        let mut live = Grid::filled(w, h, true);
+        for _ in 0..REFINE_STEPS {
+            let before = disparity.clone();
+            let term = |x: usize, y: usize| {
+                RefineTerm::of(left.row(y), right.row(y), x, before.get(x, y)).unwrap_or_default()
+            };
+            for y in R..h.saturating_sub(R) {
+                for x in R..w - R {
+                    let v = before.get(x, y);
+                    if !live.get(x, y) || !v.is_finite() {
+                        continue;
                     }
-                    let mut sums = RefineSums::default();
-                    for xx in x - R..=x + R {
-                        let c =
-                            RefineSums::column(left, right, y - R..y + R + 1, xx, xx - b as usize);
-                        sums.add(c, 1);
-                    }
-                    match sums.step(b, d, whole) {
-                        Some(next) => d = next,
-                        None => {
-                            ok = false;
-                            break;
+                    let (mut weight, mut moment) = (0i64, 0i64);
+                    for yy in y - R..=y + R {
+                        for xx in x - R..=x + R {
+                            weight += i64::from(term(xx, yy).weight);
+                            moment += i64::from(term(xx, yy).moment);
                         }
                     }
-                }
-                if ok {
-                    disparity.set(x, y, d);
+                    let reads = RefineTerm::of(left.row(y), right.row(y), x, v).is_some();
+                    match RefineTerm::solve(weight, moment) {
+                        Some(next) if reads && (next - start.get(x, y).round()).abs() <= 0.75 => {
+                            disparity.set(x, y, next)
+                        }
+                        _ => {
+                            disparity.set(x, y, start.get(x, y));
+                            live.set(x, y, false);
+                        }
+                    }
                 }
             }
         }
     }
 
-    /// Window sums slid across and down the image (integers, so exact) give the
-    /// definition's disparities bit for bit: on a surface whose disparity changes in both
-    /// directions, with holes, across several row bands.
+    /// Window sums slid down the columns and along the rows (integers, so exact), bands
+    /// of rows in parallel, give the definition's disparities bit for bit: on a surface
+    /// whose disparity changes in both directions, with holes and whole-pixel jumps,
+    /// across several row bands.
     #[test]
     fn refinement_with_slid_sums_is_the_definition() {
         let (w, h) = (200, 2 * REFINE_BAND + 11);
@@ -1720,12 +1787,22 @@ mod tests {
         });
         let mut slow = start.clone();
         refine_by_definition(&l, &r, &mut slow);
+        // Planes kept from a larger frame, as a matcher keeps them between frames.
+        let mut planes = RefinePlanes::default();
+        let (bl, br) = shifted_pair(w + 30, h + 20, |_, _| 25.3);
+        refine(
+            Kernel::best(),
+            &bl,
+            &br,
+            &mut Grid::filled(w + 30, h + 20, 25.0),
+            &mut planes,
+        );
         for kernel in [Kernel::Portable, Kernel::Avx2]
             .into_iter()
             .filter(|k| k.is_available())
         {
             let mut fast = start.clone();
-            refine(kernel, &l, &r, &mut fast);
+            refine(kernel, &l, &r, &mut fast, &mut planes);
             let changed = fast
                 .as_slice()
                 .iter()
@@ -1744,6 +1821,43 @@ mod tests {
                     i % w,
                     i / w
                 );
+            }
+        }
+    }
+
+    /// Analytic: on a brightness ramp `L(x) = 2x + 10`, `R(x) = 2(x + 23.5) + 10` the
+    /// linear interpolant is exact, so every step lands on 23.5 from any estimate that
+    /// rounds to 23 or 24 (whole pixels and holes around it), on either kernel.
+    #[test]
+    fn a_ramp_is_refined_to_its_exact_shift() {
+        let (w, h) = (90, 20);
+        let l = Grid::from_fn(w, h, |x, _| (2 * x + 10) as u8);
+        let r = Grid::from_fn(w, h, |x, _| (2 * x + 57) as u8);
+        let mut rng = crate::rng::Rng::new(4);
+        let start = Grid::from_fn(w, h, |_, _| match rng.uniform() {
+            u if u < 0.1 => f32::NAN,
+            u => 22.8 + u as f32 * 1.4,
+        });
+        for kernel in [Kernel::Portable, Kernel::Avx2]
+            .into_iter()
+            .filter(|k| k.is_available())
+        {
+            let mut d = start.clone();
+            refine(kernel, &l, &r, &mut d, &mut RefinePlanes::default());
+            for y in 0..h {
+                for x in 0..w {
+                    let (v, s) = (d.get(x, y), start.get(x, y));
+                    let inside = (REFINE_RADIUS..h - REFINE_RADIUS).contains(&y)
+                        && (REFINE_RADIUS..w - REFINE_RADIUS).contains(&x)
+                        && x >= 25;
+                    if s.is_nan() {
+                        assert!(v.is_nan(), "{kernel:?} ({x}, {y}): a hole filled");
+                    } else if inside {
+                        assert_eq!(v, 23.5, "{kernel:?} ({x}, {y}) from {s}");
+                    } else {
+                        assert!(v == s || v == 23.5, "{kernel:?} ({x}, {y}): {v} from {s}");
+                    }
+                }
             }
         }
     }
@@ -1773,8 +1887,11 @@ mod tests {
         let q = |f: f64| sorted[((sorted.len() - 1) as f64 * f) as usize];
         // A stretched view resampled by linear interpolation of noise-like texture: the
         // views differ beyond a shift, so no exact answer; whole pixels would give 0.29.
+        // The refinement whose window shared the centre's estimate read RMS 0.130, median
+        // 0.059, p99 0.42 here; the one with each pixel at its own estimate 0.103, 0.092
+        // and 0.19: fewer large errors, a wider middle.
         assert!(
-            rms < 0.15 && q(0.5) < 0.07,
+            rms < 0.12 && q(0.5) < 0.10 && q(0.99) < 0.25,
             "RMS {rms} px, median {} p90 {} p99 {} max {}",
             q(0.5),
             q(0.9),
