@@ -843,6 +843,16 @@ fn pair_directories_report_unpaired_and_unreadable_files() {
 /// Presses with LEDs-off frames give a model on LED light: it keeps the calibration's
 /// ambient light (saved with it), removes each pair's own LEDs-off frame, and falls back
 /// to its estimate without one; a model on raw frames leaves the LEDs-off frame unused.
+/// Press `k` with its dx, dy and LEDs-off frames, named `p{k}`.
+fn press_with_dark(k: u64, (dx, dy, dark): (RgbImage, RgbImage, RgbImage)) -> CalibrationPair {
+    CalibrationPair {
+        name: format!("p{k}"),
+        dx,
+        dy,
+        dark: Some(dark),
+    }
+}
+
 #[test]
 fn leds_off_frames_make_a_model_on_led_light() {
     let optics = Optics {
@@ -862,13 +872,7 @@ fn leds_off_frames_make_a_model_on_led_light() {
                 diameter: 6.0,
                 depth: 0.8 + 0.04 * k as f64,
             }]);
-            let (dx, dy, dark) = frames(&s, 100 + k, [1.0; 3]);
-            CalibrationPair {
-                name: format!("p{k}"),
-                dx,
-                dy,
-                dark: Some(dark),
-            }
+            press_with_dark(k, frames(&s, 100 + k, [1.0; 3]))
         })
         .collect();
     let (rdx, rdy, rdark) = frames(&Scene::default(), 1, [1.0; 3]);
@@ -1059,13 +1063,7 @@ fn saturation_is_judged_press_by_press_on_the_raw_frames() {
                     depth: 0.8 + 0.05 * k as f64,
                 }]
             };
-            let (dx, dy, dark) = frames(shapes, 200 + k);
-            CalibrationPair {
-                name: format!("p{k}"),
-                dx,
-                dy,
-                dark: Some(dark),
-            }
+            press_with_dark(k, frames(shapes, 200 + k))
         })
         .collect();
     let (rdx, rdy, rdark) = frames(Vec::new(), 1);

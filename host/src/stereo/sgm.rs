@@ -1109,28 +1109,33 @@ fn sixteenths(d: f32) -> i64 {
 }
 
 impl RefineTerm {
-    /// The terms of left column `x` (row `left`) at disparity `d`, or `None` when `d` is
-    /// not finite or a right-view pixel read (`x − ⌈d⌉` and the one after) is off the
-    /// row.
+    /// Where left column `x` at disparity `d` reads a row of `w` right-view pixels:
+    /// `(i, ⌈d⌉)` with `i = x − ⌈d⌉` (it reads `i` and `i + 1`), or `None` when `d` is
+    /// not finite or a read is off the row.
     #[inline(always)]
-    fn of(left: &[u8], right: &[u8], x: usize, d: f32) -> Option<Self> {
+    fn reads(x: usize, d: f32, w: usize) -> Option<(usize, i32)> {
         let b = d.ceil();
         let i = x as f32 - b;
         // Matched disparities are below 4096 and a step stays within a pixel of one, so
         // the bound on `b` only guards the 31 bits (255²·8192 + 255² < 2³¹).
-        if !(i >= 0.0 && i + 1.0 < right.len() as f32 && b.abs() <= 8192.0) {
-            return None;
-        }
-        // |16·d| <= 131088: the spread terms fit i64 (255²·131088² < 2⁶³ / 81).
-        let (i, b) = (i as usize, b as i32);
+        (i >= 0.0 && i + 1.0 < w as f32 && b.abs() <= 8192.0).then_some((i as usize, b as i32))
+    }
+
+    /// The terms of left column `x` (row `left`) at disparity `d`, or `None` where it
+    /// reads no right-view pixels ([`RefineTerm::reads`]).
+    #[inline(always)]
+    fn of(left: &[u8], right: &[u8], x: usize, d: f32) -> Option<Self> {
+        let (i, b) = Self::reads(x, d, right.len())?;
         let (r0, r1) = (i32::from(right[i]), i32::from(right[i + 1]));
         let g = r1 - r0;
         let weight = g * g;
+        // |16·d| <= 131088: the spread terms fit i64 (255²·131088² < 2⁶³ / 81).
+        let q = sixteenths(d);
         Some(Self {
             weight,
             moment: weight * b - g * (i32::from(left[x]) - r0),
-            weighted_shift: i64::from(weight) * sixteenths(d),
-            weighted_square: i64::from(weight) * sixteenths(d).pow(2),
+            weighted_shift: i64::from(weight) * q,
+            weighted_square: i64::from(weight) * q * q,
         })
     }
 
@@ -1234,8 +1239,7 @@ fn refine(
                         continue;
                     }
                     columns.slide_to(terms, y);
-                    let images = (left.row(y), right.row(y), start.row(y));
-                    run_refine_step(kernel, &columns, images, row, live);
+                    run_refine_step(kernel, &columns, start.row(y), row, live);
                 }
             });
     }
@@ -1329,42 +1333,32 @@ fn refine_terms(rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
 fn run_refine_step(
     kernel: Kernel,
     columns: &ColumnSums,
-    images: (&[u8], &[u8], &[f32]),
+    start: &[f32],
     row: &mut [f32],
     live: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { refine_step_avx2(columns, images, row, live) };
+        return unsafe { refine_step_avx2(columns, start, row, live) };
     }
     let _ = kernel;
-    refine_step(columns, images, row, live)
+    refine_step(columns, start, row, live)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn refine_step_avx2(
-    columns: &ColumnSums,
-    images: (&[u8], &[u8], &[f32]),
-    row: &mut [f32],
-    live: &mut [u8],
-) {
-    refine_step(columns, images, row, live)
+fn refine_step_avx2(columns: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
+    refine_step(columns, start, row, live)
 }
 
 /// One Gauss–Newton step of [`refine`] for a row (`row`: its current estimates, `live`:
-/// which still take steps; `images`: the left and right image rows and the starting
-/// estimates), its window sums slid along the row from `columns`.
+/// which still take steps, `start`: the starting estimates), its window sums slid along
+/// the row from `columns`. The right row is as wide as `row`, so whether the centre's
+/// own reads are inside it needs only the width.
 #[inline(always)]
-fn refine_step(
-    columns: &ColumnSums,
-    images: (&[u8], &[u8], &[f32]),
-    row: &mut [f32],
-    live: &mut [u8],
-) {
+fn refine_step(columns: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
     const R: usize = REFINE_RADIUS;
-    let (left, right, start) = images;
     let w = row.len();
     let columns = &columns.sums;
     let mut sums: RefineSums = [0; 4];
@@ -1386,7 +1380,7 @@ fn refine_step(
         if live[x] == 0 || !v.is_finite() {
             continue;
         }
-        let reads = RefineTerm::of(left, right, x, v).is_some();
+        let reads = RefineTerm::reads(x, v, w).is_some();
         match RefineTerm::solve(sums, sixteenths(v)) {
             Some(next) if reads && (next - start[x].round()).abs() <= 0.75 => row[x] = next,
             _ => {
