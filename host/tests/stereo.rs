@@ -77,6 +77,11 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
         (bm["matcher"].as_str(), sgm["matcher"].as_str()),
         (Some("bm"), Some("sgm"))
     );
+    // Eight paths unless told; OpenCV's three on request, as accurate on this plane.
+    assert_eq!(
+        (bm.get("sgm_paths"), sgm["sgm_paths"].as_u64()),
+        (None, Some(8))
+    );
     let median = |s: &Value| s["depth_mm"][1].as_f64().unwrap();
     assert!(
         (median(&sgm) - median(&bm)).abs() < 1.5,
@@ -85,6 +90,14 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
         median(&bm)
     );
     assert!(sgm["fill_rate"].as_f64().unwrap() >= bm["fill_rate"].as_f64().unwrap() - 0.01);
+    let (_, three) = run("sgm3", &["--matcher", "sgm", "--sgm-paths", "3"]);
+    assert_eq!(three["sgm_paths"].as_u64(), Some(3));
+    assert!(
+        (median(&three) - median(&sgm)).abs() < 0.5,
+        "{} against {}",
+        median(&three),
+        median(&sgm)
+    );
     let (ok, _, err) = stereotac(&[
         "stereo",
         "--synthetic",

@@ -177,19 +177,23 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
     }
     step();
 
-    // Semi-global matching, 64 disparities: 8, 5 and 4 paths on one thread, 8 on two;
-    // OpenCV's StereoSGBM (3-way, 5×5) on the same images.
+    // Semi-global matching, 64 disparities: 8, 5, 4 and 3 paths on one thread, 8 on
+    // two; 3 paths also without the sub-pixel refinement on the images, as OpenCV's
+    // StereoSGBM (3-way: the same three paths, 5×5) runs on the same images.
     let mut sgm_ms = Vec::new();
-    for (paths, threads, pool) in [
-        (Paths::Eight, 1, &one),
-        (Paths::Five, 1, &one),
-        (Paths::Four, 1, &one),
-        (Paths::Eight, 2, &two),
+    for (paths, refine, threads, pool) in [
+        (Paths::Eight, true, 1, &one),
+        (Paths::Five, true, 1, &one),
+        (Paths::Four, true, 1, &one),
+        (Paths::Three, true, 1, &one),
+        (Paths::Three, false, 1, &one),
+        (Paths::Eight, true, 2, &two),
     ] {
         let m = SemiGlobalMatcher::new(SgmParams {
             min_disparity: params.min_disparity,
             num_disparities: params.num_disparities,
             paths,
+            refine,
             ..SgmParams::default()
         })?;
         let mut last = None;
@@ -199,8 +203,9 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
             })
         });
         let what = format!(
-            "match, SGM {} paths, {:?} (64 d)",
+            "match, SGM {} paths{}, {:?} (64 d)",
             paths.count(),
+            if refine { "" } else { " unrefined" },
             m.kernel()
         );
         let mut r = row(&what, threads, ms, None);
@@ -211,7 +216,7 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
         }
         rows.push(r);
         if threads == 1 && paths != Paths::Four {
-            sgm_ms.push((paths, ms));
+            sgm_ms.push((paths, refine, ms));
         }
     }
     if options.opencv && opencv_skipped.is_none() {
@@ -222,13 +227,13 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
                 r.bad_1px_pct = Some(cv.bad_1px_pct);
                 r.valid_pct = Some(cv.valid_pct);
                 rows.push(r);
-                for (paths, ms) in sgm_ms {
-                    rows.push(row(
-                        &format!("match, SGM {} paths vs OpenCV StereoSGBM", paths.count()),
-                        1,
-                        ms,
-                        Some(("OpenCV StereoSGBM", cv.median_ms)),
-                    ));
+                for (paths, refine, ms) in sgm_ms {
+                    let what = format!(
+                        "match, SGM {} paths{} vs OpenCV StereoSGBM",
+                        paths.count(),
+                        if refine { "" } else { " unrefined" }
+                    );
+                    rows.push(row(&what, 1, ms, Some(("OpenCV StereoSGBM", cv.median_ms))));
                 }
             }
             Err(why) => opencv_skipped = Some(why),

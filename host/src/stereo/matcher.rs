@@ -5,7 +5,7 @@
 use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
-use super::sgm::{SemiGlobalMatcher, SgmParams};
+use super::sgm::{Paths, SemiGlobalMatcher, SgmParams};
 use crate::grid::Grid;
 
 /// Which matcher.
@@ -30,13 +30,19 @@ pub enum Matcher {
 
 impl Matcher {
     /// A matcher of `kind` over the disparities of `range` (its other block-matching
-    /// settings are used by `bm` only; `sgm` takes its defaults).
-    pub fn new(kind: MatcherKind, range: BlockMatchParams) -> Result<Self, MatchError> {
+    /// settings are used by `bm` only); `sgm` aggregates along `sgm_paths` and takes
+    /// its defaults otherwise.
+    pub fn new(
+        kind: MatcherKind,
+        range: BlockMatchParams,
+        sgm_paths: Paths,
+    ) -> Result<Self, MatchError> {
         Ok(match kind {
             MatcherKind::Bm => Self::Block(BlockMatcher::new(range)?),
             MatcherKind::Sgm => Self::SemiGlobal(SemiGlobalMatcher::new(SgmParams {
                 min_disparity: range.min_disparity,
                 num_disparities: range.num_disparities,
+                paths: sgm_paths,
                 ..SgmParams::default()
             })?),
         })
@@ -55,6 +61,14 @@ impl Matcher {
         match self {
             Self::Block(_) => MatcherKind::Bm,
             Self::SemiGlobal(_) => MatcherKind::Sgm,
+        }
+    }
+
+    /// Paths semi-global matching aggregates along (`None` for block matching).
+    pub fn sgm_paths(&self) -> Option<Paths> {
+        match self {
+            Self::Block(_) => None,
+            Self::SemiGlobal(m) => Some(m.params().paths),
         }
     }
 

@@ -9,6 +9,7 @@ use serde::Serialize;
 use super::block_match::{Kernel, MatchStats};
 use super::matcher::MatcherKind;
 use super::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
+use super::sgm::Paths;
 use crate::output::{OutputError, io, write_grey_png, write_npy, write_png16, write_points_ply};
 use crate::picture::{self, ColourRange, RangeChoice};
 
@@ -40,6 +41,9 @@ pub struct StereoSummary {
     pub disparity_range_px: [u32; 2],
     /// The matcher that ran: `bm` or `sgm`.
     pub matcher: MatcherKind,
+    /// Paths semi-global matching aggregated along (`sgm` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sgm_paths: Option<usize>,
     /// The matching kernel that ran.
     pub kernel: Kernel,
     /// Why pixels were rejected.
@@ -204,6 +208,7 @@ pub fn write_outputs(
         baseline_mm: rect.baseline(),
         disparity_range_px: [d_lo, d_hi],
         matcher: pipeline.matcher().kind(),
+        sgm_paths: pipeline.matcher().sgm_paths().map(Paths::count),
         kernel: pipeline.matcher().kernel(),
         stats: frame.stats,
         fill_rate: depths.len() as f64 / (w * h).max(1) as f64,

@@ -13,6 +13,7 @@ use super::outliers::{OutlierParams, grid_inliers};
 use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
 use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
 use super::reproject::{PointCloud, depth_from_disparity, reproject};
+use super::sgm::{Paths, SgmParams};
 use crate::grid::Grid;
 
 /// How the pipeline runs. [`Default`] suits the sensor: depths 5–60 cm, the matcher's
@@ -28,6 +29,8 @@ pub struct StereoConfig {
     pub far_mm: f64,
     /// Which matcher: block matching (default) or semi-global.
     pub matcher: MatcherKind,
+    /// Paths semi-global matching aggregates along (`sgm` only).
+    pub sgm_paths: Paths,
     /// Block matcher window side (odd).
     pub block_size: u32,
     /// Matcher uniqueness ratio, percent.
@@ -52,6 +55,7 @@ impl Default for StereoConfig {
             near_mm: 50.0,
             far_mm: 600.0,
             matcher: MatcherKind::Bm,
+            sgm_paths: SgmParams::default().paths,
             block_size: m.block_size,
             uniqueness_ratio: m.uniqueness_ratio,
             texture_threshold: m.texture_threshold,
@@ -189,7 +193,7 @@ impl StereoPipeline {
                 config.far_mm,
             )?
         };
-        let matcher = Matcher::new(config.matcher, params)?;
+        let matcher = Matcher::new(config.matcher, params, config.sgm_paths)?;
         Ok(Self {
             config,
             maps: rectification.maps(calib),

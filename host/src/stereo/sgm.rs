@@ -1,5 +1,5 @@
 //! Semi-global matching (Hirschmüller, 2008) on rectified pairs: census costs,
-//! aggregation along 4, 5 or 8 image paths, winner-takes-all with a uniqueness ratio,
+//! aggregation along 3, 4, 5 or 8 image paths, winner-takes-all with a uniqueness ratio,
 //! sub-pixel fit, left–right check and speckle removal.
 //!
 //! Block matching decides each pixel from its window alone; here every pixel's cost at
@@ -18,7 +18,7 @@
 //! - **Sweeps**: a sweep takes the rows in order. The first, top to bottom, follows the
 //!   paths along the row and those from the row above (straight down, and for 5 and 8
 //!   paths the two downward diagonals); for 4 and 8 paths a second, bottom to top,
-//!   follows the paths from below. With one sweep (5 paths: along the row both ways)
+//!   follows the paths from below. With one sweep (3 and 5 paths: along the row both ways)
 //!   each row's census costs are made as the sweep comes to it and the row is matched
 //!   as soon as it is passed: no volume is kept. Two sweeps read one cost volume made
 //!   beforehand; the first keeps its sums in a volume that the second adds to row by
@@ -50,11 +50,15 @@ const MAX_VOLUME_MIB: usize = 2048;
 /// Image paths the costs are aggregated along.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Paths {
+    /// Along the row both ways and straight down from the row above: the paths of
+    /// OpenCV's `StereoSGBM` in its 3-way mode, one sweep and no volume like
+    /// [`Paths::Five`]. Fastest; streaks along rows and columns where texture is weak.
+    Three,
     /// Horizontal and vertical, in two sweeps over the rows.
     Four,
     /// Along the row both ways and the three paths from the row above (straight down
     /// and the two downward diagonals): one sweep, each row matched as soon as the
-    /// sweep has passed it, no cost or sum volume. Fastest on one thread.
+    /// sweep has passed it, no cost or sum volume.
     Five,
     /// Every direction and diagonal, in two sweeps: fewest streaks along rows and
     /// columns.
@@ -65,6 +69,7 @@ impl Paths {
     /// How many.
     pub fn count(self) -> usize {
         match self {
+            Paths::Three => 3,
             Paths::Four => 4,
             Paths::Five => 5,
             Paths::Eight => 8,
@@ -305,7 +310,7 @@ impl SemiGlobalMatcher {
             let volumes = schedule.sum_volumes;
             v.fit(cells, volumes);
             let costs = if volumes == 0 {
-                CostSource::Census(&cl, &cr)
+                CostSource::Census(&cl, &cr, kernel)
             } else {
                 let volume = &mut v.cost[..cells];
                 volume
@@ -421,8 +426,12 @@ struct Shape {
 /// into `kept` (its contents are overwritten).
 fn census(kernel: Kernel, img: &Grid<u8>, mut kept: Vec<u64>) -> Grid<u64> {
     let (w, h) = (img.width(), img.height());
-    kept.clear();
-    kept.resize(w * h, 0);
+    // Every signature is written below: a buffer of the right size is taken as it is
+    // (zeroing 2.4 MB a view at 640×480 cost 0.5 ms a frame).
+    if kept.len() != w * h {
+        kept.clear();
+        kept.resize(w * h, 0);
+    }
     let mut out = Grid::from_vec(w, h, kept).expect("sized just above");
     out.as_mut_slice()
         .par_chunks_mut(w.max(1))
@@ -518,40 +527,34 @@ const CENSUS_BYTES: usize = CENSUS_BITS as usize / 8;
 
 /// One row of census costs: `out[x·nd + k]` compares left `x` with right `x − d`.
 ///
-/// Where every candidate lies inside the right image, the right row's signatures are
-/// read as six byte planes stored right to left, so a pixel's candidates (right columns
-/// `x − d_min` down to `x − d_min − nd + 1`) are one forward run of each plane: the
-/// Hamming distance is the sum of six byte population counts, in vector lanes. Pixels
-/// with candidates off the right image take them one at a time.
+/// The right row's signatures are read as six byte planes stored right to left, so a
+/// pixel's candidates (right columns `x − d_min` down to `x − d_min − nd + 1`) are one
+/// forward run of each plane: the Hamming distance is the sum of six byte population
+/// counts, in vector lanes. The planes run on past the image's left edge (zeros), so a
+/// pixel with candidates off the right image reads them as the others and then gives
+/// them the largest cost.
 #[inline(always)]
 fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
     let w = right.len();
-    // planes[j][m]: byte j of right[w − 1 − m].
-    let mut planes = vec![0u8; CENSUS_BYTES * w];
+    // planes[j][m]: byte j of right[w − 1 − m] for m < w; then padding, so every run
+    // of nd from a column m ≤ w − 1 + d_min fits (left x ≥ 0).
+    let len = w + s.nd + s.d_min;
+    let mut planes = vec![0u8; CENSUS_BYTES * len];
     for (m, &r) in right.iter().rev().enumerate() {
         for j in 0..CENSUS_BYTES {
-            planes[j * w + m] = (r >> (8 * j)) as u8;
+            planes[j * len + m] = (r >> (8 * j)) as u8;
         }
     }
-    let plane = |j: usize| &planes[j * w..][..w];
+    let plane = |j: usize| &planes[j * len..][..len];
     let (p0, p1, p2, p3, p4, p5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
     for (x, (&l, cell)) in left.iter().zip(out.chunks_exact_mut(s.nd)).enumerate() {
-        let first = x as isize - s.d_min as isize; // right x for k = 0
-        if first - s.nd as isize + 1 >= 0 {
-            // Every candidate inside the right image: k runs forward in the planes.
-            let m = w - 1 - first as usize;
-            let runs = [p0, p1, p2, p3, p4, p5].map(|p| &p[m..m + s.nd]);
-            hamming_runs(l.to_le_bytes(), runs, cell);
-        } else {
-            for (k, c) in cell.iter_mut().enumerate() {
-                let xr = first - k as isize;
-                *c = if xr >= 0 {
-                    (l ^ right[xr as usize]).count_ones() as u8
-                } else {
-                    CENSUS_BITS
-                };
-            }
-        }
+        // Right x for k = 0 is x − d_min, stored at m = w − 1 − x + d_min.
+        let m = w - 1 - x + s.d_min;
+        let runs = [p0, p1, p2, p3, p4, p5].map(|p| &p[m..m + s.nd]);
+        hamming_runs(l.to_le_bytes(), runs, cell);
+        // Candidates k with x − d_min − k < 0 fall off the right image.
+        let inside = (x + 1).saturating_sub(s.d_min).min(s.nd);
+        cell[inside..].fill(CENSUS_BITS);
     }
 }
 
@@ -602,6 +605,7 @@ impl Paths {
             from_row_before,
         };
         match self {
+            Paths::Three => (down(1, true), None),
             Paths::Four => (down(1, false), Some(up(1))),
             Paths::Five => (down(3, true), None),
             Paths::Eight => (down(3, false), Some(up(3))),
@@ -612,8 +616,8 @@ impl Paths {
 /// Where a sweep reads its census costs.
 #[derive(Clone, Copy)]
 enum CostSource<'a> {
-    /// Made a row at a time from the two views' census signatures.
-    Census(&'a Grid<u64>, &'a Grid<u64>),
+    /// Made a row at a time from the two views' census signatures, with this kernel.
+    Census(&'a Grid<u64>, &'a Grid<u64>, Kernel),
     /// Read from a volume made beforehand (`[y][x][k]`), for two sweeps over one volume.
     Volume(&'a [u8]),
 }
@@ -697,8 +701,8 @@ fn sweep_rows<T: Lane>(
     for i in 0..h {
         let y = if sweep.upward { h - 1 - i } else { i };
         let cost: &[u8] = match source {
-            CostSource::Census(left, right) => {
-                costs(s, left.row(y), right.row(y), &mut made);
+            CostSource::Census(left, right, kernel) => {
+                run_costs(kernel, s, left.row(y), right.row(y), &mut made);
                 &made
             }
             CostSource::Volume(v) => &v[y * w * nd..][..w * nd],
@@ -716,12 +720,22 @@ fn sweep_rows<T: Lane>(
             };
             let c = &cost[x * nd..][..nd];
             let out_sum = &mut sum[x * nd..][..nd];
-            // Along the row (writes the sums).
-            along.pixel::<true>(j == 0, c, pen, out_sum);
             // From the row before: straight, then the diagonals from the column behind
             // and the one ahead.
             let sources = [Some(x), behind, ahead];
-            for (path, source) in sources.iter().enumerate().take(used) {
+            let mut first = 0;
+            if j > 0 && i > 0 {
+                // Along the row and straight down in one run, the sums written once.
+                let from = &prev[0].cost[x * stride..][..stride];
+                let out = &mut cur[0].cost[x * stride + 1..][..nd];
+                cur[0].min[x] =
+                    along.pixel_with_straight(c, from, prev[0].min[x], pen, out, out_sum);
+                first = 1;
+            } else {
+                // Along the row (writes the sums).
+                along.pixel::<true>(j == 0, c, pen, out_sum);
+            }
+            for (path, source) in sources.iter().enumerate().take(used).skip(first) {
                 let out = &mut cur[path].cost[x * stride + 1..][..nd];
                 let least = match *source {
                     Some(sx) if i > 0 => {
@@ -884,6 +898,35 @@ impl<T: Lane> AlongRow<T> {
         }
     }
 
+    /// The next pixel along the row, not its first, and the step of a path from the row
+    /// before (`from`, `from_min`, into `out`) in the same run; writes the sums.
+    /// Returns the other path's minimum.
+    #[inline(always)]
+    fn pixel_with_straight(
+        &mut self,
+        c: &[u8],
+        from: &[T],
+        from_min: T,
+        pen: Penalties<T>,
+        out: &mut [T],
+        sum: &mut [u16],
+    ) -> T {
+        let n = c.len();
+        let next = &mut self.next[1..=n];
+        let (la, lo) = step_two(
+            c,
+            (&self.prev, self.min),
+            (from, from_min),
+            pen,
+            next,
+            out,
+            sum,
+        );
+        self.min = la;
+        std::mem::swap(&mut self.prev, &mut self.next);
+        lo
+    }
+
     /// The next pixel along the row (`first`: where the path starts): its path costs
     /// from its census costs `c`, added to its sums (or written, `SET`).
     #[inline(always)]
@@ -902,6 +945,48 @@ impl<T: Lane> AlongRow<T> {
         };
         std::mem::swap(&mut self.prev, &mut self.next);
     }
+}
+
+/// Two steps of [`step`] in one run over the disparities, writing their sum: the path
+/// along the row (`along`, `along_min`) and another (`other`, `other_min`). Returns
+/// both minima.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn step_two<T: Lane>(
+    cost: &[u8],
+    along: (&[T], T),
+    other: (&[T], T),
+    pen: Penalties<T>,
+    out_along: &mut [T],
+    out_other: &mut [T],
+    sum: &mut [u16],
+) -> (T, T) {
+    let n = out_along.len();
+    let (pa, ma) = along;
+    let (po, mo) = other;
+    let (ja, jo) = (ma.add(pen.p2), mo.add(pen.p2));
+    let (mut la, mut lo) = (T::MAX, T::MAX);
+    let a3 = pa[..n].iter().zip(&pa[1..=n]).zip(&pa[2..n + 2]);
+    let o3 = po[..n].iter().zip(&po[1..=n]).zip(&po[2..n + 2]);
+    let outs = out_along
+        .iter_mut()
+        .zip(out_other.iter_mut())
+        .zip(sum.iter_mut());
+    for ((((oa, oo), s), &c), (((&ab, &am), &aa), ((&ob, &om), &oa2))) in
+        outs.zip(&cost[..n]).zip(a3.zip(o3))
+    {
+        let c = T::of_cost(c);
+        let ba = am.min(ab.min(aa).add_clamped(pen.p1)).min(ja);
+        let bo = om.min(ob.min(oa2).add_clamped(pen.p1)).min(jo);
+        let a = c.add(ba.sub(ma));
+        let o = c.add(bo.sub(mo));
+        *oa = a;
+        *oo = o;
+        *s = a.widen() + o.widen();
+        la = la.min(a);
+        lo = lo.min(o);
+    }
+    (la, lo)
 }
 
 /// A path's first pixel: its costs. Adds them to `sum` (or writes them, `SET`);
@@ -959,48 +1044,133 @@ fn run_select(
     other: Option<&[u16]>,
     out: &mut [f32],
 ) -> MatchStats {
+    match Packing::of(s, p) {
+        Packing::Narrow(shift) => select_with::<u16>(kernel, s, p, sum, other, out, shift),
+        Packing::Wide => select_with::<u32>(kernel, s, p, sum, other, out, 16),
+    }
+}
+
+#[allow(unsafe_code)]
+#[inline(always)]
+fn select_with<P: Packed>(
+    kernel: Kernel,
+    s: &Shape,
+    p: &SgmParams,
+    sum: &[u16],
+    other: Option<&[u16]>,
+    out: &mut [f32],
+    shift: u32,
+) -> MatchStats {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { select_avx2(s, p, sum, other, out) };
+        return unsafe { select_avx2::<P>(s, p, sum, other, out, shift) };
     }
     let _ = kernel;
-    select(s, p, sum, other, out)
+    select::<P>(s, p, sum, other, out, shift)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn select_avx2(
+fn select_avx2<P: Packed>(
     s: &Shape,
     p: &SgmParams,
     sum: &[u16],
     other: Option<&[u16]>,
     out: &mut [f32],
+    shift: u32,
 ) -> MatchStats {
-    select(s, p, sum, other, out)
+    select::<P>(s, p, sum, other, out, shift)
+}
+
+/// How [`select`] packs a candidate's aggregated cost and index into one integer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Packing {
+    /// `cost << shift | k` in 16 bits: every sum and index fit (twice the lanes).
+    Narrow(u32),
+    /// `cost << 16 | k` in 32 bits.
+    Wide,
+}
+
+impl Packing {
+    /// Narrow when the largest sum (every path at its bound, `CENSUS_BITS + p2`) shifted
+    /// past the largest index still fits 16 bits: 3 and 5 paths at the default penalties
+    /// and 64 disparities; 8 paths need the wide packing.
+    fn of(s: &Shape, p: &SgmParams) -> Self {
+        let shift = usize::BITS - (s.nd - 1).leading_zeros();
+        let largest_sum = p.paths.count() as u64 * (u64::from(CENSUS_BITS) + u64::from(p.p2));
+        if largest_sum << shift <= u64::from(u16::MAX) {
+            Packing::Narrow(shift)
+        } else {
+            Packing::Wide
+        }
+    }
+}
+
+/// A candidate's aggregated cost and index `k` in one integer, the cost in the high
+/// bits: the smallest is the least cost at its smallest `k`.
+trait Packed: Copy + Ord {
+    /// Larger than any packed candidate.
+    const MAX: Self;
+    fn pack(cost: u16, k: u16, shift: u32) -> Self;
+    fn cost(self, shift: u32) -> u16;
+    fn index(self, shift: u32) -> usize;
+}
+
+impl Packed for u16 {
+    const MAX: Self = u16::MAX;
+    #[inline(always)]
+    fn pack(cost: u16, k: u16, shift: u32) -> Self {
+        (cost << shift) | k
+    }
+    #[inline(always)]
+    fn cost(self, shift: u32) -> u16 {
+        self >> shift
+    }
+    #[inline(always)]
+    fn index(self, shift: u32) -> usize {
+        usize::from(self & ((1 << shift) - 1))
+    }
+}
+
+impl Packed for u32 {
+    const MAX: Self = u32::MAX;
+    #[inline(always)]
+    fn pack(cost: u16, k: u16, shift: u32) -> Self {
+        (u32::from(cost) << shift) | u32::from(k)
+    }
+    #[inline(always)]
+    fn cost(self, shift: u32) -> u16 {
+        (self >> shift) as u16
+    }
+    #[inline(always)]
+    fn index(self, shift: u32) -> usize {
+        (self & ((1 << shift) - 1)) as usize
+    }
 }
 
 /// One row's disparities from its aggregated sums (`sum`, plus `other` when the paths
 /// were summed in two volumes): winner takes all, uniqueness, sub-pixel fit, left–right
-/// check.
+/// check. Candidates are packed as `P` with the index in the low `shift` bits.
 #[inline(always)]
-fn select(
+fn select<P: Packed>(
     s: &Shape,
     p: &SgmParams,
     sum: &[u16],
     other: Option<&[u16]>,
     out: &mut [f32],
+    shift: u32,
 ) -> MatchStats {
     let (w, nd) = (s.w, s.nd);
     let mut stats = MatchStats::default();
     let mut total = vec![0u16; nd];
-    let mut packed = vec![0u32; nd];
+    let mut packed = vec![P::MAX; nd];
     let index: Vec<u16> = (0..nd as u16).collect();
-    // The right image's best match per column, as `cost << 16 | k` so one `min` keeps
-    // both (ties: the smaller k), stored by `j = w − 1 − right column`: the candidates
-    // k of left column x are then the contiguous run `j = w − 1 − x + d_min + k`.
+    // The right image's best match per column, packed so one `min` keeps both (ties:
+    // the smaller k), stored by `j = w − 1 − right column`: the candidates k of left
+    // column x are then the contiguous run `j = w − 1 − x + d_min + k`.
     let check = p.lr_max_diff.is_some();
-    let mut right = vec![u32::MAX; w];
+    let mut right = vec![P::MAX; w];
     let d_max = s.d_min + nd - 1;
     let mut best_k = vec![u16::MAX; w];
     for x in 0..w {
@@ -1015,11 +1185,11 @@ fn select(
             }
             None => a,
         };
-        // The best candidate comes with the packing: the smallest `cost << 16 | k` is
-        // the least cost at its smallest k.
-        let mut least = u32::MAX;
+        // The best candidate comes with the packing: the smallest packed value is the
+        // least cost at its smallest k.
+        let mut least = P::MAX;
         for ((q, &t), &k) in packed.iter_mut().zip(cell).zip(&index) {
-            *q = (u32::from(t) << 16) | u32::from(k);
+            *q = P::pack(t, k, shift);
             least = least.min(*q);
         }
         if check && x >= s.d_min {
@@ -1033,12 +1203,14 @@ fn select(
         if x < d_max {
             continue; // candidates off the right image: the invalid band
         }
-        let (best, k) = ((least >> 16) as u16, (least & 0xffff) as usize);
+        let (best, k) = (least.cost(shift), least.index(shift));
         // Not unique: another candidate, not next to the best, within the ratio. A best
         // cost of 0 tied elsewhere counts as not unique (OpenCV's strict test keeps it).
         let limit = (u32::from(best) * 100).saturating_sub(1) / (100 - p.uniqueness_ratio);
         let t = limit.min(u32::from(u16::MAX)) as u16;
-        let within = cell.iter().filter(|&&c| c <= t).count();
+        // Counted in 16-bit lanes (a `count()` widens every lane to 64 bits); at most
+        // `nd` candidates, and `nd` fits 16 bits.
+        let within = cell.iter().fold(0u16, |n, &c| n + u16::from(c <= t));
         let near = (k.saturating_sub(1)..=(k + 1).min(nd - 1))
             .filter(|&i| cell[i] <= t)
             .count();
@@ -1046,7 +1218,7 @@ fn select(
             stats.range_edge += 1;
             continue;
         }
-        if within > near {
+        if usize::from(within) > near {
             stats.not_unique += 1;
             continue;
         }
@@ -1061,7 +1233,7 @@ fn select(
                 continue;
             }
             let xr = x - s.d_min - usize::from(k);
-            let right_k = (right[w - 1 - xr] & 0xffff) as usize;
+            let right_k = right[w - 1 - xr].index(shift);
             if right_k.abs_diff(usize::from(k)) > max_diff as usize {
                 out[x] = f32::NAN;
                 stats.left_right += 1;
@@ -1444,7 +1616,7 @@ mod tests {
     #[test]
     fn a_constant_shift_is_found_exactly_by_every_variant() {
         let (l, r) = shifted_pair(160, 60, |_, _| 23.0);
-        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
             for kernel in [Kernel::Portable, Kernel::Avx2]
                 .into_iter()
                 .filter(|k| k.is_available())
@@ -1573,7 +1745,7 @@ mod tests {
                 kernel,
                 &s,
                 p,
-                CostSource::Census(left, right),
+                CostSource::Census(left, right, kernel),
                 first,
                 None,
                 &mut add,
@@ -1610,6 +1782,7 @@ mod tests {
             census(Kernel::Portable, &l, Vec::new()),
             census(Kernel::Portable, &r, Vec::new()),
         );
+        let along_and_down = [(1, 0), (-1, 0), (0, 1)];
         let straight = [(1, 0), (-1, 0), (0, 1), (0, -1)];
         let from_above = [(1, 0), (-1, 0), (0, 1), (1, 1), (-1, 1)];
         let every = [
@@ -1623,6 +1796,7 @@ mod tests {
             (-1, -1),
         ];
         for (paths, directions) in [
+            (Paths::Three, &along_and_down[..]),
             (Paths::Four, &straight[..]),
             (Paths::Five, &from_above[..]),
             (Paths::Eight, &every[..]),
@@ -1653,6 +1827,84 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Selection packs candidates in 16 bits where every sum and index fit (3 and 5
+    /// paths at the default penalties and 64 disparities) and in 32 otherwise; both give
+    /// the same disparities and counts, bit for bit, on sums up to the bound (ties
+    /// included: sums drawn from a few values).
+    #[test]
+    fn narrow_and_wide_packing_select_the_same() {
+        let shape = |nd| Shape {
+            w: 120,
+            h: 1,
+            nd,
+            d_min: 2,
+        };
+        let at = |paths, nd: usize| SgmParams {
+            paths,
+            num_disparities: nd as u32,
+            ..SgmParams::default()
+        };
+        assert_eq!(
+            Packing::of(&shape(64), &at(Paths::Three, 64)),
+            Packing::Narrow(6)
+        );
+        assert_eq!(
+            Packing::of(&shape(64), &at(Paths::Five, 64)),
+            Packing::Narrow(6)
+        );
+        assert_eq!(
+            Packing::of(&shape(64), &at(Paths::Eight, 64)),
+            Packing::Wide
+        );
+        assert_eq!(
+            Packing::of(&shape(128), &at(Paths::Five, 128)),
+            Packing::Wide
+        );
+        let mut rng = crate::rng::Rng::new(11);
+        for (paths, nd) in [(Paths::Three, 64), (Paths::Five, 64), (Paths::Three, 48)] {
+            let (s, p) = (shape(nd), at(paths, nd));
+            let Packing::Narrow(shift) = Packing::of(&s, &p) else {
+                panic!("{paths:?} {nd}: narrow expected");
+            };
+            let largest = paths.count() as u16 * (u16::from(CENSUS_BITS) + p.p2);
+            let mut draw = |n: u64| (rng.next_u64() % n) as u16;
+            let mut valid = 0;
+            for round in 0..50 {
+                // Each pixel: a clear minimum at a random candidate over costs from the
+                // top half; in odd rounds the costs take few values (ties), and every
+                // fourth pixel's minimum is tied with another candidate.
+                let mut sum = vec![0u16; s.w * nd];
+                for cell in sum.chunks_exact_mut(nd) {
+                    for c in cell.iter_mut() {
+                        *c = if round % 2 == 1 {
+                            largest - 50 * draw(4)
+                        } else {
+                            largest / 2 + draw(u64::from(largest / 2) + 1)
+                        };
+                    }
+                    let k = usize::from(draw(nd as u64));
+                    cell[k] = draw(u64::from(largest / 4));
+                    if draw(4) == 0 {
+                        cell[usize::from(draw(nd as u64))] = cell[k];
+                    }
+                }
+                let mut narrow = vec![f32::NAN; s.w];
+                let mut wide = vec![f32::NAN; s.w];
+                let a = select::<u16>(&s, &p, &sum, None, &mut narrow, shift);
+                let b = select::<u32>(&s, &p, &sum, None, &mut wide, 16);
+                assert_eq!(a, b, "{paths:?} {nd} round {round}");
+                let same = narrow
+                    .iter()
+                    .zip(&wide)
+                    .all(|(x, y)| x.to_bits() == y.to_bits());
+                assert!(same, "{paths:?} {nd} round {round}");
+                valid += narrow.iter().filter(|v| v.is_finite()).count();
+            }
+            // The comparison covers chosen disparities, not only refusals.
+            assert!(valid > 50 * (120 - nd) / 4, "{paths:?} {nd}: {valid}");
         }
     }
 
@@ -1713,7 +1965,7 @@ mod tests {
     #[test]
     fn the_schedule_fits_whatever_the_threads() {
         let fits = |s: Schedule| s.bytes >> 20 <= MAX_VOLUME_MIB;
-        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
             for (w, h, nd) in [
                 (640, 480, 64),
                 (4096, 2000, 64),
@@ -1753,7 +2005,7 @@ mod tests {
                 .unwrap()
         };
         let (one, two) = (pool(1), pool(2));
-        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
             let m = matcher(paths, Kernel::best());
             let a = one.install(|| m.compute(&l, &r).unwrap());
             let b = two.install(|| m.compute(&l, &r).unwrap());
@@ -2024,7 +2276,7 @@ mod tests {
 
     #[test]
     fn odd_sizes_and_parameters_are_handled() {
-        for paths in [Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
             let m = matcher(paths, Kernel::best());
             for (w, h) in [(0, 0), (1, 1), (70, 7), (64, 100), (71, 6)] {
                 let g = Grid::filled(w, h, 9u8);

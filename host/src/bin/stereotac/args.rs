@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use stereotac::clock::HostMicros;
 use stereotac::device::Sensor;
-use stereotac::stereo::{MatcherKind, StereoConfig};
+use stereotac::stereo::{MatcherKind, Paths, StereoConfig};
 use stereotac_protocol::Mode;
 
 /// Lighting modes on the command line.
@@ -131,6 +131,39 @@ pub struct PipelineArgs {
     /// weakly textured surfaces, several times block matching's time).
     #[arg(long, value_enum, default_value_t = MatcherArg::Bm)]
     pub matcher: MatcherArg,
+    /// Paths semi-global matching aggregates along: 8 (every direction, fewest
+    /// streaks), 5 or 4, or 3 (along the row both ways and down, as OpenCV's
+    /// StereoSGBM 3-way: fastest). Used with `--matcher sgm`.
+    #[arg(long, value_enum, default_value_t = SgmPathsArg::Eight)]
+    pub sgm_paths: SgmPathsArg,
+}
+
+/// `--sgm-paths`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SgmPathsArg {
+    /// Along the row both ways and straight down.
+    #[value(name = "3")]
+    Three,
+    /// Horizontal and vertical.
+    #[value(name = "4")]
+    Four,
+    /// Along the row both ways and the three from above.
+    #[value(name = "5")]
+    Five,
+    /// Every direction and diagonal.
+    #[value(name = "8")]
+    Eight,
+}
+
+impl From<SgmPathsArg> for Paths {
+    fn from(p: SgmPathsArg) -> Self {
+        match p {
+            SgmPathsArg::Three => Paths::Three,
+            SgmPathsArg::Four => Paths::Four,
+            SgmPathsArg::Five => Paths::Five,
+            SgmPathsArg::Eight => Paths::Eight,
+        }
+    }
 }
 
 /// `--matcher`.
@@ -160,6 +193,7 @@ impl Default for PipelineArgs {
             scale: c.rectify_scale,
             block_size: c.block_size,
             matcher: MatcherArg::Bm,
+            sgm_paths: SgmPathsArg::Eight,
         }
     }
 }
@@ -173,6 +207,7 @@ impl PipelineArgs {
             rectify_scale: self.scale,
             block_size: self.block_size,
             matcher: self.matcher.into(),
+            sgm_paths: self.sgm_paths.into(),
             ..StereoConfig::default()
         }
     }

@@ -14,7 +14,7 @@ use crate::progress::bar;
 /// `stereotac stereo-eval`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Target distances, mm.
+    /// Target distances, mm, separated by commas (`--distances 100,200,300`).
     #[arg(long, value_delimiter = ',', default_values_t = [100.0, 150.0, 200.0, 250.0, 300.0])]
     pub distances: Vec<f64>,
     /// Frames per distance.
