@@ -14,6 +14,7 @@ use stereotac::stereo::matcher::MatcherKind;
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
 use stereotac::stereo::postfilter::HoleFill;
+use stereotac::stereo::sgm::Paths;
 
 use crate::arrays::{grey_grid, grey_grid_into, grid_array, rows_array, vec_array};
 use crate::errors::{bad_input, py_result};
@@ -56,9 +57,10 @@ impl PyStereoRig {
     /// pipeline: depths searched from `near_mm` to `far_mm`, matcher "bm" (block
     /// matching) or "sgm" (semi-global), the spatial filter on, holes up to `fill_holes`
     /// px filled, outliers removed when `outliers` is true (the defaults of
-    /// `stereotac stereo`). Keys of a file that its format does not have are warned about.
+    /// `stereotac stereo`); `sgm_paths` (3, 4, 5 or 8) are the paths semi-global matching
+    /// aggregates along. Keys of a file that its format does not have are warned about.
     #[staticmethod]
-    #[pyo3(signature = (source, units = "mm", matcher = "bm", near_mm = None, far_mm = None, scale = None, block_size = None, spatial = true, fill_holes = 0, outliers = false))]
+    #[pyo3(signature = (source, units = "mm", matcher = "bm", near_mm = None, far_mm = None, scale = None, block_size = None, spatial = true, fill_holes = 0, outliers = false, sgm_paths = 8))]
     #[allow(clippy::too_many_arguments)]
     fn load(
         py: Python<'_>,
@@ -72,6 +74,7 @@ impl PyStereoRig {
         spatial: bool,
         fill_holes: usize,
         outliers: bool,
+        sgm_paths: u32,
     ) -> PyResult<Self> {
         let files = calibration_files(source)?;
         let unit: LengthUnit = units
@@ -86,6 +89,18 @@ impl PyStereoRig {
                 )));
             }
         };
+        let sgm_paths = match sgm_paths {
+            3 => Paths::Three,
+            4 => Paths::Four,
+            5 => Paths::Five,
+            8 => Paths::Eight,
+            other => {
+                return Err(bad_input(format!(
+                    "sgm_paths={other}: 3, 4, 5 or 8 (8: every direction, the default; 3: \
+                     along the row both ways and down, the fastest)"
+                )));
+            }
+        };
         let (calib, notes) = py_result(StereoCalibration::load_noting(&files, unit))?;
         for note in notes {
             crate::errors::warn(py, &note)?;
@@ -97,6 +112,7 @@ impl PyStereoRig {
             rectify_scale: scale.unwrap_or(d.rectify_scale),
             block_size: block_size.unwrap_or(d.block_size),
             matcher,
+            sgm_paths,
             spatial: if spatial { d.spatial } else { None },
             hole_fill: (fill_holes > 0).then_some(HoleFill {
                 max_width: fill_holes,

@@ -125,6 +125,7 @@ class StereoRig:
         spatial: bool = True,
         fill_holes: int = 0,
         outliers: bool = False,
+        sgm_paths: int = 8,
     ) -> "StereoRig": ...
     def compute(self, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> StereoResult: ...
 

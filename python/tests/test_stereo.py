@@ -58,6 +58,26 @@ def test_bad_inputs_raise_clearly(stereo_capture, tmp_path):
         stereotac.StereoRig.load(stereo_capture / "input_calibration.yaml", matcher="census")
     with pytest.raises(stereotac.BadInputError, match="units"):
         stereotac.StereoRig.load(stereo_capture / "input_calibration.yaml", units="inch")
+    with pytest.raises(stereotac.BadInputError, match="sgm_paths=6: 3, 4, 5 or 8"):
+        stereotac.StereoRig.load(
+            stereo_capture / "input_calibration.yaml", matcher="sgm", sgm_paths=6
+        )
+
+
+def test_semi_global_paths(stereo_capture):
+    # Three paths (OpenCV StereoSGBM 3-way's) and eight put the tilted plane's median
+    # at the same depth.
+    calib = stereo_capture / "input_calibration.yaml"
+    left = stereotac.load_grey(stereo_capture / "input_left.png")
+    right = stereotac.load_grey(stereo_capture / "input_right.png")
+    medians = []
+    for paths in (3, 8):
+        rig = stereotac.StereoRig.load(calib, matcher="sgm", sgm_paths=paths)
+        s = rig.compute(left, right)
+        assert s.fill_rate > 0.7
+        medians.append(float(np.median(s.depth[np.isfinite(s.depth)])))
+    assert abs(medians[0] - medians[1]) < 0.5, medians
+    assert 120 < medians[0] < 180
 
 
 def test_metres_need_units(stereo_capture, tmp_path):
