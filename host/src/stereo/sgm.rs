@@ -975,11 +975,8 @@ fn step_two<T: Lane>(
     for ((((oa, oo), s), &c), (((&ab, &am), &aa), ((&ob, &om), &oa2))) in
         outs.zip(&cost[..n]).zip(a3.zip(o3))
     {
-        let c = T::of_cost(c);
-        let ba = am.min(ab.min(aa).add_clamped(pen.p1)).min(ja);
-        let bo = om.min(ob.min(oa2).add_clamped(pen.p1)).min(jo);
-        let a = c.add(ba.sub(ma));
-        let o = c.add(bo.sub(mo));
+        let a = path_cost(c, (ab, am, aa), ma, ja, pen.p1);
+        let o = path_cost(c, (ob, om, oa2), mo, jo, pen.p1);
         *oa = a;
         *oo = o;
         *s = a.widen() + o.widen();
@@ -987,6 +984,16 @@ fn step_two<T: Lane>(
         lo = lo.min(o);
     }
     (la, lo)
+}
+
+/// One disparity's path cost from its census cost `c` and the previous pixel's path
+/// costs at `d − 1`, `d`, `d + 1` (`around`), their minimum over every `d` (`prev_min`)
+/// and that plus `p2` (`jump`): [`step`]'s formula, which [`step_two`] shares.
+#[inline(always)]
+fn path_cost<T: Lane>(c: u8, around: (T, T, T), prev_min: T, jump: T, p1: T) -> T {
+    let (below, here, above) = around;
+    let best = here.min(below.min(above).add_clamped(p1)).min(jump);
+    T::of_cost(c).add(best.sub(prev_min))
 }
 
 /// A path's first pixel: its costs. Adds them to `sum` (or writes them, `SET`);
@@ -1027,8 +1034,7 @@ fn step<T: Lane, const SET: bool>(
         .zip(cost)
         .zip(below.iter().zip(here).zip(above));
     for (((o, s), &c), ((&b, &m), &a)) in lanes {
-        let best = m.min(b.min(a).add_clamped(pen.p1)).min(jump);
-        *o = T::of_cost(c).add(best.sub(prev_min));
+        *o = path_cost(c, (b, m, a), prev_min, jump, pen.p1);
         *s = if SET { o.widen() } else { *s + o.widen() };
         least = least.min(*o);
     }
