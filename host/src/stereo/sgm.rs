@@ -193,7 +193,7 @@ struct Volumes {
     cost: Vec<u8>,
     first: Vec<u16>,
     second: Vec<u16>,
-    census: [Vec<u64>; 2],
+    census: [Vec<u8>; 2],
     refine: RefinePlanes,
 }
 
@@ -293,9 +293,12 @@ impl SemiGlobalMatcher {
                 });
             }
             let [kl, kr] = &mut v.census;
+            let right_view = View::Right {
+                pad: nd + p.min_disparity as usize,
+            };
             let (cl, cr) = rayon::join(
-                || census(self.kernel, left, std::mem::take(kl)),
-                || census(self.kernel, right, std::mem::take(kr)),
+                || census(self.kernel, left, View::Left, std::mem::take(kl)),
+                || census(self.kernel, right, right_view, std::mem::take(kr)),
             );
             let shape = Shape {
                 w,
@@ -365,7 +368,8 @@ impl SemiGlobalMatcher {
 }
 
 /// How [`SemiGlobalMatcher::compute`] runs the sweeps and the memory that takes, beyond
-/// the two census images (16 bytes a pixel) and the disparity map.
+/// the two census images (six bytes a pixel, the right view's rows padded by the
+/// disparities searched) and the disparity map.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Schedule {
     /// Sum volumes kept: 0 (one sweep: each row matched as it is passed), 1 (the second
@@ -421,53 +425,122 @@ struct Shape {
     d_min: usize,
 }
 
-/// 7×7 census signatures: bit set where the neighbour is brighter than the centre
-/// (neighbours outside the image are read at the nearest edge pixel). Rows in parallel,
-/// into `kept` (its contents are overwritten).
-fn census(kernel: Kernel, img: &Grid<u8>, mut kept: Vec<u64>) -> Grid<u64> {
-    let (w, h) = (img.width(), img.height());
-    // Every signature is written below: a buffer of the right size is taken as it is
-    // (zeroing 2.4 MB a view at 640×480 cost 0.5 ms a frame).
-    if kept.len() != w * h {
-        kept.clear();
-        kept.resize(w * h, 0);
+/// Which view a census is made for, which sets how its planes are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum View {
+    /// Left to right.
+    Left,
+    /// Right to left with `pad` bytes after each plane row, so a left pixel's
+    /// candidates (right columns `x − d_min` down to `x − d_min − nd + 1`) are one
+    /// forward run of each plane ([`costs`]): `pad ≥ nd + d_min` keeps every run inside.
+    Right { pad: usize },
+}
+
+/// 7×7 census signatures of one view (bit set where the neighbour is brighter than the
+/// centre; neighbours outside the image are read at the nearest edge pixel), kept as six
+/// byte planes a row, as [`costs`] reads them: byte `j` of every pixel of row `y` is
+/// the run `data[(y·6 + j)·stride..]`, the `j`-th eight comparisons, the first in the
+/// top bit.
+struct CensusPlanes {
+    /// What [`CensusPlanes::signature`] needs to find a pixel.
+    #[cfg(test)]
+    width: usize,
+    #[cfg(test)]
+    height: usize,
+    #[cfg(test)]
+    view: View,
+    /// Bytes a plane row: the width, plus the right view's padding.
+    stride: usize,
+    data: Vec<u8>,
+}
+
+impl CensusPlanes {
+    /// Row `y`'s six planes, `stride` bytes each.
+    fn row(&self, y: usize) -> [&[u8]; CENSUS_BYTES] {
+        let row = &self.data[y * CENSUS_BYTES * self.stride..][..CENSUS_BYTES * self.stride];
+        std::array::from_fn(|j| &row[j * self.stride..][..self.stride])
     }
-    let mut out = Grid::from_vec(w, h, kept).expect("sized just above");
-    out.as_mut_slice()
-        .par_chunks_mut(w.max(1))
+
+    /// The buffer, to be kept for the next frame.
+    fn into_vec(self) -> Vec<u8> {
+        self.data
+    }
+
+    /// Pixel `(x, y)`'s signature, byte `j` in bits `8j..8j + 8`.
+    #[cfg(test)]
+    fn signature(&self, x: usize, y: usize) -> u64 {
+        let at = match self.view {
+            View::Left => x,
+            View::Right { .. } => self.width - 1 - x,
+        };
+        self.row(y)
+            .iter()
+            .enumerate()
+            .map(|(j, plane)| u64::from(plane[at]) << (8 * j))
+            .sum()
+    }
+}
+
+/// The census of `img` for `view`, rows in parallel, into `kept` (its contents are
+/// overwritten; the right view's padding is never read as a cost).
+fn census(kernel: Kernel, img: &Grid<u8>, view: View, mut kept: Vec<u8>) -> CensusPlanes {
+    let (w, h) = (img.width(), img.height());
+    let stride = match view {
+        View::Left => w,
+        View::Right { pad } => w + pad,
+    };
+    let len = h * CENSUS_BYTES * stride;
+    // Every plane byte a cost reads is written below: a buffer of the right size is
+    // taken as it is (zeroing it cost 0.5 ms a frame at 640×480).
+    if kept.len() != len {
+        kept.clear();
+        kept.resize(len, 0);
+    }
+    kept.par_chunks_mut((CENSUS_BYTES * stride).max(1))
         .enumerate()
-        .for_each(|(y, bits)| run_census_row(kernel, img, y, bits));
-    out
+        .for_each(|(y, planes)| run_census_row(kernel, img, y, view, planes));
+    CensusPlanes {
+        #[cfg(test)]
+        width: w,
+        #[cfg(test)]
+        height: h,
+        #[cfg(test)]
+        view,
+        stride,
+        data: kept,
+    }
 }
 
 #[allow(unsafe_code)]
-fn run_census_row(kernel: Kernel, img: &Grid<u8>, y: usize, bits: &mut [u64]) {
+fn run_census_row(kernel: Kernel, img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { census_row_avx2(img, y, bits) };
+        return unsafe { census_row_avx2(img, y, view, planes) };
     }
     let _ = kernel;
-    census_row(img, y, bits)
+    census_row(img, y, view, planes)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn census_row_avx2(img: &Grid<u8>, y: usize, bits: &mut [u64]) {
-    census_row(img, y, bits)
+fn census_row_avx2(img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
+    census_row(img, y, view, planes)
 }
 
-/// One row of census signatures. One comparison of every pixel at a time, eight of
-/// them gathered in byte lanes before they join the 64-bit signature, so the work runs
-/// in vector lanes.
+/// One row of census planes (`planes`: the row's six plane rows, each `len / 6` bytes).
+/// One comparison of every pixel at a time, eight of them gathered in byte lanes, and
+/// each byte written to its plane (reversed for the right view), so the work runs in
+/// vector lanes.
 #[inline(always)]
-fn census_row(img: &Grid<u8>, y: usize, bits: &mut [u64]) {
+fn census_row(img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
     let (w, h) = (img.width(), img.height());
+    let stride = planes.len() / CENSUS_BYTES;
     let r = CENSUS_RADIUS;
     let centre = img.row(y);
     let mut shifted = vec![0u8; w];
     let mut byte = vec![0u8; w];
-    let mut taken = 0u32;
+    let mut taken = 0usize;
     for dy in 0..=2 * r {
         let src = img.row((y + dy).saturating_sub(r).min(h - 1));
         for dx in 0..=2 * r {
@@ -480,8 +553,14 @@ fn census_row(img: &Grid<u8>, y: usize, bits: &mut [u64]) {
             }
             taken += 1;
             if taken.is_multiple_of(8) {
-                for (o, &b) in bits.iter_mut().zip(&byte) {
-                    *o = (*o << 8) | u64::from(b);
+                let plane = &mut planes[(taken / 8 - 1) * stride..][..w];
+                match view {
+                    View::Left => plane.copy_from_slice(&byte),
+                    View::Right { .. } => {
+                        for (o, &b) in plane.iter_mut().zip(byte.iter().rev()) {
+                            *o = b;
+                        }
+                    }
                 }
             }
         }
@@ -505,8 +584,11 @@ fn shift_clamped(src: &[u8], shift: isize, out: &mut [u8]) {
     }
 }
 
+/// A row's census planes, as [`costs`] takes them.
+type PlaneRow<'a> = [&'a [u8]; CENSUS_BYTES];
+
 #[allow(unsafe_code)]
-fn run_costs(kernel: Kernel, s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+fn run_costs(kernel: Kernel, s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>, out: &mut [u8]) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
@@ -518,7 +600,7 @@ fn run_costs(kernel: Kernel, s: &Shape, left: &[u64], right: &[u64], out: &mut [
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn costs_avx2(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
+fn costs_avx2(s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>, out: &mut [u8]) {
     costs(s, left, right, out)
 }
 
@@ -527,31 +609,22 @@ const CENSUS_BYTES: usize = CENSUS_BITS as usize / 8;
 
 /// One row of census costs: `out[x·nd + k]` compares left `x` with right `x − d`.
 ///
-/// The right row's signatures are read as six byte planes stored right to left, so a
-/// pixel's candidates (right columns `x − d_min` down to `x − d_min − nd + 1`) are one
-/// forward run of each plane: the Hamming distance is the sum of six byte population
-/// counts, in vector lanes. The planes run on past the image's left edge (zeros), so a
-/// pixel with candidates off the right image reads them as the others and then gives
-/// them the largest cost.
+/// The right view's planes are stored right to left ([`View::Right`]), so a pixel's
+/// candidates (right columns `x − d_min` down to `x − d_min − nd + 1`) are one forward
+/// run of each plane: the Hamming distance is the sum of six byte population counts, in
+/// vector lanes. The planes run on past the image's left edge (the padding), so a pixel
+/// with candidates off the right image reads them as the others and then gives them the
+/// largest cost.
 #[inline(always)]
-fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
-    let w = right.len();
-    // planes[j][m]: byte j of right[w − 1 − m] for m < w; then padding, so every run
-    // of nd from a column m ≤ w − 1 + d_min fits (left x ≥ 0).
-    let len = w + s.nd + s.d_min;
-    let mut planes = vec![0u8; CENSUS_BYTES * len];
-    for (m, &r) in right.iter().rev().enumerate() {
-        for j in 0..CENSUS_BYTES {
-            planes[j * len + m] = (r >> (8 * j)) as u8;
-        }
-    }
-    let plane = |j: usize| &planes[j * len..][..len];
-    let (p0, p1, p2, p3, p4, p5) = (plane(0), plane(1), plane(2), plane(3), plane(4), plane(5));
-    for (x, (&l, cell)) in left.iter().zip(out.chunks_exact_mut(s.nd)).enumerate() {
+fn costs(s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>, out: &mut [u8]) {
+    let w = s.w;
+    let [l0, l1, l2, l3, l4, l5] = left.map(|p| &p[..w]);
+    for (x, cell) in out.chunks_exact_mut(s.nd).enumerate().take(w) {
         // Right x for k = 0 is x − d_min, stored at m = w − 1 − x + d_min.
         let m = w - 1 - x + s.d_min;
-        let runs = [p0, p1, p2, p3, p4, p5].map(|p| &p[m..m + s.nd]);
-        hamming_runs(l.to_le_bytes(), runs, cell);
+        let runs = right.map(|p| &p[m..m + s.nd]);
+        let b = [l0[x], l1[x], l2[x], l3[x], l4[x], l5[x]];
+        hamming_runs(b, runs, cell);
         // Candidates k with x − d_min − k < 0 fall off the right image.
         let inside = (x + 1).saturating_sub(s.d_min).min(s.nd);
         cell[inside..].fill(CENSUS_BITS);
@@ -562,7 +635,7 @@ fn costs(s: &Shape, left: &[u64], right: &[u64], out: &mut [u8]) {
 /// whose bytes are `runs[j][k]`. Byte population counts, which the compiler keeps in
 /// vector lanes (a table lookup per nibble with AVX2).
 #[inline(always)]
-fn hamming_runs(b: [u8; 8], runs: [&[u8]; CENSUS_BYTES], out: &mut [u8]) {
+fn hamming_runs(b: [u8; CENSUS_BYTES], runs: PlaneRow<'_>, out: &mut [u8]) {
     let n = out.len();
     let [r0, r1, r2, r3, r4, r5] = runs.map(|r| &r[..n]);
     let ones = |a: u8, r: u8| (a ^ r).count_ones() as u8;
@@ -617,7 +690,7 @@ impl Paths {
 #[derive(Clone, Copy)]
 enum CostSource<'a> {
     /// Made a row at a time from the two views' census signatures, with this kernel.
-    Census(&'a Grid<u64>, &'a Grid<u64>, Kernel),
+    Census(&'a CensusPlanes, &'a CensusPlanes, Kernel),
     /// Read from a volume made beforehand (`[y][x][k]`), for two sweeps over one volume.
     Volume(&'a [u8]),
 }
@@ -1663,19 +1736,20 @@ mod tests {
     /// min L(p′) + p2) − min L(p′)`, starting with `C` where `p′` is off the image; the
     /// sum over the directions, in i64 with no reuse of anything the sweeps share.
     fn aggregated_by_definition(
-        left: &Grid<u64>,
-        right: &Grid<u64>,
+        left: &CensusPlanes,
+        right: &CensusPlanes,
         p: &SgmParams,
         directions: &[(isize, isize)],
     ) -> Vec<i64> {
-        let (w, h) = (left.width(), left.height());
+        let (w, h) = (left.width, left.height);
         let nd = p.num_disparities as usize;
         let cost = |x: usize, y: usize, k: usize| -> i64 {
             let xr = x as isize - (p.min_disparity as usize + k) as isize;
             if xr < 0 {
                 i64::from(CENSUS_BITS)
             } else {
-                i64::from((left.get(x, y) ^ right.get(xr as usize, y)).count_ones())
+                let (a, b) = (left.signature(x, y), right.signature(xr as usize, y));
+                i64::from((a ^ b).count_ones())
             }
         };
         let mut total = vec![0i64; w * h * nd];
@@ -1728,14 +1802,14 @@ mod tests {
     /// (`side_by_side`).
     fn aggregated_by_sweeps(
         kernel: Kernel,
-        left: &Grid<u64>,
-        right: &Grid<u64>,
+        left: &CensusPlanes,
+        right: &CensusPlanes,
         p: &SgmParams,
         side_by_side: bool,
     ) -> Vec<i64> {
         let s = Shape {
-            w: left.width(),
-            h: left.height(),
+            w: left.width,
+            h: left.height,
             nd: p.num_disparities as usize,
             d_min: p.min_disparity as usize,
         };
@@ -1782,12 +1856,63 @@ mod tests {
         total
     }
 
+    /// The census planes against the definition: for every pixel of a view (left or
+    /// right, each kernel), comparison `t` of the 48 (rows then columns of the 7×7
+    /// window, the centre skipped; neighbours clamped to the image) in bit
+    /// `8·(t / 8) + 7 − t % 8` of its signature.
+    #[test]
+    fn census_planes_hold_each_comparison() {
+        let (img, _) = shifted_pair(37, 11, |x, y| 4.0 + 0.3 * x as f32 + 0.1 * y as f32);
+        let (w, h) = (img.width() as isize, img.height() as isize);
+        let at =
+            |x: isize, y: isize| img.get(x.clamp(0, w - 1) as usize, y.clamp(0, h - 1) as usize);
+        for kernel in [Kernel::Portable, Kernel::Avx2]
+            .into_iter()
+            .filter(|k| k.is_available())
+        {
+            for view in [View::Left, View::Right { pad: 5 }] {
+                // A kept buffer of the right size with stale contents is overwritten.
+                let stale = vec![0xa5; 11 * CENSUS_BYTES * (37 + 5)];
+                let kept = if view == View::Left {
+                    Vec::new()
+                } else {
+                    stale
+                };
+                let planes = census(kernel, &img, view, kept);
+                let mut ones = 0;
+                for y in 0..h {
+                    for x in 0..w {
+                        let mut want = 0u64;
+                        let mut t = 0;
+                        for dy in -3..=3 {
+                            for dx in -3..=3 {
+                                if (dx, dy) == (0, 0) {
+                                    continue;
+                                }
+                                if at(x + dx, y + dy) > at(x, y) {
+                                    want |= 1 << (8 * (t / 8) + 7 - t % 8);
+                                }
+                                t += 1;
+                            }
+                        }
+                        let got = planes.signature(x as usize, y as usize);
+                        assert_eq!(got, want, "{kernel:?} {view:?} ({x}, {y})");
+                        ones += want.count_ones();
+                    }
+                }
+                // Both answers occur: not a census of all zeros or all ones.
+                assert!(ones > 1000 && ones < 37 * 11 * 47, "{ones}");
+            }
+        }
+    }
+
     #[test]
     fn the_sweeps_sum_each_path_as_defined() {
         let (l, r) = shifted_pair(75, 23, |x, y| 9.0 + 0.1 * x as f32 - 0.2 * y as f32);
         let (cl, cr) = (
-            census(Kernel::Portable, &l, Vec::new()),
-            census(Kernel::Portable, &r, Vec::new()),
+            census(Kernel::Portable, &l, View::Left, Vec::new()),
+            // The largest disparity the test searches is 3 + 16 - 1.
+            census(Kernel::Portable, &r, View::Right { pad: 19 }, Vec::new()),
         );
         let along_and_down = [(1, 0), (-1, 0), (0, 1)];
         let straight = [(1, 0), (-1, 0), (0, 1), (0, -1)];
