@@ -257,7 +257,7 @@ impl SemiGlobalMatcher {
 
     /// Matches a rectified pair (8-bit grey, same size) on rayon's current pool. Images
     /// narrower than the disparity range plus a census window come out all invalid;
-    /// a frame whose volumes (or, for 5 paths, rows) would take over 2 GiB is refused,
+    /// a frame whose volumes (or, for 3 and 5 paths, rows) would take over 2 GiB is refused,
     /// whatever the thread count.
     pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
         let (w, h) = pair_size(left, right)?;
@@ -490,8 +490,9 @@ fn census(kernel: Kernel, img: &Grid<u8>, view: View, mut kept: Vec<u8>) -> Cens
         View::Right { pad } => w + pad,
     };
     let len = h * CENSUS_BYTES * stride;
-    // Every plane byte a cost reads is written below: a buffer of the right size is
-    // taken as it is (zeroing it cost 0.5 ms a frame at 640×480).
+    // Every plane byte a kept cost comes from is written below (the padding is read only
+    // for candidates off the image, whose costs are then overwritten): a buffer of the
+    // right size is taken as it is (zeroing it cost 0.5 ms a frame at 640×480).
     if kept.len() != len {
         kept.clear();
         kept.resize(len, 0);
@@ -538,7 +539,6 @@ fn census_row(img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
     let stride = planes.len() / CENSUS_BYTES;
     let r = CENSUS_RADIUS;
     let centre = img.row(y);
-    let mut shifted = vec![0u8; w];
     let mut byte = vec![0u8; w];
     let mut taken = 0usize;
     for dy in 0..=2 * r {
@@ -547,10 +547,7 @@ fn census_row(img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
             if dx == r && dy == r {
                 continue;
             }
-            shift_clamped(src, dx as isize - r as isize, &mut shifted);
-            for ((b, &n), &c) in byte.iter_mut().zip(&shifted).zip(centre) {
-                *b = (*b << 1) | u8::from(n > c);
-            }
+            compare_shifted(src, dx as isize - r as isize, centre, &mut byte);
             taken += 1;
             if taken.is_multiple_of(8) {
                 let plane = &mut planes[(taken / 8 - 1) * stride..][..w];
@@ -567,20 +564,32 @@ fn census_row(img: &Grid<u8>, y: usize, view: View, planes: &mut [u8]) {
     }
 }
 
-/// `out[x] = src[x + shift]`, indices clamped to the row.
-fn shift_clamped(src: &[u8], shift: isize, out: &mut [u8]) {
+/// One census comparison for a row: `byte[x] = byte[x] << 1 | (src[x + shift] > centre[x])`,
+/// `x + shift` clamped to the row. Inside the row the neighbours are read in place, a
+/// straight run the compiler vectorises; the few clamped ones at either end one by one.
+#[inline(always)]
+fn compare_shifted(src: &[u8], shift: isize, centre: &[u8], byte: &mut [u8]) {
     let w = src.len();
-    let s = shift.unsigned_abs();
-    if s >= w {
-        for (x, v) in out.iter_mut().enumerate() {
-            *v = src[(x as isize + shift).clamp(0, w as isize - 1) as usize];
-        }
-    } else if shift >= 0 {
-        out[..w - s].copy_from_slice(&src[s..]);
-        out[w - s..].fill(src[w - 1]);
-    } else {
-        out[s..].copy_from_slice(&src[..w - s]);
-        out[..s].fill(src[0]);
+    let mut one = |x: usize| {
+        let n = src[(x as isize + shift).clamp(0, w as isize - 1) as usize];
+        byte[x] = (byte[x] << 1) | u8::from(n > centre[x]);
+    };
+    // Columns whose neighbour is inside the row: lo..hi.
+    let lo = shift.min(0).unsigned_abs().min(w);
+    let hi = w.saturating_sub(shift.max(0).unsigned_abs()).max(lo);
+    for x in (0..lo).chain(hi..w) {
+        one(x);
+    }
+    if lo == hi {
+        return; // a row no wider than the shift: every neighbour clamped
+    }
+    let from = (lo as isize + shift) as usize;
+    let inside = byte[lo..hi]
+        .iter_mut()
+        .zip(&src[from..])
+        .zip(&centre[lo..hi]);
+    for ((b, &n), &c) in inside {
+        *b = (*b << 1) | u8::from(n > c);
     }
 }
 
@@ -1173,8 +1182,8 @@ enum Packing {
 
 impl Packing {
     /// Narrow when the largest sum (every path at its bound, `CENSUS_BITS + p2`) shifted
-    /// past the largest index still fits 16 bits: 3 and 5 paths at the default penalties
-    /// and 64 disparities; 8 paths need the wide packing.
+    /// past the largest index still fits 16 bits: at the default penalties 3, 4 and 5
+    /// paths at 64 disparities, 8 paths at 32 or fewer.
     fn of(s: &Shape, p: &SgmParams) -> Self {
         let shift = usize::BITS - (s.nd - 1).leading_zeros();
         let largest_sum = p.paths.count() as u64 * (u64::from(CENSUS_BITS) + u64::from(p.p2));
@@ -1189,7 +1198,7 @@ impl Packing {
 /// A candidate's aggregated cost and index `k` in one integer, the cost in the high
 /// bits: the smallest is the least cost at its smallest `k`.
 trait Packed: Copy + Ord {
-    /// Larger than any packed candidate.
+    /// No smaller than any packed candidate.
     const MAX: Self;
     fn pack(cost: u16, k: u16, shift: u32) -> Self;
     fn cost(self, shift: u32) -> u16;
@@ -1200,6 +1209,10 @@ impl Packed for u16 {
     const MAX: Self = u16::MAX;
     #[inline(always)]
     fn pack(cost: u16, k: u16, shift: u32) -> Self {
+        debug_assert!(
+            u32::from(cost) << shift <= 0xffff,
+            "{cost} << {shift}: Packing::of"
+        );
         (cost << shift) | k
     }
     #[inline(always)]
@@ -1862,46 +1875,52 @@ mod tests {
     /// `8·(t / 8) + 7 − t % 8` of its signature.
     #[test]
     fn census_planes_hold_each_comparison() {
-        let (img, _) = shifted_pair(37, 11, |x, y| 4.0 + 0.3 * x as f32 + 0.1 * y as f32);
-        let (w, h) = (img.width() as isize, img.height() as isize);
-        let at =
-            |x: isize, y: isize| img.get(x.clamp(0, w - 1) as usize, y.clamp(0, h - 1) as usize);
-        for kernel in [Kernel::Portable, Kernel::Avx2]
-            .into_iter()
-            .filter(|k| k.is_available())
-        {
-            for view in [View::Left, View::Right { pad: 5 }] {
-                // A kept buffer of the right size with stale contents is overwritten.
-                let stale = vec![0xa5; 11 * CENSUS_BYTES * (37 + 5)];
-                let kept = if view == View::Left {
-                    Vec::new()
-                } else {
-                    stale
-                };
-                let planes = census(kernel, &img, view, kept);
-                let mut ones = 0;
-                for y in 0..h {
-                    for x in 0..w {
-                        let mut want = 0u64;
-                        let mut t = 0;
-                        for dy in -3..=3 {
-                            for dx in -3..=3 {
-                                if (dx, dy) == (0, 0) {
-                                    continue;
+        // Rows narrower than the window too: every neighbour clamped.
+        for (iw, ih) in [(37, 11), (5, 2), (2, 3), (1, 1)] {
+            let (img, _) = shifted_pair(iw, ih, |x, y| 4.0 + 0.3 * x as f32 + 0.1 * y as f32);
+            let (w, h) = (iw as isize, ih as isize);
+            let at = |x: isize, y: isize| {
+                img.get(x.clamp(0, w - 1) as usize, y.clamp(0, h - 1) as usize)
+            };
+            for kernel in [Kernel::Portable, Kernel::Avx2]
+                .into_iter()
+                .filter(|k| k.is_available())
+            {
+                for view in [View::Left, View::Right { pad: 5 }] {
+                    // A kept buffer of the right size with stale contents is overwritten.
+                    let stale = vec![0xa5; ih * CENSUS_BYTES * (iw + 5)];
+                    let kept = if view == View::Left {
+                        Vec::new()
+                    } else {
+                        stale
+                    };
+                    let planes = census(kernel, &img, view, kept);
+                    let mut ones = 0;
+                    for y in 0..h {
+                        for x in 0..w {
+                            let mut want = 0u64;
+                            let mut t = 0;
+                            for dy in -3..=3 {
+                                for dx in -3..=3 {
+                                    if (dx, dy) == (0, 0) {
+                                        continue;
+                                    }
+                                    if at(x + dx, y + dy) > at(x, y) {
+                                        want |= 1 << (8 * (t / 8) + 7 - t % 8);
+                                    }
+                                    t += 1;
                                 }
-                                if at(x + dx, y + dy) > at(x, y) {
-                                    want |= 1 << (8 * (t / 8) + 7 - t % 8);
-                                }
-                                t += 1;
                             }
+                            let got = planes.signature(x as usize, y as usize);
+                            assert_eq!(got, want, "{iw}x{ih} {kernel:?} {view:?} ({x}, {y})");
+                            ones += want.count_ones();
                         }
-                        let got = planes.signature(x as usize, y as usize);
-                        assert_eq!(got, want, "{kernel:?} {view:?} ({x}, {y})");
-                        ones += want.count_ones();
+                    }
+                    // Both answers occur: not a census of all zeros or all ones.
+                    if iw * ih > 100 {
+                        assert!(ones > 1000 && ones < 37 * 11 * 47, "{ones}");
                     }
                 }
-                // Both answers occur: not a census of all zeros or all ones.
-                assert!(ones > 1000 && ones < 37 * 11 * 47, "{ones}");
             }
         }
     }
@@ -1911,7 +1930,7 @@ mod tests {
         let (l, r) = shifted_pair(75, 23, |x, y| 9.0 + 0.1 * x as f32 - 0.2 * y as f32);
         let (cl, cr) = (
             census(Kernel::Portable, &l, View::Left, Vec::new()),
-            // The largest disparity the test searches is 3 + 16 - 1.
+            // Padding nd + d_min = 16 + 3: every run of candidates inside.
             census(Kernel::Portable, &r, View::Right { pad: 19 }, Vec::new()),
         );
         let along_and_down = [(1, 0), (-1, 0), (0, 1)];
@@ -1995,8 +2014,19 @@ mod tests {
             Packing::of(&shape(128), &at(Paths::Five, 128)),
             Packing::Wide
         );
+        assert_eq!(
+            Packing::of(&shape(32), &at(Paths::Eight, 32)),
+            Packing::Narrow(5)
+        );
         let mut rng = crate::rng::Rng::new(11);
-        for (paths, nd) in [(Paths::Three, 64), (Paths::Five, 64), (Paths::Three, 48)] {
+        let narrow = [
+            (Paths::Three, 64),
+            (Paths::Four, 64),
+            (Paths::Five, 64),
+            (Paths::Three, 48),
+            (Paths::Eight, 32),
+        ];
+        for (paths, nd) in narrow {
             let (s, p) = (shape(nd), at(paths, nd));
             let Packing::Narrow(shift) = Packing::of(&s, &p) else {
                 panic!("{paths:?} {nd}: narrow expected");
