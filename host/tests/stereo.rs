@@ -92,6 +92,17 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
     assert!(sgm["fill_rate"].as_f64().unwrap() >= bm["fill_rate"].as_f64().unwrap() - 0.01);
     let (_, three) = run("sgm3", &["--matcher", "sgm", "--sgm-paths", "3"]);
     assert_eq!(three["sgm_paths"].as_u64(), Some(3));
+    // Paths without semi-global matching would be ignored: refused.
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "150",
+        "--out-dir",
+        dir.join("bm3").to_str().unwrap(),
+        "--sgm-paths",
+        "3",
+    ]);
+    assert!(!ok && err.contains("--matcher sgm"), "{err}");
     assert!(
         (median(&three) - median(&sgm)).abs() < 0.5,
         "{} against {}",

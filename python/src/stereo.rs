@@ -14,7 +14,7 @@ use stereotac::stereo::matcher::MatcherKind;
 use stereotac::stereo::outliers::OutlierParams;
 use stereotac::stereo::pipeline::{StereoConfig, StereoFrame, StereoPipeline, StereoTimings};
 use stereotac::stereo::postfilter::HoleFill;
-use stereotac::stereo::sgm::Paths;
+use stereotac::stereo::sgm::{Paths, SgmParams};
 
 use crate::arrays::{grey_grid, grey_grid_into, grid_array, rows_array, vec_array};
 use crate::errors::{bad_input, py_result};
@@ -57,10 +57,11 @@ impl PyStereoRig {
     /// pipeline: depths searched from `near_mm` to `far_mm`, matcher "bm" (block
     /// matching) or "sgm" (semi-global), the spatial filter on, holes up to `fill_holes`
     /// px filled, outliers removed when `outliers` is true (the defaults of
-    /// `stereotac stereo`); `sgm_paths` (3, 4, 5 or 8) are the paths semi-global matching
-    /// aggregates along. Keys of a file that its format does not have are warned about.
+    /// `stereotac stereo`); `sgm_paths` (3, 4, 5 or 8; 8 when not given) are the paths
+    /// semi-global matching aggregates along, refused with block matching (they would be
+    /// ignored). Keys of a file that its format does not have are warned about.
     #[staticmethod]
-    #[pyo3(signature = (source, units = "mm", matcher = "bm", near_mm = None, far_mm = None, scale = None, block_size = None, spatial = true, fill_holes = 0, outliers = false, sgm_paths = 8))]
+    #[pyo3(signature = (source, units = "mm", matcher = "bm", near_mm = None, far_mm = None, scale = None, block_size = None, spatial = true, fill_holes = 0, outliers = false, sgm_paths = None))]
     #[allow(clippy::too_many_arguments)]
     fn load(
         py: Python<'_>,
@@ -74,7 +75,7 @@ impl PyStereoRig {
         spatial: bool,
         fill_holes: usize,
         outliers: bool,
-        sgm_paths: u32,
+        sgm_paths: Option<u32>,
     ) -> PyResult<Self> {
         let files = calibration_files(source)?;
         let unit: LengthUnit = units
@@ -90,11 +91,17 @@ impl PyStereoRig {
             }
         };
         let sgm_paths = match sgm_paths {
-            3 => Paths::Three,
-            4 => Paths::Four,
-            5 => Paths::Five,
-            8 => Paths::Eight,
-            other => {
+            Some(_) if matcher != MatcherKind::Sgm => {
+                return Err(bad_input(
+                    "sgm_paths sets semi-global matching's paths: add matcher=\"sgm\"",
+                ));
+            }
+            None => SgmParams::default().paths,
+            Some(3) => Paths::Three,
+            Some(4) => Paths::Four,
+            Some(5) => Paths::Five,
+            Some(8) => Paths::Eight,
+            Some(other) => {
                 return Err(bad_input(format!(
                     "sgm_paths={other}: 3, 4, 5 or 8 (8: every direction, the default; 3: \
                      along the row both ways and down, the fastest)"
@@ -185,6 +192,12 @@ impl PyStereoRig {
     #[getter]
     fn baseline_mm(&self) -> f64 {
         self.pipeline.rectification().baseline()
+    }
+
+    /// Paths semi-global matching aggregates along (None with block matching).
+    #[getter]
+    fn sgm_paths(&self) -> Option<usize> {
+        self.pipeline.matcher().sgm_paths().map(Paths::count)
     }
 
     /// Disparities searched (px), first and last.

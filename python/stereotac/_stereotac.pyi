@@ -113,6 +113,8 @@ class StereoRig:
     focal_px: float
     baseline_mm: float
     disparity_range_px: Tuple[int, int]
+    sgm_paths: Optional[int]
+    """Paths semi-global matching aggregates along (None with block matching)."""
     @staticmethod
     def load(
         source: Union[_Path, Tuple[_Path, _Path]],
@@ -125,7 +127,7 @@ class StereoRig:
         spatial: bool = True,
         fill_holes: int = 0,
         outliers: bool = False,
-        sgm_paths: int = 8,
+        sgm_paths: Optional[int] = None,
     ) -> "StereoRig": ...
     def compute(self, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> StereoResult: ...
 

@@ -62,6 +62,8 @@ def test_bad_inputs_raise_clearly(stereo_capture, tmp_path):
         stereotac.StereoRig.load(
             stereo_capture / "input_calibration.yaml", matcher="sgm", sgm_paths=6
         )
+    with pytest.raises(stereotac.BadInputError, match='add matcher="sgm"'):
+        stereotac.StereoRig.load(stereo_capture / "input_calibration.yaml", sgm_paths=3)
 
 
 def test_semi_global_paths(stereo_capture):
@@ -70,9 +72,12 @@ def test_semi_global_paths(stereo_capture):
     calib = stereo_capture / "input_calibration.yaml"
     left = stereotac.load_grey(stereo_capture / "input_left.png")
     right = stereotac.load_grey(stereo_capture / "input_right.png")
+    assert stereotac.StereoRig.load(calib).sgm_paths is None
+    assert stereotac.StereoRig.load(calib, matcher="sgm").sgm_paths == 8
     medians = []
     for paths in (3, 8):
         rig = stereotac.StereoRig.load(calib, matcher="sgm", sgm_paths=paths)
+        assert rig.sgm_paths == paths
         s = rig.compute(left, right)
         assert s.fill_rate > 0.7
         medians.append(float(np.median(s.depth[np.isfinite(s.depth)])))

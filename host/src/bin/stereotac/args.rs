@@ -133,9 +133,9 @@ pub struct PipelineArgs {
     pub matcher: MatcherArg,
     /// Paths semi-global matching aggregates along: 8 (every direction, fewest
     /// streaks), 5 or 4, or 3 (along the row both ways and down, as OpenCV's
-    /// StereoSGBM 3-way: fastest). Used with `--matcher sgm`.
-    #[arg(long, value_enum, default_value_t = SgmPathsArg::Eight)]
-    pub sgm_paths: SgmPathsArg,
+    /// StereoSGBM 3-way: fastest). Only with `--matcher sgm` [default: 8].
+    #[arg(long, value_enum)]
+    pub sgm_paths: Option<SgmPathsArg>,
 }
 
 /// `--sgm-paths`.
@@ -153,6 +153,18 @@ pub enum SgmPathsArg {
     /// Every direction and diagonal.
     #[value(name = "8")]
     Eight,
+}
+
+impl SgmPathsArg {
+    /// The option for `paths`.
+    pub fn of(paths: Paths) -> Self {
+        match paths {
+            Paths::Three => Self::Three,
+            Paths::Four => Self::Four,
+            Paths::Five => Self::Five,
+            Paths::Eight => Self::Eight,
+        }
+    }
 }
 
 impl From<SgmPathsArg> for Paths {
@@ -193,23 +205,28 @@ impl Default for PipelineArgs {
             scale: c.rectify_scale,
             block_size: c.block_size,
             matcher: MatcherArg::Bm,
-            sgm_paths: SgmPathsArg::Eight,
+            sgm_paths: None,
         }
     }
 }
 
 impl PipelineArgs {
-    /// The pipeline configuration these options describe.
-    pub fn config(&self) -> StereoConfig {
-        StereoConfig {
+    /// The pipeline configuration these options describe; paths for semi-global
+    /// matching given with another matcher are refused (they would be ignored).
+    pub fn config(&self) -> Result<StereoConfig> {
+        if self.sgm_paths.is_some() && self.matcher != MatcherArg::Sgm {
+            bail!("--sgm-paths sets semi-global matching's paths: add --matcher sgm");
+        }
+        let d = StereoConfig::default();
+        Ok(StereoConfig {
             near_mm: self.near_mm,
             far_mm: self.far_mm,
             rectify_scale: self.scale,
             block_size: self.block_size,
             matcher: self.matcher.into(),
-            sgm_paths: self.sgm_paths.into(),
-            ..StereoConfig::default()
-        }
+            sgm_paths: self.sgm_paths.map_or(d.sgm_paths, Paths::from),
+            ..d
+        })
     }
 }
 

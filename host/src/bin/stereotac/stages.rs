@@ -12,12 +12,14 @@ use stereotac::live::{StereoStage, TactileStage};
 use stereotac::matcher::StampRef;
 use stereotac::recording::topics;
 use stereotac::recording::writer::{Item, Recorder};
-use stereotac::stereo::{LengthUnit, StereoCalibration, StereoConfig, StereoPipeline};
+use stereotac::stereo::{
+    LengthUnit, MatcherKind, Paths, StereoCalibration, StereoConfig, StereoPipeline,
+};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
 
-use crate::args::PipelineArgs;
+use crate::args::{MatcherArg, PipelineArgs, SgmPathsArg};
 
 /// Attachment names of the no-contact reference frames.
 pub const REFERENCE_DX: &str = "reference_dx.png";
@@ -237,6 +239,8 @@ impl StereoSetup {
                     ("far_mm".into(), c.far_mm.to_string()),
                     ("scale".into(), c.rectify_scale.to_string()),
                     ("block_size".into(), c.block_size.to_string()),
+                    ("matcher".into(), matcher_name(c.matcher).into()),
+                    ("sgm_paths".into(), c.sgm_paths.count().to_string()),
                 ]),
             },
         ];
@@ -277,7 +281,32 @@ pub fn stereo_settings(entries: Option<&BTreeMap<String, String>>) -> Result<Pip
     if let Some(v) = get("block_size")? {
         a.block_size = v as u32;
     }
+    // Recordings made before these entries matched with the default: block matching.
+    if let Some(v) = entries.get("matcher") {
+        a.matcher = match v.as_str() {
+            "bm" => MatcherArg::Bm,
+            "sgm" => MatcherArg::Sgm,
+            other => bail!("metadata `{META_STEREO}` entry `matcher`: {other:?} is not bm or sgm"),
+        };
+    }
+    if let (MatcherArg::Sgm, Some(v)) = (a.matcher, get("sgm_paths")?) {
+        let paths = [Paths::Three, Paths::Four, Paths::Five, Paths::Eight]
+            .into_iter()
+            .find(|p| p.count() as f64 == v)
+            .with_context(|| {
+                format!("metadata `{META_STEREO}` entry `sgm_paths`: {v} is not 3, 4, 5 or 8")
+            })?;
+        a.sgm_paths = Some(SgmPathsArg::of(paths));
+    }
     Ok(a)
+}
+
+/// The name `--matcher` takes for `kind`.
+fn matcher_name(kind: MatcherKind) -> &'static str {
+    match kind {
+        MatcherKind::Bm => "bm",
+        MatcherKind::Sgm => "sgm",
+    }
 }
 
 /// `img` as PNG bytes.
@@ -291,4 +320,44 @@ pub fn png(img: &RgbImage) -> Result<Vec<u8>> {
 /// An RGB image from PNG bytes; `name` says which in errors.
 pub fn from_png(name: &str, bytes: &[u8]) -> Result<RgbImage> {
     Ok(image_file::decode_bytes(name, bytes, image::ImageFormat::Png, Need::Colour)?.into_rgb8())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The metadata `record` writes, as `stereo_settings` reads it back.
+    fn entries(matcher: &str, paths: &str) -> BTreeMap<String, String> {
+        BTreeMap::from([
+            ("near_mm".into(), "80".into()),
+            ("matcher".into(), matcher.into()),
+            ("sgm_paths".into(), paths.into()),
+        ])
+    }
+
+    #[test]
+    fn the_matcher_and_its_paths_come_back_from_a_recording() {
+        let sgm = stereo_settings(Some(&entries("sgm", "3"))).unwrap();
+        let c = sgm.config().unwrap();
+        assert_eq!(
+            (c.matcher, c.sgm_paths, c.near_mm),
+            (MatcherKind::Sgm, Paths::Three, 80.0)
+        );
+        // Block matching: the paths entry (written for every recording) is not an error.
+        let bm = stereo_settings(Some(&entries("bm", "8"))).unwrap();
+        assert_eq!(bm.config().unwrap().matcher, MatcherKind::Bm);
+        // A recording from before these entries: block matching.
+        let old = BTreeMap::from([("near_mm".to_string(), "80".to_string())]);
+        let c = stereo_settings(Some(&old)).unwrap().config().unwrap();
+        assert_eq!((c.matcher, c.sgm_paths), (MatcherKind::Bm, Paths::Eight));
+        for (m, p, words) in [
+            ("census", "8", "not bm or sgm"),
+            ("sgm", "6", "not 3, 4, 5 or 8"),
+        ] {
+            let e = stereo_settings(Some(&entries(m, p)))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(words), "{e}");
+        }
+    }
 }

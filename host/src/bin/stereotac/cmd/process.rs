@@ -328,9 +328,7 @@ fn setups(
             })
             .transpose()?
     };
-    let stereo = calib.map(|calib| StereoSetup {
-        calib,
-        config: settings.config(),
-    });
+    let config = settings.config()?;
+    let stereo = calib.map(|calib| StereoSetup { calib, config });
     Ok((tactile, stereo))
 }

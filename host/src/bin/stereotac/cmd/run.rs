@@ -111,7 +111,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
         Some(
             StereoSetup {
                 calib,
-                config: a.pipeline.config(),
+                config: a.pipeline.config()?,
             }
             .round_trip()?,
         )

@@ -115,7 +115,7 @@ pub fn run(a: Args) -> Result<()> {
             max_width: a.fill_holes,
         }),
         outliers: a.outliers.then(OutlierParams::default),
-        ..a.pipeline.config()
+        ..a.pipeline.config()?
     };
     let mut pipeline = StereoPipeline::new(&calib, config)?;
     let frame = pipeline.process(&left, &right)?;

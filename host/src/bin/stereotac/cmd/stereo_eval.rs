@@ -79,7 +79,7 @@ pub fn run(a: Args) -> Result<()> {
         ..SyntheticEval::default()
     };
     let progress = bar(2 * a.distances.len() as u64, "rendering, matching");
-    let rows = eval::run_synthetic(&setup, a.pipeline.config(), |_| progress.inc(1))?;
+    let rows = eval::run_synthetic(&setup, a.pipeline.config()?, |_| progress.inc(1))?;
     progress.finish_and_clear();
     let json = json_report(&rows, a.json_out.as_deref())?;
     if a.json {
