@@ -326,6 +326,11 @@ fn eval_pairs(lens: &str) -> Vec<(Value, Value)> {
                 (raw["variant"].as_str(), filtered["variant"].as_str()),
                 (Some("raw"), Some("filtered"))
             );
+            // Each row names the matcher that made it (the default: block matching).
+            assert_eq!(
+                (raw["matcher"].as_str(), raw["sgm_paths"].is_null()),
+                (Some("bm"), true)
+            );
             (raw, filtered)
         })
         .collect()

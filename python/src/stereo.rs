@@ -81,15 +81,7 @@ impl PyStereoRig {
         let unit: LengthUnit = units
             .parse()
             .map_err(|e| bad_input(format!("units={units:?}: {e}")))?;
-        let matcher = match matcher {
-            "bm" => MatcherKind::Bm,
-            "sgm" => MatcherKind::Sgm,
-            other => {
-                return Err(bad_input(format!(
-                    "matcher={other:?}: \"bm\" (block matching) or \"sgm\" (semi-global)"
-                )));
-            }
-        };
+        let matcher: MatcherKind = matcher.parse().map_err(bad_input)?;
         let sgm_paths = match sgm_paths {
             Some(_) if matcher != MatcherKind::Sgm => {
                 return Err(bad_input(
@@ -97,16 +89,12 @@ impl PyStereoRig {
                 ));
             }
             None => SgmParams::default().paths,
-            Some(3) => Paths::Three,
-            Some(4) => Paths::Four,
-            Some(5) => Paths::Five,
-            Some(8) => Paths::Eight,
-            Some(other) => {
-                return Err(bad_input(format!(
-                    "sgm_paths={other}: 3, 4, 5 or 8 (8: every direction, the default; 3: \
-                     along the row both ways and down, the fastest)"
-                )));
-            }
+            Some(n) => Paths::with_count(n as usize).ok_or_else(|| {
+                bad_input(format!(
+                    "sgm_paths={n}: 3, 4, 5 or 8 (8: every direction, the default; 3: along the \
+                     row both ways and down, the fastest)"
+                ))
+            })?,
         };
         let (calib, notes) = py_result(StereoCalibration::load_noting(&files, unit))?;
         for note in notes {

@@ -18,6 +18,7 @@
 use nalgebra::{Matrix3, Point3, Vector3};
 use serde::Serialize;
 
+use super::matcher::MatcherKind;
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::postfilter::{SpatialFilter, TemporalParams};
 use super::rectify::Rectification;
@@ -241,6 +242,10 @@ impl Default for SyntheticEval {
 pub struct EvalRow {
     /// "raw" (no post-filters) or "filtered" (spatial + temporal).
     pub variant: &'static str,
+    /// The matcher that ran.
+    pub matcher: MatcherKind,
+    /// The paths semi-global matching aggregated along (none with block matching).
+    pub sgm_paths: Option<usize>,
     /// The measures.
     #[serde(flatten)]
     pub metrics: PlaneMetrics,
@@ -324,6 +329,8 @@ pub fn run_synthetic(
             };
             let row = EvalRow {
                 variant,
+                matcher: config.matcher,
+                sgm_paths: (config.matcher == MatcherKind::Sgm).then(|| config.sgm_paths.count()),
                 metrics: plane_metrics(&depth[settle..], distance, roi, intrinsics),
                 frame_ms: time / captures.len().max(1) as f64,
             };

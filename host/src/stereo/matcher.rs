@@ -19,6 +19,29 @@ pub enum MatcherKind {
     Sgm,
 }
 
+impl MatcherKind {
+    /// The name options, files and Python take: "bm" or "sgm".
+    pub fn name(self) -> &'static str {
+        match self {
+            MatcherKind::Bm => "bm",
+            MatcherKind::Sgm => "sgm",
+        }
+    }
+}
+
+/// "bm" or "sgm" ([`MatcherKind::name`]).
+impl std::str::FromStr for MatcherKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        [MatcherKind::Bm, MatcherKind::Sgm]
+            .into_iter()
+            .find(|k| k.name() == s.trim())
+            .ok_or_else(|| {
+                format!("matcher {s:?}: not bm (block matching) or sgm (semi-global matching)")
+            })
+    }
+}
+
 /// A matcher, built once and reused for every frame.
 #[derive(Debug, Clone)]
 pub enum Matcher {
@@ -92,5 +115,35 @@ impl Matcher {
     pub fn num_disparities(&self) -> u32 {
         let (lo, hi) = self.disparity_range();
         hi - lo + 1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_read_back_and_match_the_summary() {
+        for kind in [MatcherKind::Bm, MatcherKind::Sgm] {
+            assert_eq!(kind.name().parse::<MatcherKind>(), Ok(kind));
+            // summary.json writes the kind through serde: the same name.
+            let json = serde_json::to_string(&kind).unwrap();
+            assert_eq!(json, format!("\"{}\"", kind.name()));
+        }
+        let e = "census".parse::<MatcherKind>().unwrap_err();
+        assert!(e.contains("\"census\": not bm"), "{e}");
+    }
+
+    #[test]
+    fn path_counts_read_back() {
+        for paths in Paths::ALL {
+            assert_eq!(Paths::with_count(paths.count()), Some(paths));
+            assert_eq!(paths.count().to_string().parse::<Paths>(), Ok(paths));
+        }
+        for bad in ["0", "6", "eight", "", "-3"] {
+            let e = bad.parse::<Paths>().unwrap_err();
+            assert!(e.contains("not 3, 4, 5 or 8"), "{e}");
+        }
+        assert_eq!(Paths::with_count(7), None);
     }
 }

@@ -129,71 +129,13 @@ pub struct PipelineArgs {
     /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census
     /// costs along 8 paths and sub-pixel refinement; fewer wrong pixels on slanted and
     /// weakly textured surfaces, several times block matching's time).
-    #[arg(long, value_enum, default_value_t = MatcherArg::Bm)]
-    pub matcher: MatcherArg,
+    #[arg(long, default_value = "bm")]
+    pub matcher: MatcherKind,
     /// Paths semi-global matching aggregates along: 8 (every direction, fewest
     /// streaks), 5 or 4, or 3 (along the row both ways and down, as OpenCV's
     /// StereoSGBM 3-way: fastest). Only with `--matcher sgm` [default: 8].
-    #[arg(long, value_enum)]
-    pub sgm_paths: Option<SgmPathsArg>,
-}
-
-/// `--sgm-paths`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum SgmPathsArg {
-    /// Along the row both ways and straight down.
-    #[value(name = "3")]
-    Three,
-    /// Horizontal and vertical.
-    #[value(name = "4")]
-    Four,
-    /// Along the row both ways and the three from above.
-    #[value(name = "5")]
-    Five,
-    /// Every direction and diagonal.
-    #[value(name = "8")]
-    Eight,
-}
-
-impl SgmPathsArg {
-    /// The option for `paths`.
-    pub fn of(paths: Paths) -> Self {
-        match paths {
-            Paths::Three => Self::Three,
-            Paths::Four => Self::Four,
-            Paths::Five => Self::Five,
-            Paths::Eight => Self::Eight,
-        }
-    }
-}
-
-impl From<SgmPathsArg> for Paths {
-    fn from(p: SgmPathsArg) -> Self {
-        match p {
-            SgmPathsArg::Three => Paths::Three,
-            SgmPathsArg::Four => Paths::Four,
-            SgmPathsArg::Five => Paths::Five,
-            SgmPathsArg::Eight => Paths::Eight,
-        }
-    }
-}
-
-/// `--matcher`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MatcherArg {
-    /// Block matching.
-    Bm,
-    /// Semi-global matching.
-    Sgm,
-}
-
-impl From<MatcherArg> for MatcherKind {
-    fn from(m: MatcherArg) -> Self {
-        match m {
-            MatcherArg::Bm => MatcherKind::Bm,
-            MatcherArg::Sgm => MatcherKind::Sgm,
-        }
-    }
+    #[arg(long)]
+    pub sgm_paths: Option<Paths>,
 }
 
 impl Default for PipelineArgs {
@@ -204,7 +146,7 @@ impl Default for PipelineArgs {
             far_mm: c.far_mm,
             scale: c.rectify_scale,
             block_size: c.block_size,
-            matcher: MatcherArg::Bm,
+            matcher: MatcherKind::Bm,
             sgm_paths: None,
         }
     }
@@ -214,7 +156,7 @@ impl PipelineArgs {
     /// The pipeline configuration these options describe; paths for semi-global
     /// matching given with another matcher are refused (they would be ignored).
     pub fn config(&self) -> Result<StereoConfig> {
-        if self.sgm_paths.is_some() && self.matcher != MatcherArg::Sgm {
+        if self.sgm_paths.is_some() && self.matcher != MatcherKind::Sgm {
             bail!("--sgm-paths sets semi-global matching's paths: add --matcher sgm");
         }
         let d = StereoConfig::default();
@@ -223,8 +165,8 @@ impl PipelineArgs {
             far_mm: self.far_mm,
             rectify_scale: self.scale,
             block_size: self.block_size,
-            matcher: self.matcher.into(),
-            sgm_paths: self.sgm_paths.map_or(d.sgm_paths, Paths::from),
+            matcher: self.matcher,
+            sgm_paths: self.sgm_paths.unwrap_or(d.sgm_paths),
             ..d
         })
     }

@@ -5,21 +5,19 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use image::RgbImage;
 use stereotac::image_file::{self, Need};
 use stereotac::live::{StereoStage, TactileStage};
 use stereotac::matcher::StampRef;
 use stereotac::recording::topics;
 use stereotac::recording::writer::{Item, Recorder};
-use stereotac::stereo::{
-    LengthUnit, MatcherKind, Paths, StereoCalibration, StereoConfig, StereoPipeline,
-};
+use stereotac::stereo::{LengthUnit, MatcherKind, StereoCalibration, StereoConfig, StereoPipeline};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::Reconstructor;
 
-use crate::args::{MatcherArg, PipelineArgs, SgmPathsArg};
+use crate::args::PipelineArgs;
 
 /// Attachment names of the no-contact reference frames.
 pub const REFERENCE_DX: &str = "reference_dx.png";
@@ -239,7 +237,7 @@ impl StereoSetup {
                     ("far_mm".into(), c.far_mm.to_string()),
                     ("scale".into(), c.rectify_scale.to_string()),
                     ("block_size".into(), c.block_size.to_string()),
-                    ("matcher".into(), matcher_name(c.matcher).into()),
+                    ("matcher".into(), c.matcher.name().into()),
                     ("sgm_paths".into(), c.sgm_paths.count().to_string()),
                 ]),
             },
@@ -283,30 +281,17 @@ pub fn stereo_settings(entries: Option<&BTreeMap<String, String>>) -> Result<Pip
     }
     // Recordings made before these entries matched with the default: block matching.
     if let Some(v) = entries.get("matcher") {
-        a.matcher = match v.as_str() {
-            "bm" => MatcherArg::Bm,
-            "sgm" => MatcherArg::Sgm,
-            other => bail!("metadata `{META_STEREO}` entry `matcher`: {other:?} is not bm or sgm"),
-        };
+        a.matcher = v
+            .parse()
+            .map_err(|e| anyhow!("metadata `{META_STEREO}` entry `matcher`: {e}"))?;
     }
-    if let (MatcherArg::Sgm, Some(v)) = (a.matcher, get("sgm_paths")?) {
-        let paths = [Paths::Three, Paths::Four, Paths::Five, Paths::Eight]
-            .into_iter()
-            .find(|p| p.count() as f64 == v)
-            .with_context(|| {
-                format!("metadata `{META_STEREO}` entry `sgm_paths`: {v} is not 3, 4, 5 or 8")
-            })?;
-        a.sgm_paths = Some(SgmPathsArg::of(paths));
+    if let (MatcherKind::Sgm, Some(v)) = (a.matcher, entries.get("sgm_paths")) {
+        a.sgm_paths = Some(
+            v.parse()
+                .map_err(|e| anyhow!("metadata `{META_STEREO}` entry `sgm_paths`: {e}"))?,
+        );
     }
     Ok(a)
-}
-
-/// The name `--matcher` takes for `kind`.
-fn matcher_name(kind: MatcherKind) -> &'static str {
-    match kind {
-        MatcherKind::Bm => "bm",
-        MatcherKind::Sgm => "sgm",
-    }
 }
 
 /// `img` as PNG bytes.
@@ -325,6 +310,7 @@ pub fn from_png(name: &str, bytes: &[u8]) -> Result<RgbImage> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stereotac::stereo::Paths;
 
     /// The metadata `record` writes, as `stereo_settings` reads it back.
     fn entries(matcher: &str, paths: &str) -> BTreeMap<String, String> {
@@ -351,7 +337,7 @@ mod tests {
         let c = stereo_settings(Some(&old)).unwrap().config().unwrap();
         assert_eq!((c.matcher, c.sgm_paths), (MatcherKind::Bm, Paths::Eight));
         for (m, p, words) in [
-            ("census", "8", "not bm or sgm"),
+            ("census", "8", "\"census\": not bm"),
             ("sgm", "6", "not 3, 4, 5 or 8"),
         ] {
             let e = stereo_settings(Some(&entries(m, p)))

@@ -69,6 +69,9 @@ pub enum Paths {
 }
 
 impl Paths {
+    /// Every choice, fewest paths first.
+    pub const ALL: [Paths; 4] = [Paths::Three, Paths::Four, Paths::Five, Paths::Eight];
+
     /// How many.
     pub fn count(self) -> usize {
         match self {
@@ -77,6 +80,28 @@ impl Paths {
             Paths::Five => 5,
             Paths::Eight => 8,
         }
+    }
+
+    /// The choice of `count` paths, if there is one.
+    pub fn with_count(count: usize) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.count() == count)
+    }
+}
+
+/// A number of paths: "3", "4", "5" or "8".
+impl std::str::FromStr for Paths {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        s.trim()
+            .parse()
+            .ok()
+            .and_then(Self::with_count)
+            .ok_or_else(|| {
+                format!(
+                    "{s:?} is not 3, 4, 5 or 8 paths (8: every direction, the default; 3: \
+                     along the row both ways and down, the fastest)"
+                )
+            })
     }
 }
 

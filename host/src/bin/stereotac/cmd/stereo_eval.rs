@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use stereotac::stereo::MatcherKind;
 use stereotac::stereo::eval::{self, SyntheticEval};
 use stereotac::stereo::synthetic::Membrane;
 
@@ -85,6 +86,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{json}");
     } else {
+        let config = a.pipeline.config()?;
+        let matcher = match config.matcher {
+            MatcherKind::Sgm => format!("sgm, {} paths", config.sgm_paths.count()),
+            kind => kind.name().to_string(),
+        };
+        println!("matcher {matcher}");
         println!(
             "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
             match a.lens {
