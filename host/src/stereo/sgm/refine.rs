@@ -20,20 +20,19 @@ const REFINE_STEPS: usize = 2;
 /// that interpolant's slope, so the linearisation is exact while the estimate stays
 /// between them. With `e = L(x) − R(x − d)`, the window's shift `D` that minimises
 /// `Σ (e + (D − d)·g)²` is `Σ (g²·d − g·e) / Σ g²`, and `g²·d − g·e` is the integer
-/// `g²·⌈d⌉ − g·(L(x) − R[i])`: `weight = g²`, `moment` that. With them `g²·q` and
-/// `g²·q²` for the estimate in sixteenths of a pixel (`q = round(16·d)`), from which a
-/// window tells how far its pixels' estimates spread about its centre's
-/// ([`RefineTerm::solve`]); `q` is kept and the two products made as the sums take them
-/// (12 bytes a pixel instead of 24: the terms are written and read twice per step).
+/// `g²·⌈d⌉ − g·(L(x) − R[i])`: the `moment`. A window also tells how far its pixels'
+/// estimates spread about its centre's ([`RefineTerm::solve`]) from `g²·q` and `g²·q²`
+/// for the estimate in sixteenths of a pixel (`q = round(16·d)`), made from `g` and
+/// `g·q` (both fit 32 bits; their products are 32×32→64-bit multiplies).
 /// Integers, so window sums slide exactly and in any order.
 #[derive(Clone, Copy, Default, PartialEq, Debug)]
 struct RefineTerm {
-    weight: i32,
+    g: i32,
     moment: i32,
     q: i32,
 }
 
-/// Window sums of `g²`, the moment, `g²·q` and `g²·q²` ([`RefineTerm::sums`]).
+/// Window sums of `g²`, the moment, `g²·q` and `g²·q²` ([`ColumnSums`]).
 type RefineSums = [i64; 4];
 
 /// Largest g²-weighted mean square by which a window's estimates may differ from its
@@ -66,26 +65,13 @@ impl RefineTerm {
         let (i, b) = Self::reads(x, d, right.len())?;
         let (r0, r1) = (i32::from(right[i]), i32::from(right[i + 1]));
         let g = r1 - r0;
-        let weight = g * g;
-        // |16·d| <= 131088 (the bound on ⌈d⌉ in `reads`): q fits i32 and the spread
-        // terms i64 (255²·131088² < 2⁶³ / 81).
+        // |16·d| <= 131088 (the bound on ⌈d⌉ in `reads`): q and g·q fit i32
+        // (255·131088 < 2²⁵), g²·q² fits i64 with room for 81 of them.
         Some(Self {
-            weight,
-            moment: weight * b - g * (i32::from(left[x]) - r0),
+            g,
+            moment: g * g * b - g * (i32::from(left[x]) - r0),
             q: sixteenths(d) as i32,
         })
-    }
-
-    /// What the window sums add: `g²`, the moment, `g²·q`, `g²·q²`.
-    #[inline(always)]
-    fn sums(self) -> RefineSums {
-        let weighted_shift = i64::from(self.weight) * i64::from(self.q);
-        [
-            self.weight.into(),
-            self.moment.into(),
-            weighted_shift,
-            weighted_shift * i64::from(self.q),
-        ]
     }
 
     /// The step's disparity from a window's sums, for a centre whose estimate is
@@ -107,7 +93,8 @@ impl RefineTerm {
 /// expands every pixel's `R(x − D)` around that pixel's own current estimate
 /// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
 /// integer terms, made once per pixel and slid down the columns and along the rows
-/// (rows in bands of [`REFINE_BAND`] taken in order, bands in parallel). Where every
+/// (rows in bands of [`REFINE_BAND`] taken in order, bands in parallel; each band
+/// keeps the terms of its window's rows in a ring, so the terms never leave the cache). Where every
 /// pixel of a window has the same estimate this is the classic Lucas–Kanade step with
 /// the interpolant's slope. The previous refinement read each window at its centre's
 /// estimate, so every pixel needed window sums of its own; these terms are shared
@@ -142,47 +129,35 @@ pub(super) fn refine(
     if h < 2 * R + 1 || w < 2 * R + 4 {
         return;
     }
-    let RefinePlanes { start, live, terms } = planes;
+    let RefinePlanes {
+        start,
+        before,
+        live,
+    } = planes;
     start.clear();
     start.extend_from_slice(disparity.as_slice());
-    let start = Grid::from_vec(w, h, std::mem::take(start)).expect("a copy of the map");
     // Pixels still taking steps: 1; those that stopped keep their starting estimate.
     live.clear();
     live.resize(w * h, 1);
-    // Every pixel's terms are written before they are read.
-    terms.resize(w * h, RefineTerm::default());
-    let mut terms = Grid::from_vec(w, h, std::mem::take(terms)).expect("sized just above");
     for _ in 0..REFINE_STEPS {
-        terms
-            .as_mut_slice()
-            .par_chunks_mut(w)
-            .zip(disparity.as_slice().par_chunks(w))
-            .enumerate()
-            .for_each(|(y, (out, d))| {
-                run_refine_terms(kernel, (left.row(y), right.row(y)), d, out)
-            });
-        let terms = &terms;
+        // Every window reads its pixels' terms at the previous step's estimates.
+        before.clear();
+        before.extend_from_slice(disparity.as_slice());
+        let step = Step {
+            left,
+            right,
+            before,
+            start,
+        };
         disparity
             .as_mut_slice()
             .par_chunks_mut(w * REFINE_BAND)
             .zip(live.par_chunks_mut(w * REFINE_BAND))
             .enumerate()
             .for_each(|(band, (rows, live))| {
-                let first = band * REFINE_BAND;
-                let mut columns = ColumnSums::new(w);
-                let rows = rows.chunks_exact_mut(w).zip(live.chunks_exact_mut(w));
-                for (j, (row, live)) in rows.enumerate() {
-                    let y = first + j;
-                    if y < R || y + R >= h {
-                        continue;
-                    }
-                    columns.slide_to(terms, y);
-                    run_refine_step(kernel, &columns, start.row(y), row, live);
-                }
+                run_refine_band(kernel, &step, band * REFINE_BAND, rows, live)
             });
     }
-    planes.start = start.into_vec();
-    planes.terms = terms.into_vec();
 }
 
 /// The planes [`refine`] works in, kept between frames.
@@ -190,127 +165,329 @@ pub(super) fn refine(
 pub(super) struct RefinePlanes {
     /// The aggregated-cost estimates.
     start: Vec<f32>,
+    /// The estimates before the current step.
+    before: Vec<f32>,
     /// Which pixels still take steps.
     live: Vec<u8>,
-    /// Every pixel's terms at its current estimate.
-    terms: Vec<RefineTerm>,
+}
+
+/// What one step of [`refine`] reads: the images, the estimates before the step and
+/// the starting estimates (frames of the images' size, row-major).
+struct Step<'a> {
+    left: &'a Grid<u8>,
+    right: &'a Grid<u8>,
+    before: &'a [f32],
+    start: &'a [f32],
+}
+
+impl Step<'_> {
+    fn width(&self) -> usize {
+        self.left.width()
+    }
+
+    fn height(&self) -> usize {
+        self.left.height()
+    }
+
+    fn before_row(&self, y: usize) -> &[f32] {
+        let w = self.width();
+        &self.before[y * w..][..w]
+    }
+
+    fn start_row(&self, y: usize) -> &[f32] {
+        let w = self.width();
+        &self.start[y * w..][..w]
+    }
 }
 
 /// Rows [`refine`] takes in order on one thread, so the window's column sums slide down
-/// from the row above; bands run in parallel.
-const REFINE_BAND: usize = 32;
+/// from the row above; bands run in parallel. Each band makes the terms of the
+/// `2·REFINE_RADIUS` rows above its first once more (an eighth more terms at 64).
+const REFINE_BAND: usize = 64;
 
-/// The [`RefineTerm`]s of every column summed over the nine rows of a window, for the
-/// window around row `row` (`usize::MAX` before the first).
-struct ColumnSums {
-    row: usize,
-    sums: Vec<RefineSums>,
+/// Rows of terms a window spans.
+const WINDOW_ROWS: usize = 2 * REFINE_RADIUS + 1;
+
+/// One row's [`RefineTerm`]s as planes: `g`, the moment and `g·q` (zero where a pixel
+/// has no terms).
+#[derive(Clone)]
+struct TermRow {
+    g: Vec<i32>,
+    moment: Vec<i32>,
+    gq: Vec<i32>,
 }
 
-impl ColumnSums {
+impl TermRow {
     fn new(w: usize) -> Self {
         Self {
+            g: vec![0; w],
+            moment: vec![0; w],
+            gq: vec![0; w],
+        }
+    }
+
+    /// The terms of row `y` at the estimates before the step; with `avx2` (detected by
+    /// the caller) eight pixels at a time, the same terms.
+    #[inline(always)]
+    fn fill(&mut self, step: &Step<'_>, y: usize, avx2: bool) {
+        let (left, right) = (step.left.row(y), step.right.row(y));
+        let d = step.before_row(y);
+        let w = d.len();
+        let mut x = 0;
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: `avx2` is set only where AVX2 was detected (`run_refine_band`).
+            #[allow(unsafe_code)]
+            unsafe {
+                x = self.fill_avx2(left, right, d)
+            };
+        }
+        let _ = avx2;
+        let (g, moment, gq) = (&mut self.g[..w], &mut self.moment[..w], &mut self.gq[..w]);
+        for x in x..w {
+            let t = RefineTerm::of(left, right, x, d[x]).unwrap_or_default();
+            g[x] = t.g;
+            moment[x] = t.moment;
+            gq[x] = t.g * t.q;
+        }
+    }
+
+    /// [`TermRow::fill`] for the columns up to the last whole eight that read two bytes
+    /// short of the right row's end, eight at a time; returns the first column left to
+    /// do. Each lane does what [`RefineTerm::of`] does: the same roundings
+    /// (`round` half away from zero as `trunc(m) + trunc(2·(m − trunc(m)))`, exact),
+    /// the same tests (ordered comparisons, false for NaN), and its two right-view
+    /// bytes from one gathered 32-bit word (lanes without terms read column 0 and are
+    /// zeroed).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    fn fill_avx2(&mut self, left: &[u8], right: &[u8], d: &[f32]) -> usize {
+        use std::arch::x86_64::*;
+        let w = d.len();
+        assert!(left.len() >= w && right.len() == w && self.g.len() >= w);
+        assert!(self.moment.len() >= w && self.gq.len() >= w && w < 1 << 24);
+        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (zero, one, sixteen, two) = (
+            _mm256_setzero_ps(),
+            _mm256_set1_ps(1.0),
+            _mm256_set1_ps(16.0),
+            _mm256_set1_ps(2.0),
+        );
+        let width = _mm256_set1_ps(w as f32);
+        let bound = _mm256_set1_ps(8192.0);
+        let magnitude = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+        let byte = _mm256_set1_epi32(0xff);
+        const UP: i32 = _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC;
+        const TRUNC: i32 = _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC;
+        let mut x = 0;
+        while x + 8 <= w {
+            // SAFETY: x + 8 <= w bounds every load and store below; gathered words are
+            // tested to end inside the row.
+            unsafe {
+                let dv = _mm256_loadu_ps(d.as_ptr().add(x));
+                let b = _mm256_round_ps::<UP>(dv);
+                let i = _mm256_sub_ps(_mm256_add_ps(_mm256_set1_ps(x as f32), lanes), b);
+                let inside = _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(i, zero),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_add_ps(i, one), width),
+                );
+                let ok = _mm256_and_ps(
+                    inside,
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(_mm256_and_ps(b, magnitude), bound),
+                );
+                let ok = _mm256_castps_si256(ok);
+                let ii = _mm256_and_si256(_mm256_cvttps_epi32(i), ok);
+                // Two bytes past a read at w − 2 would leave the row: such lanes wait
+                // for the scalar loop.
+                let last = _mm256_set1_epi32(w as i32 - 4);
+                if _mm256_movemask_epi8(_mm256_cmpgt_epi32(ii, last)) != 0 {
+                    break;
+                }
+                let word = _mm256_i32gather_epi32::<1>(right.as_ptr().cast::<i32>(), ii);
+                let r0 = _mm256_and_si256(word, byte);
+                let r1 = _mm256_and_si256(_mm256_srli_epi32::<8>(word), byte);
+                let l = _mm256_cvtepu8_epi32(_mm_loadl_epi64(left.as_ptr().add(x).cast()));
+                let g = _mm256_sub_epi32(r1, r0);
+                let bi = _mm256_cvttps_epi32(b);
+                let moment = _mm256_sub_epi32(
+                    _mm256_mullo_epi32(_mm256_mullo_epi32(g, g), bi),
+                    _mm256_mullo_epi32(g, _mm256_sub_epi32(l, r0)),
+                );
+                let m = _mm256_mul_ps(dv, sixteen);
+                let t = _mm256_round_ps::<TRUNC>(m);
+                let half = _mm256_round_ps::<TRUNC>(_mm256_mul_ps(_mm256_sub_ps(m, t), two));
+                let q = _mm256_cvttps_epi32(_mm256_add_ps(t, half));
+                let g = _mm256_and_si256(g, ok);
+                let gq = _mm256_mullo_epi32(g, q);
+                let moment = _mm256_and_si256(moment, ok);
+                _mm256_storeu_si256(self.g.as_mut_ptr().add(x).cast(), g);
+                _mm256_storeu_si256(self.moment.as_mut_ptr().add(x).cast(), moment);
+                _mm256_storeu_si256(self.gq.as_mut_ptr().add(x).cast(), gq);
+            }
+            x += 8;
+        }
+        x
+    }
+}
+
+/// The window sums of every column over the nine rows around row `row` (`usize::MAX`
+/// before the first), and the nine rows' terms in a ring (row `r` in slot `r % 9`), so
+/// sliding down a row replaces the slot of the row that leaves with the row that enters.
+struct Window {
+    row: usize,
+    /// AVX2 was detected: [`TermRow::fill`] takes eight pixels at a time.
+    avx2: bool,
+    slots: Vec<TermRow>,
+    entering: TermRow,
+    columns: ColumnSums,
+}
+
+/// Each column's sums of `g²`, the moment, `g²·q` and `g²·q²` over a window's rows, as
+/// planes.
+struct ColumnSums {
+    weight: Vec<i64>,
+    moment: Vec<i64>,
+    shift: Vec<i64>,
+    square: Vec<i64>,
+}
+
+impl Window {
+    fn new(w: usize, avx2: bool) -> Self {
+        Self {
             row: usize::MAX,
-            sums: vec![[0; 4]; w],
+            avx2,
+            slots: vec![TermRow::new(w); WINDOW_ROWS],
+            entering: TermRow::new(w),
+            columns: ColumnSums {
+                weight: vec![0; w],
+                moment: vec![0; w],
+                shift: vec![0; w],
+                square: vec![0; w],
+            },
         }
     }
 
     /// The sums for the window around row `y`: slid down a row from the window around
     /// `y − 1`, else summed afresh.
-    fn slide_to(&mut self, terms: &Grid<RefineTerm>, y: usize) {
+    #[inline(always)]
+    fn slide_to(&mut self, step: &Step<'_>, y: usize) {
         const R: usize = REFINE_RADIUS;
-        let add = |sums: &mut Self, row: usize, sign: i64| {
-            for (s, t) in sums.sums.iter_mut().zip(terms.row(row)) {
-                for (s, t) in s.iter_mut().zip(t.sums()) {
-                    *s += sign * t;
-                }
-            }
-        };
         if self.row.wrapping_add(1) == y {
-            add(self, y + R, 1);
-            add(self, y - R - 1, -1);
+            let slot = &mut self.slots[(y + R) % WINDOW_ROWS];
+            self.entering.fill(step, y + R, self.avx2);
+            self.columns.slide(&self.entering, slot);
+            std::mem::swap(slot, &mut self.entering);
         } else {
-            self.sums.fill([0; 4]);
-            for row in y - R..=y + R {
-                add(self, row, 1);
+            let c = &mut self.columns;
+            for s in [&mut c.weight, &mut c.moment, &mut c.shift, &mut c.square] {
+                s.fill(0);
+            }
+            for r in y - R..=y + R {
+                let slot = &mut self.slots[r % WINDOW_ROWS];
+                slot.fill(step, r, self.avx2);
+                self.columns.slide(slot, &TermRow::new(0));
             }
         }
         self.row = y;
     }
 }
 
-#[allow(unsafe_code)]
-fn run_refine_terms(kernel: Kernel, rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
-    #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
-        // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { refine_terms_avx2(rows, d, out) };
+impl ColumnSums {
+    /// Adds the row of terms that enters and takes away the one that leaves (an empty
+    /// row: none).
+    #[inline(always)]
+    fn slide(&mut self, entering: &TermRow, leaving: &TermRow) {
+        let w = self.weight.len();
+        let (g, m, gq) = (&entering.g[..w], &entering.moment[..w], &entering.gq[..w]);
+        let (sw, sm) = (&mut self.weight[..w], &mut self.moment[..w]);
+        let (ss, sq) = (&mut self.shift[..w], &mut self.square[..w]);
+        for x in 0..w {
+            let (g, gq) = (i64::from(g[x]), i64::from(gq[x]));
+            sw[x] += g * g;
+            sm[x] += i64::from(m[x]);
+            ss[x] += g * gq;
+            sq[x] += gq * gq;
+        }
+        if leaving.g.is_empty() {
+            return;
+        }
+        let (g, m, gq) = (&leaving.g[..w], &leaving.moment[..w], &leaving.gq[..w]);
+        for x in 0..w {
+            let (g, gq) = (i64::from(g[x]), i64::from(gq[x]));
+            sw[x] -= g * g;
+            sm[x] -= i64::from(m[x]);
+            ss[x] -= g * gq;
+            sq[x] -= gq * gq;
+        }
     }
-    let _ = kernel;
-    refine_terms(rows, d, out)
-}
-
-/// With AVX2 (and so SSE4.1) the roundings are instructions instead of calls; the same
-/// results.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn refine_terms_avx2(rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
-    refine_terms(rows, d, out)
-}
-
-/// One row's [`RefineTerm`]s at the disparities `d` (zero where there are none).
-#[inline(always)]
-fn refine_terms(rows: (&[u8], &[u8]), d: &[f32], out: &mut [RefineTerm]) {
-    let (left, right) = rows;
-    for (x, (&d, o)) in d.iter().zip(out).enumerate() {
-        *o = RefineTerm::of(left, right, x, d).unwrap_or_default();
-    }
 }
 
 #[allow(unsafe_code)]
-fn run_refine_step(
+fn run_refine_band(
     kernel: Kernel,
-    columns: &ColumnSums,
-    start: &[f32],
-    row: &mut [f32],
+    step: &Step<'_>,
+    first: usize,
+    rows: &mut [f32],
     live: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
-        return unsafe { refine_step_avx2(columns, start, row, live) };
+        return unsafe { refine_band_avx2(step, first, rows, live) };
     }
     let _ = kernel;
-    refine_step(columns, start, row, live)
+    refine_band(step, first, rows, live, false)
 }
 
+/// With AVX2 the terms take eight pixels an instruction, the window sums four columns,
+/// and the roundings are instructions instead of calls; the same results.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
-fn refine_step_avx2(columns: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
-    refine_step(columns, start, row, live)
+fn refine_band_avx2(step: &Step<'_>, first: usize, rows: &mut [f32], live: &mut [u8]) {
+    refine_band(step, first, rows, live, true)
 }
 
-/// One Gauss–Newton step of [`refine`] for a row (`row`: its current estimates, `live`:
-/// which still take steps, `start`: the starting estimates), its window sums slid along
-/// the row from `columns`. The right row is as wide as `row`, so whether the centre's
-/// own reads are inside it needs only the width.
+/// One step of [`refine`] for the rows of a band starting at row `first` (`rows`: their
+/// estimates, `live`: which still take steps); `avx2` only where it was detected.
 #[inline(always)]
-fn refine_step(columns: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
+fn refine_band(step: &Step<'_>, first: usize, rows: &mut [f32], live: &mut [u8], avx2: bool) {
+    const R: usize = REFINE_RADIUS;
+    let (w, h) = (step.width(), step.height());
+    let mut window = Window::new(w, avx2);
+    let rows = rows.chunks_exact_mut(w).zip(live.chunks_exact_mut(w));
+    for (j, (row, live)) in rows.enumerate() {
+        let y = first + j;
+        if y < R || y + R >= h {
+            continue;
+        }
+        window.slide_to(step, y);
+        refine_row(&window.columns, step.start_row(y), row, live);
+    }
+}
+
+/// One Gauss–Newton step of [`refine`] for a row (`row`: its estimates before the
+/// step, `live`: which still take steps, `start`: the starting estimates), its window
+/// sums slid along the row from the window's column sums. The right row is as wide as
+/// `row`, so whether the centre's own reads are inside it needs only the width.
+#[inline(always)]
+fn refine_row(c: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
     const R: usize = REFINE_RADIUS;
     let w = row.len();
-    let columns = &columns.sums;
+    let columns = [&c.weight, &c.moment, &c.shift, &c.square].map(|c| &c[..w]);
+    let column = |x: usize| columns.map(|c| c[x]);
     let mut sums: RefineSums = [0; 4];
-    for c in &columns[..2 * R] {
-        for (s, c) in sums.iter_mut().zip(c) {
+    for x in 0..2 * R {
+        for (s, c) in sums.iter_mut().zip(column(x)) {
             *s += c;
         }
     }
     for x in R..w - R {
-        for (s, c) in sums.iter_mut().zip(columns[x + R]) {
+        for (s, c) in sums.iter_mut().zip(column(x + R)) {
             *s += c;
         }
         if x > R {
-            for (s, c) in sums.iter_mut().zip(columns[x - R - 1]) {
+            for (s, c) in sums.iter_mut().zip(column(x - R - 1)) {
                 *s -= c;
             }
         }
@@ -364,10 +541,11 @@ mod tests {
                     for yy in y - R..=y + R {
                         for xx in x - R..=x + R {
                             let t = term(xx, yy);
-                            sums[0] += i64::from(t.weight);
+                            let weight = i64::from(t.g).pow(2);
+                            sums[0] += weight;
                             sums[1] += i64::from(t.moment);
-                            sums[2] += i64::from(t.weight) * q(before.get(xx, yy));
-                            sums[3] += i64::from(t.weight) * q(before.get(xx, yy)).pow(2);
+                            sums[2] += weight * q(before.get(xx, yy));
+                            sums[3] += weight * q(before.get(xx, yy)).pow(2);
                         }
                     }
                     let reads = RefineTerm::of(left.row(y), right.row(y), x, v).is_some();
@@ -439,6 +617,66 @@ mod tests {
                     i / w
                 );
             }
+        }
+    }
+
+    /// The eight-lane terms are the scalar terms, bit for bit: on holes, infinities,
+    /// disparities off either end of the row and past the bound, estimates exactly
+    /// halfway between sixteenths (rounded away from zero), and small disparities at
+    /// the row's end (where the gather would leave the row and the scalar loop takes
+    /// over).
+    #[test]
+    fn eight_lane_terms_are_the_scalar_terms() {
+        if !Kernel::Avx2.is_available() {
+            eprintln!("skipped: no AVX2 here");
+            return;
+        }
+        let mut rng = crate::rng::Rng::new(11);
+        for w in [8, 13, 61, 64, 203] {
+            let left = Grid::from_fn(w, 1, |_, _| (rng.uniform() * 255.0) as u8);
+            let right = Grid::from_fn(w, 1, |_, _| (rng.uniform() * 255.0) as u8);
+            let special = [
+                f32::NAN,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                -0.5,
+                0.0,
+                0.03125,
+                -0.03125,
+                1.96875,
+                23.53125,
+                8192.0,
+                8192.5,
+                -8192.0,
+                1e9,
+                w as f32,
+                w as f32 - 1.5,
+            ];
+            let before: Vec<f32> = (0..w)
+                .map(|x| match rng.uniform() {
+                    u if u < 0.4 => special[x % special.len()],
+                    u if u < 0.7 => (u as f32 - 0.4) * 4.0,
+                    u => (u as f32 - 0.7) * 80.0,
+                })
+                .collect();
+            let start = before.clone();
+            let step = Step {
+                left: &left,
+                right: &right,
+                before: &before,
+                start: &start,
+            };
+            let (mut scalar, mut lanes) = (TermRow::new(w), TermRow::new(w));
+            scalar.fill(&step, 0, false);
+            lanes.fill(&step, 0, true);
+            for (x, d) in before.iter().enumerate() {
+                let (a, b) = (
+                    (scalar.g[x], scalar.moment[x], scalar.gq[x]),
+                    (lanes.g[x], lanes.moment[x], lanes.gq[x]),
+                );
+                assert_eq!(a, b, "width {w}, column {x}, estimate {d}");
+            }
+            assert!(scalar.g.iter().any(|&g| g != 0), "width {w}: no terms");
         }
     }
 
