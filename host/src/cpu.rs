@@ -31,3 +31,26 @@ pub fn avx2_bmi() -> bool {
 pub fn avx2_bmi() -> bool {
     false
 }
+
+/// AVX2 with BMI as [`avx2_bmi`], and AVX-512's byte population count (BITALG with
+/// F, BW and VL): the census costs of semi-global matching take it when the CPU has it,
+/// unless the environment sets `STEREOTAC_NO_AVX512` (to compare, or where AVX-512
+/// slows the clock), read once.
+#[cfg(target_arch = "x86_64")]
+pub fn avx512_popcnt() -> bool {
+    static USE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *USE.get_or_init(|| {
+        std::env::var_os("STEREOTAC_NO_AVX512").is_none()
+            && avx2_bmi()
+            && std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx512vl")
+            && std::is_x86_feature_detected!("avx512bitalg")
+    })
+}
+
+/// Never on other architectures.
+#[cfg(not(target_arch = "x86_64"))]
+pub fn avx512_popcnt() -> bool {
+    false
+}

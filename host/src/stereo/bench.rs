@@ -203,10 +203,15 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
             })
         });
         let what = format!(
-            "match, SGM {} paths{}, {:?} (64 d)",
+            "match, SGM {} paths{}, {:?}{} (64 d)",
             paths.count(),
             if refine { "" } else { " unrefined" },
-            m.kernel()
+            m.kernel(),
+            if m.kernel() == Kernel::Avx2 && crate::cpu::avx512_popcnt() {
+                "+VPOPCNTB"
+            } else {
+                ""
+            }
         );
         let mut r = row(&what, threads, ms, None);
         if let Some(d) = last {
