@@ -92,13 +92,14 @@ impl RefineTerm {
 /// Gauss–Newton steps from the aggregated-cost estimate). `L(x) ≈ R(x − D)`: each step
 /// expands every pixel's `R(x − D)` around that pixel's own current estimate
 /// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
-/// integer terms, made once per pixel and slid down the columns and along the rows
-/// (rows in bands of [`REFINE_BAND`] taken in order, bands in parallel; each band
-/// keeps the terms of its window's rows in a ring, so the terms never leave the cache). Where every
-/// pixel of a window has the same estimate this is the classic Lucas–Kanade step with
+/// integer terms, slid down the columns and along the rows (rows in bands of
+/// [`REFINE_BAND`] taken in order, bands in parallel; each band makes the terms of its
+/// window's rows as it slides and keeps them in a ring, so they never leave the cache).
+/// Where every pixel of a window has the same estimate this is the classic Lucas–Kanade step with
 /// the interpolant's slope. The previous refinement read each window at its centre's
 /// estimate, so every pixel needed window sums of its own; these terms are shared
-/// (640×480, 64 disparities, one core: 17.5 → about 7 ms). The slope is the
+/// (640×480, 64 disparities, one core: 17.5 → about 7 ms; with the terms kept in a
+/// ring per band and made eight pixels at a time, about 5). The slope is the
 /// interpolant's own, so a step is exact while the estimates stay between the same two
 /// whole pixels and the steps settle (a third changes nothing on `stereo-eval`); the
 /// central difference read between pixels, used before, made the steps swing about the
