@@ -57,7 +57,8 @@ impl PyStereoRig {
     /// pipeline: depths searched from `near_mm` to `far_mm`, matcher "bm" (block
     /// matching) or "sgm" (semi-global), the spatial filter on, holes up to `fill_holes`
     /// px filled, outliers removed when `outliers` is true (the defaults of
-    /// `stereotac stereo`); `sgm_paths` (3, 4, 5 or 8; 8 when not given) are the paths
+    /// `stereotac stereo`); `block_size` is the matching window's side (odd: block
+    /// matching's blocks, semi-global matching's refinement window); `sgm_paths` (3, 4, 5 or 8; 8 when not given) are the paths
     /// semi-global matching aggregates along, refused with block matching (they would be
     /// ignored). Keys of a file that its format does not have are warned about.
     #[staticmethod]

@@ -47,14 +47,16 @@ impl std::str::FromStr for MatcherKind {
 pub enum Matcher {
     /// Block matching.
     Block(BlockMatcher),
-    /// Semi-global matching.
-    SemiGlobal(SemiGlobalMatcher),
+    /// Semi-global matching (boxed: its parameters and kept volumes are several times
+    /// a block matcher's size).
+    SemiGlobal(Box<SemiGlobalMatcher>),
 }
 
 impl Matcher {
     /// A matcher of `kind` over the disparities of `range` (its other block-matching
-    /// settings are used by `bm` only); `sgm` aggregates along `sgm_paths` and takes
-    /// its defaults otherwise.
+    /// settings are used by `bm` only, except the block size, which is `sgm`'s
+    /// refinement window); `sgm` aggregates along `sgm_paths` and takes its defaults
+    /// otherwise.
     pub fn new(
         kind: MatcherKind,
         range: BlockMatchParams,
@@ -62,12 +64,13 @@ impl Matcher {
     ) -> Result<Self, MatchError> {
         Ok(match kind {
             MatcherKind::Bm => Self::Block(BlockMatcher::new(range)?),
-            MatcherKind::Sgm => Self::SemiGlobal(SemiGlobalMatcher::new(SgmParams {
+            MatcherKind::Sgm => Self::SemiGlobal(Box::new(SemiGlobalMatcher::new(SgmParams {
                 min_disparity: range.min_disparity,
                 num_disparities: range.num_disparities,
                 paths: sgm_paths,
+                refine_window: range.block_size,
                 ..SgmParams::default()
-            })?),
+            })?)),
         })
     }
 

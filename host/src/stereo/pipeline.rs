@@ -31,7 +31,9 @@ pub struct StereoConfig {
     pub matcher: MatcherKind,
     /// Paths semi-global matching aggregates along (`sgm` only).
     pub sgm_paths: Paths,
-    /// Block matcher window side (odd).
+    /// Matching window side (odd): block matching's blocks (3..=31 with the default
+    /// pre-filter), semi-global matching's refinement window (3..=31; larger averages
+    /// more noise on smooth surfaces and blurs small depth steps over more columns).
     pub block_size: u32,
     /// Matcher uniqueness ratio, percent.
     pub uniqueness_ratio: u32,

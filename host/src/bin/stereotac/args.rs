@@ -123,7 +123,9 @@ pub struct PipelineArgs {
     /// lens's field of view).
     #[arg(long, default_value_t = StereoConfig::default().rectify_scale)]
     pub scale: f64,
-    /// Matching window side (odd; block matching).
+    /// Matching window side (odd): block matching's blocks; semi-global matching's
+    /// sub-pixel refinement window (3..=31; larger: less noise on smooth surfaces, small
+    /// depth steps blurred over more columns).
     #[arg(long, default_value_t = StereoConfig::default().block_size)]
     pub block_size: u32,
     /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census

@@ -8,9 +8,6 @@ use rayon::prelude::*;
 use crate::grid::Grid;
 use crate::stereo::block_match::Kernel;
 
-/// Window radius of [`refine`].
-const REFINE_RADIUS: usize = 4;
-
 /// Gauss–Newton steps of [`refine`].
 const REFINE_STEPS: usize = 2;
 
@@ -88,7 +85,8 @@ impl RefineTerm {
     }
 }
 
-/// Least-squares sub-pixel refinement (Lucas–Kanade along the row, 9×9 window, two
+/// Least-squares sub-pixel refinement (Lucas–Kanade along the row, a square window of
+/// side `2·radius + 1` (at least 3; [`super::SgmParams::refine_window`]), two
 /// Gauss–Newton steps from the aggregated-cost estimate). `L(x) ≈ R(x − D)`: each step
 /// expands every pixel's `R(x − D)` around that pixel's own current estimate
 /// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
@@ -120,14 +118,14 @@ impl RefineTerm {
 /// thread count.
 pub(super) fn refine(
     kernel: Kernel,
-    left: &Grid<u8>,
-    right: &Grid<u8>,
+    (left, right): (&Grid<u8>, &Grid<u8>),
+    radius: usize,
     disparity: &mut Grid<f32>,
     planes: &mut RefinePlanes,
 ) {
-    const R: usize = REFINE_RADIUS;
     let (w, h) = (left.width(), left.height());
-    if h < 2 * R + 1 || w < 2 * R + 4 {
+    let r = radius.max(1);
+    if h < 2 * r + 1 || w < 2 * r + 4 {
         return;
     }
     let RefinePlanes {
@@ -149,6 +147,7 @@ pub(super) fn refine(
             right,
             before,
             start,
+            radius: r,
         };
         disparity
             .as_mut_slice()
@@ -179,6 +178,8 @@ struct Step<'a> {
     right: &'a Grid<u8>,
     before: &'a [f32],
     start: &'a [f32],
+    /// The window's radius: its side is `2·radius + 1`.
+    radius: usize,
 }
 
 impl Step<'_> {
@@ -203,11 +204,8 @@ impl Step<'_> {
 
 /// Rows [`refine`] takes in order on one thread, so the window's column sums slide down
 /// from the row above; bands run in parallel. Each band makes the terms of the
-/// `2·REFINE_RADIUS` rows above its first once more (an eighth more terms at 64).
+/// `2·radius` rows above its first once more (an eighth more terms with a 9×9 window).
 const REFINE_BAND: usize = 64;
-
-/// Rows of terms a window spans.
-const WINDOW_ROWS: usize = 2 * REFINE_RADIUS + 1;
 
 /// One row's [`RefineTerm`]s as planes: `g`, the moment and `g·q` (zero where a pixel
 /// has no terms).
@@ -332,9 +330,10 @@ impl TermRow {
     }
 }
 
-/// The window sums of every column over the nine rows around row `row` (`usize::MAX`
-/// before the first), and the nine rows' terms in a ring (row `r` in slot `r % 9`), so
-/// sliding down a row replaces the slot of the row that leaves with the row that enters.
+/// The window sums of every column over the `n = 2·radius + 1` rows around row `row`
+/// (`usize::MAX` before the first), and those rows' terms in a ring (row `r` in slot
+/// `r % n`), so sliding down a row replaces the slot of the row that leaves with the row
+/// that enters.
 struct Window {
     row: usize,
     /// AVX2 was detected: [`TermRow::fill`] takes eight pixels at a time.
@@ -354,11 +353,11 @@ struct ColumnSums {
 }
 
 impl Window {
-    fn new(w: usize, avx2: bool) -> Self {
+    fn new(w: usize, radius: usize, avx2: bool) -> Self {
         Self {
             row: usize::MAX,
             avx2,
-            slots: vec![TermRow::new(w); WINDOW_ROWS],
+            slots: vec![TermRow::new(w); 2 * radius + 1],
             entering: TermRow::new(w),
             columns: ColumnSums {
                 weight: vec![0; w],
@@ -373,10 +372,10 @@ impl Window {
     /// `y − 1`, else summed afresh.
     #[inline(always)]
     fn slide_to(&mut self, step: &Step<'_>, y: usize) {
-        const R: usize = REFINE_RADIUS;
+        let (r, n) = (step.radius, self.slots.len());
         if self.row.wrapping_add(1) == y {
-            let slot = &mut self.slots[(y + R) % WINDOW_ROWS];
-            self.entering.fill(step, y + R, self.avx2);
+            let slot = &mut self.slots[(y + r) % n];
+            self.entering.fill(step, y + r, self.avx2);
             self.columns.slide(&self.entering, slot);
             std::mem::swap(slot, &mut self.entering);
         } else {
@@ -384,9 +383,9 @@ impl Window {
             for s in [&mut c.weight, &mut c.moment, &mut c.shift, &mut c.square] {
                 s.fill(0);
             }
-            for r in y - R..=y + R {
-                let slot = &mut self.slots[r % WINDOW_ROWS];
-                slot.fill(step, r, self.avx2);
+            for row in y - r..=y + r {
+                let slot = &mut self.slots[row % n];
+                slot.fill(step, row, self.avx2);
                 self.columns.slide(slot, &TermRow::new(0));
             }
         }
@@ -453,42 +452,40 @@ fn refine_band_avx2(step: &Step<'_>, first: usize, rows: &mut [f32], live: &mut 
 /// estimates, `live`: which still take steps); `avx2` only where it was detected.
 #[inline(always)]
 fn refine_band(step: &Step<'_>, first: usize, rows: &mut [f32], live: &mut [u8], avx2: bool) {
-    const R: usize = REFINE_RADIUS;
-    let (w, h) = (step.width(), step.height());
-    let mut window = Window::new(w, avx2);
+    let (w, h, r) = (step.width(), step.height(), step.radius);
+    let mut window = Window::new(w, r, avx2);
     let rows = rows.chunks_exact_mut(w).zip(live.chunks_exact_mut(w));
     for (j, (row, live)) in rows.enumerate() {
         let y = first + j;
-        if y < R || y + R >= h {
+        if y < r || y + r >= h {
             continue;
         }
         window.slide_to(step, y);
-        refine_row(&window.columns, step.start_row(y), row, live);
+        refine_row(&window.columns, r, step.start_row(y), row, live);
     }
 }
 
 /// One Gauss–Newton step of [`refine`] for a row (`row`: its estimates before the
 /// step, `live`: which still take steps, `start`: the starting estimates), its window
-/// sums slid along the row from the window's column sums. The right row is as wide as
+/// sums (radius `r`) slid along the row from the window's column sums. The right row is as wide as
 /// `row`, so whether the centre's own reads are inside it needs only the width.
 #[inline(always)]
-fn refine_row(c: &ColumnSums, start: &[f32], row: &mut [f32], live: &mut [u8]) {
-    const R: usize = REFINE_RADIUS;
+fn refine_row(c: &ColumnSums, r: usize, start: &[f32], row: &mut [f32], live: &mut [u8]) {
     let w = row.len();
     let columns = [&c.weight, &c.moment, &c.shift, &c.square].map(|c| &c[..w]);
     let column = |x: usize| columns.map(|c| c[x]);
     let mut sums: RefineSums = [0; 4];
-    for x in 0..2 * R {
+    for x in 0..2 * r {
         for (s, c) in sums.iter_mut().zip(column(x)) {
             *s += c;
         }
     }
-    for x in R..w - R {
-        for (s, c) in sums.iter_mut().zip(column(x + R)) {
+    for x in r..w - r {
+        for (s, c) in sums.iter_mut().zip(column(x + r)) {
             *s += c;
         }
-        if x > R {
-            for (s, c) in sums.iter_mut().zip(column(x - R - 1)) {
+        if x > r {
+            for (s, c) in sums.iter_mut().zip(column(x - r - 1)) {
                 *s -= c;
             }
         }
@@ -512,10 +509,18 @@ mod tests {
     use super::*;
     use crate::stereo::sgm::tests::shifted_pair;
 
+    /// The default window's radius (9×9).
+    const REFINE_RADIUS: usize = 4;
+
     /// The definition of [`refine`]: every window's sums from its 81 pixels' terms at
     /// the previous step's estimates, no reuse.
-    fn refine_by_definition(left: &Grid<u8>, right: &Grid<u8>, disparity: &mut Grid<f32>) {
-        const R: usize = REFINE_RADIUS;
+    fn refine_by_definition(
+        left: &Grid<u8>,
+        right: &Grid<u8>,
+        disparity: &mut Grid<f32>,
+        radius: usize,
+    ) {
+        let r = radius;
         // A pixel's estimate in sixteenths (only read where it has terms).
         let q = |d: f32| {
             if d.is_finite() {
@@ -532,15 +537,15 @@ mod tests {
             let term = |x: usize, y: usize| {
                 RefineTerm::of(left.row(y), right.row(y), x, before.get(x, y)).unwrap_or_default()
             };
-            for y in R..h.saturating_sub(R) {
-                for x in R..w - R {
+            for y in r..h.saturating_sub(r) {
+                for x in r..w - r {
                     let v = before.get(x, y);
                     if !live.get(x, y) || !v.is_finite() {
                         continue;
                     }
                     let mut sums = [0i64; 4];
-                    for yy in y - R..=y + R {
-                        for xx in x - R..=x + R {
+                    for yy in y - r..=y + r {
+                        for xx in x - r..=x + r {
                             let t = term(xx, yy);
                             let weight = i64::from(t.g).pow(2);
                             sums[0] += weight;
@@ -581,42 +586,45 @@ mod tests {
             u if u < 0.1 => truth(x, y).round() + 1.0,
             u => truth(x, y) + (u as f32 - 0.55) * 0.4,
         });
-        let mut slow = start.clone();
-        refine_by_definition(&l, &r, &mut slow);
         // Planes kept from a larger frame, as a matcher keeps them between frames.
         let mut planes = RefinePlanes::default();
         let (bl, br) = shifted_pair(w + 30, h + 20, |_, _| 25.3);
         refine(
             Kernel::best(),
-            &bl,
-            &br,
+            (&bl, &br),
+            REFINE_RADIUS,
             &mut Grid::filled(w + 30, h + 20, 25.0),
             &mut planes,
         );
-        for kernel in [Kernel::Portable, Kernel::Avx2]
-            .into_iter()
-            .filter(|k| k.is_available())
-        {
-            let mut fast = start.clone();
-            refine(kernel, &l, &r, &mut fast, &mut planes);
-            let changed = fast
-                .as_slice()
-                .iter()
-                .zip(start.as_slice())
-                .filter(|(a, b)| a.to_bits() != b.to_bits())
-                .count();
-            assert!(
-                changed > w * h / 3,
-                "{kernel:?}: refinement moved only {changed} pixels"
-            );
-            for (i, (a, b)) in fast.as_slice().iter().zip(slow.as_slice()).enumerate() {
-                assert_eq!(
-                    a.to_bits(),
-                    b.to_bits(),
-                    "{kernel:?}, pixel ({}, {}): {a} vs {b}",
-                    i % w,
-                    i / w
+        // The default window, the smallest, and a larger one.
+        for radius in [REFINE_RADIUS, 1, 7] {
+            let mut slow = start.clone();
+            refine_by_definition(&l, &r, &mut slow, radius);
+            for kernel in [Kernel::Portable, Kernel::Avx2]
+                .into_iter()
+                .filter(|k| k.is_available())
+            {
+                let mut fast = start.clone();
+                refine(kernel, (&l, &r), radius, &mut fast, &mut planes);
+                let changed = fast
+                    .as_slice()
+                    .iter()
+                    .zip(start.as_slice())
+                    .filter(|(a, b)| a.to_bits() != b.to_bits())
+                    .count();
+                assert!(
+                    changed > w * h / 3,
+                    "{kernel:?}, radius {radius}: refinement moved only {changed} pixels"
                 );
+                for (i, (a, b)) in fast.as_slice().iter().zip(slow.as_slice()).enumerate() {
+                    assert_eq!(
+                        a.to_bits(),
+                        b.to_bits(),
+                        "{kernel:?}, radius {radius}, pixel ({}, {}): {a} vs {b}",
+                        i % w,
+                        i / w
+                    );
+                }
             }
         }
     }
@@ -666,6 +674,7 @@ mod tests {
                 right: &right,
                 before: &before,
                 start: &start,
+                radius: REFINE_RADIUS,
             };
             let (mut scalar, mut lanes) = (TermRow::new(w), TermRow::new(w));
             scalar.fill(&step, 0, false);
@@ -699,7 +708,13 @@ mod tests {
             .filter(|k| k.is_available())
         {
             let mut d = start.clone();
-            refine(kernel, &l, &r, &mut d, &mut RefinePlanes::default());
+            refine(
+                kernel,
+                (&l, &r),
+                REFINE_RADIUS,
+                &mut d,
+                &mut RefinePlanes::default(),
+            );
             for y in 0..h {
                 for x in 0..w {
                     let (v, s) = (d.get(x, y), start.get(x, y));
@@ -734,7 +749,13 @@ mod tests {
         let mut rng = crate::rng::Rng::new(6);
         let start = Grid::from_fn(w, h, |_, y| truth(y) + (rng.uniform() as f32 - 0.5) * 0.4);
         let mut d = start.clone();
-        refine(Kernel::best(), &l, &r, &mut d, &mut RefinePlanes::default());
+        refine(
+            Kernel::best(),
+            (&l, &r),
+            REFINE_RADIUS,
+            &mut d,
+            &mut RefinePlanes::default(),
+        );
         let mut exact = 0;
         for y in REFINE_RADIUS..h - REFINE_RADIUS {
             for x in 30..w - REFINE_RADIUS {
