@@ -204,7 +204,8 @@ impl SgmParams {
             return bad(
                 "refine_window",
                 side.to_string(),
-                "an odd window side, 3..=31 (9 is the default; the pipeline's block size sets it)",
+                "an odd window side, 3..=31 (9 is the default; a pipeline's block size, \
+                 --block-size, sets it)",
             );
         }
         if !(self.speckle_range.is_finite() && self.speckle_range >= 0.0) {
