@@ -1,7 +1,8 @@
 //! Which vector instructions this CPU has. Builds target plain x86-64 so the binary runs
 //! anywhere; the hot kernels of the tactile and stereo pipelines are compiled a second
-//! time with AVX2 enabled and pick that copy at run time when the CPU has it. The checks
-//! are cached by the standard library, so asking per call is cheap.
+//! time with AVX2 enabled and pick that copy at run time when the CPU has it (semi-global
+//! matching's census costs a third time, with AVX-512's byte population count). The
+//! checks are cached by the standard library, so asking per call is cheap.
 
 /// AVX2: 256-bit integer and float lanes (the tactile block sums).
 #[cfg(target_arch = "x86_64")]
@@ -34,8 +35,8 @@ pub fn avx2_bmi() -> bool {
 
 /// AVX2 with BMI as [`avx2_bmi`], and AVX-512's byte population count (BITALG with
 /// F, BW and VL): the census costs of semi-global matching take it when the CPU has it,
-/// unless the environment sets `STEREOTAC_NO_AVX512` (to compare, or where AVX-512
-/// slows the clock), read once.
+/// unless the environment sets `STEREOTAC_NO_AVX512` (to any value, even 0 or empty:
+/// to compare, or where AVX-512 slows the clock), read once.
 #[cfg(target_arch = "x86_64")]
 pub fn avx512_popcnt() -> bool {
     static USE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();

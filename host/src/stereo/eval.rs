@@ -22,6 +22,7 @@ use super::matcher::MatcherKind;
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::postfilter::{SpatialFilter, TemporalParams};
 use super::rectify::Rectification;
+use super::sgm::Paths;
 use super::synthetic::{
     Membrane, Plane, RawRig, StereoRig, TexturedPlane, render_pair, wide_fisheye_calibration,
 };
@@ -246,6 +247,8 @@ pub struct EvalRow {
     pub matcher: MatcherKind,
     /// The paths semi-global matching aggregated along (none with block matching).
     pub sgm_paths: Option<usize>,
+    /// Side of the matching window, px ([`super::Matcher::window`]).
+    pub window_px: u32,
     /// The measures.
     #[serde(flatten)]
     pub metrics: PlaneMetrics,
@@ -329,8 +332,9 @@ pub fn run_synthetic(
             };
             let row = EvalRow {
                 variant,
-                matcher: config.matcher,
-                sgm_paths: (config.matcher == MatcherKind::Sgm).then(|| config.sgm_paths.count()),
+                matcher: pipeline.matcher().kind(),
+                sgm_paths: pipeline.matcher().sgm_paths().map(Paths::count),
+                window_px: pipeline.matcher().window(),
                 metrics: plane_metrics(&depth[settle..], distance, roi, intrinsics),
                 frame_ms: time / captures.len().max(1) as f64,
             };

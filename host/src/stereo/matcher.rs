@@ -64,13 +64,28 @@ impl Matcher {
     ) -> Result<Self, MatchError> {
         Ok(match kind {
             MatcherKind::Bm => Self::Block(BlockMatcher::new(range)?),
-            MatcherKind::Sgm => Self::SemiGlobal(Box::new(SemiGlobalMatcher::new(SgmParams {
-                min_disparity: range.min_disparity,
-                num_disparities: range.num_disparities,
-                paths: sgm_paths,
-                refine_window: range.block_size,
-                ..SgmParams::default()
-            })?)),
+            MatcherKind::Sgm => Self::SemiGlobal(Box::new(
+                SemiGlobalMatcher::new(SgmParams {
+                    min_disparity: range.min_disparity,
+                    num_disparities: range.num_disparities,
+                    paths: sgm_paths,
+                    refine_window: range.block_size,
+                    ..SgmParams::default()
+                })
+                // The window came as the block size: name it so.
+                .map_err(|e| match e {
+                    MatchError::InvalidParam {
+                        name: "refine_window",
+                        value,
+                        why,
+                    } => MatchError::InvalidParam {
+                        name: "block size (semi-global matching's refinement window)",
+                        value,
+                        why,
+                    },
+                    e => e,
+                })?,
+            )),
         })
     }
 
@@ -95,6 +110,15 @@ impl Matcher {
         match self {
             Self::Block(_) => None,
             Self::SemiGlobal(m) => Some(m.params().paths),
+        }
+    }
+
+    /// Side of the matching window (px): block matching's blocks, semi-global
+    /// matching's sub-pixel refinement window.
+    pub fn window(&self) -> u32 {
+        match self {
+            Self::Block(m) => m.params().block_size,
+            Self::SemiGlobal(m) => m.params().refine_window,
         }
     }
 
@@ -135,6 +159,31 @@ mod tests {
         }
         let e = "census".parse::<MatcherKind>().unwrap_err();
         assert!(e.contains("\"census\": not bm"), "{e}");
+    }
+
+    /// With semi-global matching the block size is the refinement window, and a bad one
+    /// is named as the block size the user set.
+    #[test]
+    fn the_block_size_is_the_refinement_window() {
+        let range = BlockMatchParams {
+            block_size: 13,
+            ..BlockMatchParams::default()
+        };
+        let m = Matcher::new(MatcherKind::Sgm, range, Paths::Three).unwrap();
+        assert_eq!(m.window(), 13);
+        let bm = Matcher::new(MatcherKind::Bm, range, Paths::Three).unwrap();
+        assert_eq!(bm.window(), 13);
+        let even = BlockMatchParams {
+            block_size: 8,
+            ..range
+        };
+        let e = Matcher::new(MatcherKind::Sgm, even, Paths::Three)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("block size") && e.contains("= 8: an odd window side"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -44,6 +44,9 @@ pub struct StereoSummary {
     /// Paths semi-global matching aggregated along (`sgm` only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sgm_paths: Option<usize>,
+    /// Side of the matching window, px: block matching's blocks, semi-global matching's
+    /// sub-pixel refinement window (`--block-size`).
+    pub window_px: u32,
     /// The matching kernel that ran.
     pub kernel: Kernel,
     /// Why pixels were rejected.
@@ -209,6 +212,7 @@ pub fn write_outputs(
         disparity_range_px: [d_lo, d_hi],
         matcher: pipeline.matcher().kind(),
         sgm_paths: pipeline.matcher().sgm_paths().map(Paths::count),
+        window_px: pipeline.matcher().window(),
         kernel: pipeline.matcher().kernel(),
         stats: frame.stats,
         fill_rate: depths.len() as f64 / (w * h).max(1) as f64,

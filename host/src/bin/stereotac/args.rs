@@ -131,13 +131,25 @@ pub struct PipelineArgs {
     /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census
     /// costs along 8 paths and sub-pixel refinement; fewer wrong pixels on slanted and
     /// weakly textured surfaces, several times block matching's time).
-    #[arg(long, default_value = "bm")]
+    #[arg(long, default_value = "bm", value_parser = choices::<MatcherKind, 2>(["bm", "sgm"]))]
     pub matcher: MatcherKind,
     /// Paths semi-global matching aggregates along: 8 (every direction, fewest
     /// streaks), 5 or 4, or 3 (along the row both ways and down, as OpenCV's
     /// StereoSGBM 3-way: fastest). Only with `--matcher sgm` [default: 8].
-    #[arg(long)]
+    #[arg(long, value_parser = choices::<Paths, 4>(["3", "4", "5", "8"]))]
     pub sgm_paths: Option<Paths>,
+}
+
+/// A value of `choices` (listed in `--help` and in clap's error), read through the
+/// library's own parser.
+fn choices<T, const N: usize>(
+    choices: [&'static str; N],
+) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: std::str::FromStr<Err = String> + Clone + Send + Sync + 'static,
+{
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(choices).try_map(|s| s.parse::<T>())
 }
 
 impl Default for PipelineArgs {

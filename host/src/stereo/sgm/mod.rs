@@ -204,8 +204,7 @@ impl SgmParams {
             return bad(
                 "refine_window",
                 side.to_string(),
-                "an odd window side, 3..=31 (9 is the default; a pipeline's block size, \
-                 --block-size, sets it)",
+                "an odd window side, 3..=31 (9 is the default)",
             );
         }
         if !(self.speckle_range.is_finite() && self.speckle_range >= 0.0) {
@@ -310,7 +309,7 @@ impl SemiGlobalMatcher {
         let mut stats = MatchStats::default();
         // The volumes are kept between frames (a fresh 59–98 MB per frame at 640×480
         // and 64 disparities costs page faults and TLB flushes, the census images and
-        // refinement planes 9 MB); a matcher shared by several threads at once takes
+        // refinement planes about 6.5 MB); a matcher shared by several threads at once takes
         // fresh ones.
         let mut kept = match self.scratch.0.try_lock() {
             Ok(v) => Some(v),
@@ -661,7 +660,7 @@ fn run_costs(kernel: Kernel, s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>,
     costs(s, left, right, out)
 }
 
-/// With AVX-512's byte population count the compiler counts 32 bytes an instruction
+/// With AVX-512's byte population count the compiler counts 64 bytes an instruction
 /// instead of two table lookups per nibble; the same costs.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512bw,avx512vl,avx512bitalg")]
@@ -1454,7 +1453,7 @@ mod tests {
     #[test]
     fn a_constant_shift_is_found_exactly_by_every_variant() {
         let (l, r) = shifted_pair(160, 60, |_, _| 23.0);
-        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in Paths::ALL {
             for kernel in [Kernel::Portable, Kernel::Avx2]
                 .into_iter()
                 .filter(|k| k.is_available())
@@ -1676,6 +1675,16 @@ mod tests {
     #[test]
     #[allow(unsafe_code)]
     fn the_cost_kernels_agree() {
+        #[cfg(target_arch = "x86_64")]
+        let (avx2, avx512) = (crate::cpu::avx2_bmi(), crate::cpu::avx512_popcnt());
+        #[cfg(not(target_arch = "x86_64"))]
+        let (avx2, avx512) = (false, false);
+        if !avx2 {
+            eprintln!("skipped: no AVX2 here");
+        }
+        if !avx512 {
+            eprintln!("skipped: no AVX-512 population count here");
+        }
         for (w, nd, d_min) in [(75, 16, 3), (130, 64, 0), (97, 48, 5)] {
             let (l, r) = shifted_pair(w, 9, |x, _| 4.0 + 0.05 * x as f32);
             let s = Shape { w, h: 9, nd, d_min };
@@ -1694,20 +1703,16 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 {
                     let mut got = vec![0; w * nd];
-                    if crate::cpu::avx2_bmi() {
-                        // SAFETY: detected just above.
+                    if avx2 {
+                        // SAFETY: detected above.
                         unsafe { costs_avx2(&s, cl.row(y), cr.row(y), &mut got) };
                         assert!(got == expected, "AVX2, width {w}, {nd} d, row {y}");
-                    } else {
-                        eprintln!("skipped: no AVX2 here");
                     }
-                    if crate::cpu::avx512_popcnt() {
+                    if avx512 {
                         got.fill(0);
-                        // SAFETY: detected just above.
+                        // SAFETY: detected above.
                         unsafe { costs_avx512(&s, cl.row(y), cr.row(y), &mut got) };
                         assert!(got == expected, "AVX-512, width {w}, {nd} d, row {y}");
-                    } else {
-                        eprintln!("skipped: no AVX-512 population count here");
                     }
                 }
             }
@@ -1916,7 +1921,7 @@ mod tests {
     #[test]
     fn the_schedule_fits_whatever_the_threads() {
         let fits = |s: Schedule| s.bytes >> 20 <= MAX_VOLUME_MIB;
-        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in Paths::ALL {
             for (w, h, nd) in [
                 (640, 480, 64),
                 (4096, 2000, 64),
@@ -1956,7 +1961,7 @@ mod tests {
                 .unwrap()
         };
         let (one, two) = (pool(1), pool(2));
-        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in Paths::ALL {
             let m = matcher(paths, Kernel::best());
             let a = one.install(|| m.compute(&l, &r).unwrap());
             let b = two.install(|| m.compute(&l, &r).unwrap());
@@ -2093,7 +2098,7 @@ mod tests {
 
     #[test]
     fn odd_sizes_and_parameters_are_handled() {
-        for paths in [Paths::Three, Paths::Four, Paths::Five, Paths::Eight] {
+        for paths in Paths::ALL {
             let m = matcher(paths, Kernel::best());
             for (w, h) in [(0, 0), (1, 1), (70, 7), (64, 100), (71, 6)] {
                 let g = Grid::filled(w, h, 9u8);

@@ -63,7 +63,8 @@ impl RefineTerm {
         let (r0, r1) = (i32::from(right[i]), i32::from(right[i + 1]));
         let g = r1 - r0;
         // |16·d| <= 131088 (the bound on ⌈d⌉ in `reads`): q and g·q fit i32
-        // (255·131088 < 2²⁵), g²·q² fits i64 with room for 81 of them.
+        // (255·131088 < 2²⁵), g²·q² fits i64 with room for a 31×31 window's 961 of them
+        // (and the spread of `solve`, about 3·10¹⁸ at most).
         Some(Self {
             g,
             moment: g * g * b - g * (i32::from(left[x]) - r0),
@@ -92,7 +93,8 @@ impl RefineTerm {
 /// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
 /// integer terms, slid down the columns and along the rows (rows in bands of
 /// [`REFINE_BAND`] taken in order, bands in parallel; each band makes the terms of its
-/// window's rows as it slides and keeps them in a ring, so they never leave the cache).
+/// window's rows as it slides and keeps them in a ring, about 23 kB a row of 640 for a
+/// 9×9 window: they stay in the cache instead of making a frame-sized plane).
 /// Where every pixel of a window has the same estimate this is the classic Lucas–Kanade step with
 /// the interpolant's slope. The previous refinement read each window at its centre's
 /// estimate, so every pixel needed window sums of its own; these terms are shared
@@ -123,9 +125,9 @@ pub(super) fn refine(
     disparity: &mut Grid<f32>,
     planes: &mut RefinePlanes,
 ) {
-    let (w, h) = (left.width(), left.height());
-    let r = radius.max(1);
-    if h < 2 * r + 1 || w < 2 * r + 4 {
+    let (w, h, r) = (left.width(), left.height(), radius);
+    // Radius 0 would be a window of one pixel: the parameters refuse it.
+    if r == 0 || h < 2 * r + 1 || w < 2 * r + 4 {
         return;
     }
     let RefinePlanes {
@@ -204,7 +206,8 @@ impl Step<'_> {
 
 /// Rows [`refine`] takes in order on one thread, so the window's column sums slide down
 /// from the row above; bands run in parallel. Each band makes the terms of the
-/// `2·radius` rows above its first once more (an eighth more terms with a 9×9 window).
+/// `radius` rows above its first and below its last once more (an eighth more terms
+/// with a 9×9 window).
 const REFINE_BAND: usize = 64;
 
 /// One row's [`RefineTerm`]s as planes: `g`, the moment and `g·q` (zero where a pixel
@@ -225,8 +228,9 @@ impl TermRow {
         }
     }
 
-    /// The terms of row `y` at the estimates before the step; with `avx2` (detected by
-    /// the caller) eight pixels at a time, the same terms.
+    /// The terms of row `y` at the estimates before the step; with `avx2` eight pixels
+    /// at a time where the CPU has AVX2 (checked here too: a cached flag), the same
+    /// terms.
     #[inline(always)]
     fn fill(&mut self, step: &Step<'_>, y: usize, avx2: bool) {
         let (left, right) = (step.left.row(y), step.right.row(y));
@@ -234,8 +238,8 @@ impl TermRow {
         let w = d.len();
         let mut x = 0;
         #[cfg(target_arch = "x86_64")]
-        if avx2 {
-            // SAFETY: `avx2` is set only where AVX2 was detected (`run_refine_band`).
+        if avx2 && crate::cpu::avx2() {
+            // SAFETY: AVX2 was detected just above.
             #[allow(unsafe_code)]
             unsafe {
                 x = self.fill_avx2(left, right, d)
@@ -512,7 +516,7 @@ mod tests {
     /// The default window's radius (9×9).
     const REFINE_RADIUS: usize = 4;
 
-    /// The definition of [`refine`]: every window's sums from its 81 pixels' terms at
+    /// The definition of [`refine`]: every window's sums from all its pixels' terms at
     /// the previous step's estimates, no reuse.
     fn refine_by_definition(
         left: &Grid<u8>,
@@ -596,8 +600,8 @@ mod tests {
             &mut Grid::filled(w + 30, h + 20, 25.0),
             &mut planes,
         );
-        // The default window, the smallest, and a larger one.
-        for radius in [REFINE_RADIUS, 1, 7] {
+        // The default window, the smallest, a larger one and the largest.
+        for radius in [REFINE_RADIUS, 1, 7, 15] {
             let mut slow = start.clone();
             refine_by_definition(&l, &r, &mut slow, radius);
             for kernel in [Kernel::Portable, Kernel::Avx2]

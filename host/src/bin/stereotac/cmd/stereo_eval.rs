@@ -80,18 +80,19 @@ pub fn run(a: Args) -> Result<()> {
         ..SyntheticEval::default()
     };
     let progress = bar(2 * a.distances.len() as u64, "rendering, matching");
-    let rows = eval::run_synthetic(&setup, a.pipeline.config()?, |_| progress.inc(1))?;
+    let config = a.pipeline.config()?;
+    let rows = eval::run_synthetic(&setup, config, |_| progress.inc(1))?;
     progress.finish_and_clear();
     let json = json_report(&rows, a.json_out.as_deref())?;
     if a.json {
         println!("{json}");
     } else {
-        let config = a.pipeline.config()?;
         let matcher = match config.matcher {
             MatcherKind::Sgm => format!("sgm, {} paths", config.sgm_paths.count()),
             kind => kind.name().to_string(),
         };
-        println!("matcher {matcher}");
+        let b = config.block_size;
+        println!("matcher {matcher}, window {b}×{b}");
         println!(
             "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
             match a.lens {
