@@ -207,7 +207,7 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
             paths.count(),
             if refine { "" } else { " unrefined" },
             m.kernel(),
-            if m.kernel() == Kernel::Avx2 && crate::cpu::avx512_popcnt() {
+            if m.counts_with_vpopcntb() {
                 "+VPOPCNTB"
             } else {
                 ""

@@ -20,6 +20,9 @@ pub enum MatcherKind {
 }
 
 impl MatcherKind {
+    /// Every matcher, the default first.
+    pub const ALL: [MatcherKind; 2] = [MatcherKind::Bm, MatcherKind::Sgm];
+
     /// The name options, files and Python take: "bm" or "sgm".
     pub fn name(self) -> &'static str {
         match self {
@@ -33,7 +36,7 @@ impl MatcherKind {
 impl std::str::FromStr for MatcherKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        [MatcherKind::Bm, MatcherKind::Sgm]
+        Self::ALL
             .into_iter()
             .find(|k| k.name() == s.trim())
             .ok_or_else(|| {
@@ -151,7 +154,7 @@ mod tests {
 
     #[test]
     fn names_read_back_and_match_the_summary() {
-        for kind in [MatcherKind::Bm, MatcherKind::Sgm] {
+        for kind in MatcherKind::ALL {
             assert_eq!(kind.name().parse::<MatcherKind>(), Ok(kind));
             // summary.json writes the kind through serde: the same name.
             let json = serde_json::to_string(&kind).unwrap();

@@ -131,7 +131,7 @@ pub struct PipelineArgs {
     /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census
     /// costs along 8 paths and sub-pixel refinement; fewer wrong pixels on slanted and
     /// weakly textured surfaces, several times block matching's time).
-    #[arg(long, default_value = "bm", value_parser = choices::<MatcherKind, 2>(["bm", "sgm"]))]
+    #[arg(long, default_value = "bm", value_parser = choices::<MatcherKind, 2>(MatcherKind::ALL.map(MatcherKind::name)))]
     pub matcher: MatcherKind,
     /// Paths semi-global matching aggregates along: 8 (every direction, fewest
     /// streaks), 5 or 4, or 3 (along the row both ways and down, as OpenCV's

@@ -296,6 +296,12 @@ impl SemiGlobalMatcher {
         self.kernel
     }
 
+    /// Whether its census costs count with AVX-512's `VPOPCNTB` on this CPU (the AVX2
+    /// kernel where the CPU has it and `STEREOTAC_NO_AVX512` is not set).
+    pub fn counts_with_vpopcntb(&self) -> bool {
+        counts_with_vpopcntb(self.kernel)
+    }
+
     /// Matches a rectified pair (8-bit grey, same size) on rayon's current pool. Images
     /// narrower than the disparity range plus a census window come out all invalid;
     /// a frame whose volumes (or, for 3 and 5 paths, rows) would take over 2 GiB is refused,
@@ -647,8 +653,8 @@ type PlaneRow<'a> = [&'a [u8]; CENSUS_BYTES];
 #[allow(unsafe_code)]
 fn run_costs(kernel: Kernel, s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>, out: &mut [u8]) {
     #[cfg(target_arch = "x86_64")]
-    if kernel == Kernel::Avx2 && crate::cpu::avx512_popcnt() {
-        // SAFETY: AVX2, BMI, AVX-512 F, BW, VL and BITALG were detected just above.
+    if counts_with_vpopcntb(kernel) {
+        // SAFETY: AVX2, BMI, AVX-512 F, BW, VL and BITALG were detected (`avx512_popcnt`).
         return unsafe { costs_avx512(s, left, right, out) };
     }
     #[cfg(target_arch = "x86_64")]
@@ -658,6 +664,12 @@ fn run_costs(kernel: Kernel, s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>,
     }
     let _ = kernel;
     costs(s, left, right, out)
+}
+
+/// Whether the census costs of `kernel` count with AVX-512's `VPOPCNTB` here: the AVX2
+/// kernel on a CPU that has it ([`crate::cpu::avx512_popcnt`]).
+fn counts_with_vpopcntb(kernel: Kernel) -> bool {
+    kernel == Kernel::Avx2 && crate::cpu::avx512_popcnt()
 }
 
 /// With AVX-512's byte population count the compiler counts 64 bytes an instruction

@@ -380,7 +380,7 @@ impl Window {
         if self.row.wrapping_add(1) == y {
             let slot = &mut self.slots[(y + r) % n];
             self.entering.fill(step, y + r, self.avx2);
-            self.columns.slide(&self.entering, slot);
+            self.columns.slide(&self.entering, Some(slot));
             std::mem::swap(slot, &mut self.entering);
         } else {
             let c = &mut self.columns;
@@ -390,7 +390,7 @@ impl Window {
             for row in y - r..=y + r {
                 let slot = &mut self.slots[row % n];
                 slot.fill(step, row, self.avx2);
-                self.columns.slide(slot, &TermRow::new(0));
+                self.columns.slide(slot, None);
             }
         }
         self.row = y;
@@ -398,10 +398,9 @@ impl Window {
 }
 
 impl ColumnSums {
-    /// Adds the row of terms that enters and takes away the one that leaves (an empty
-    /// row: none).
+    /// Adds the row of terms that enters and takes away the one that leaves, if any.
     #[inline(always)]
-    fn slide(&mut self, entering: &TermRow, leaving: &TermRow) {
+    fn slide(&mut self, entering: &TermRow, leaving: Option<&TermRow>) {
         let w = self.weight.len();
         let (g, m, gq) = (&entering.g[..w], &entering.moment[..w], &entering.gq[..w]);
         let (sw, sm) = (&mut self.weight[..w], &mut self.moment[..w]);
@@ -413,9 +412,9 @@ impl ColumnSums {
             ss[x] += g * gq;
             sq[x] += gq * gq;
         }
-        if leaving.g.is_empty() {
+        let Some(leaving) = leaving else {
             return;
-        }
+        };
         let (g, m, gq) = (&leaving.g[..w], &leaving.moment[..w], &leaving.gq[..w]);
         for x in 0..w {
             let (g, gq) = (i64::from(g[x]), i64::from(gq[x]));
