@@ -91,7 +91,8 @@ fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
 
 /// A disk 1 mm deep whose wall is steeper (1.6) than any slope the 6 mm calibration
 /// ball made (about 0.9): the lookup table saturates at the ball's slopes and reads it
-/// shallow (0.84 mm); the light model carries the strips' response past them (0.96).
+/// shallow (0.84 mm); the light and photometric models carry the strips' response past
+/// them.
 #[test]
 fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
     let optics = optics();
@@ -113,6 +114,56 @@ fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
         (light - 1.0).abs() < 0.07,
         "light read {light:.3} mm of 1.000"
     );
+    // So does the photometric model, from the four strips at once.
+    let photometric = read(ModelKind::Photometric);
+    assert!(
+        (photometric - 1.0).abs() < 0.07,
+        "photometric read {photometric:.3} mm of 1.000"
+    );
+}
+
+/// A stretch of a flat-bottomed disk's wall overexposed in the dx phase (a wall facing a
+/// strip saturates): its blocks say nothing, and left out of the contact they opened
+/// the ring around the disk's flat middle, which then read 0 mm (found on a held-out
+/// skin, with every model).
+#[test]
+fn a_saturated_stretch_of_wall_does_not_open_a_flat_bottomed_imprint() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let scene = Scene {
+        shapes: vec![Shape::Disk {
+            cx: 10.7,
+            cy: 8.0,
+            diameter: 6.0,
+            depth: 1.0,
+            wall: 1.0 / 1.3,
+            linear: true,
+        }],
+    };
+    let ppm = optics.px_per_mm;
+    let mut pair = render(&optics, &scene, 3);
+    // From inside the flat middle to beyond the wall's foot, 1.6 mm high.
+    let (x0, x1) = (((10.7 + 2.0) * ppm) as u32, ((10.7 + 4.8) * ppm) as u32);
+    let (y0, y1) = (((8.0 - 0.8) * ppm) as u32, ((8.0 + 0.8) * ppm) as u32);
+    for y in y0..y1 {
+        for x in x0..x1 {
+            pair.dx.get_pixel_mut(x, y).0[0] = 255;
+        }
+    }
+    let truth = scene
+        .truth(optics.width, optics.height, optics.px_per_mm)
+        .depth;
+    let mut rec = Reconstructor::new(
+        model,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some((&refs.0, &refs.1).into()),
+    )
+    .unwrap();
+    let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+    let read = errors(&r.depth_mm, &truth).reading_mm;
+    assert!(read > 0.6, "the flat middle read {read:.3} mm of 1.000");
+    assert!(r.rejected_pixels > 0, "the saturated stretch was refused");
 }
 
 #[test]
@@ -508,7 +559,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 19] = [
+    let cases: [(&str, Damage); 21] = [
         ("dx.lut.gain_negative", |m| {
             m["dx"]["lut"]["gain_negative"]
                 .as_array_mut()
@@ -541,6 +592,12 @@ fn model_files_round_trip_and_refuse_other_versions() {
         }),
         ("dy.light.cells_x", |m| {
             m["dy"]["light"]["cells_x"] = 0.into()
+        }),
+        ("photometric.lights", |m| {
+            m["photometric"]["lights"].as_array_mut().unwrap().pop();
+        }),
+        ("photometric.cells_y", |m| {
+            m["photometric"]["cells_y"] = 100.into()
         }),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 0.into()),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 1e6.into()),
@@ -595,6 +652,9 @@ fn model_files_round_trip_and_refuse_other_versions() {
             .unwrap()
             .remove("gain_negative");
     }
+    // Nor the photometric model.
+    assert!(good.get("photometric").is_some());
+    old.as_object_mut().unwrap().remove("photometric");
     let old = TactileModel::from_json("m.json", &serde_json::to_vec(&old).unwrap()).unwrap();
     let err = Reconstructor::new(old.clone(), ModelKind::Light, SolverKind::Dct, None)
         .err()
@@ -602,6 +662,14 @@ fn model_files_round_trip_and_refuse_other_versions() {
         .to_string();
     assert!(
         err.contains("dx.light") && err.contains("calibrate again"),
+        "{err}"
+    );
+    let err = Reconstructor::new(old.clone(), ModelKind::Photometric, SolverKind::Dct, None)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("photometric") && err.contains("calibrate again"),
         "{err}"
     );
     assert!(Reconstructor::new(old.clone(), ModelKind::Lut, SolverKind::Dct, None).is_ok());

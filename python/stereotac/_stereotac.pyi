@@ -65,7 +65,7 @@ class TactileModel:
         kind: str = "lut",
         solver: str = "dct",
     ) -> TactileResult:
-        """Depth of one pair; kind "lut", "mlp" or "light", solver "dct" (Neumann) or "dst"."""
+        """Depth of one pair; kind "lut", "mlp", "light" or "photometric", solver "dct" (Neumann) or "dst"."""
     def reconstructor(
         self, ref: Optional[_Frames] = None, kind: str = "lut", solver: str = "dct"
     ) -> Reconstructor: ...

@@ -328,6 +328,15 @@ pub fn find_regions(
     for (t, l) in detection.touched.iter_mut().zip(&labels) {
         *t = *l > 0 && keep[*l as usize - 1];
     }
+    // Blocks clipped in one phase only: a wall overexposed by the strip it faces (a
+    // light seen through the skin, such as a ceiling spot, clips both phases).
+    let one_phase: Vec<bool> = mx
+        .clipped
+        .iter()
+        .zip(&my.clipped)
+        .map(|(&a, &b)| (a != 0) != (b != 0))
+        .collect();
+    join_clipped_neighbours(&mut detection.touched, &one_phase, gw, gh);
     let mut regions: Vec<Roi> = components
         .iter()
         .zip(&keep)
@@ -354,6 +363,41 @@ pub fn find_regions(
     merge_overlapping(&mut regions);
     detection.regions = regions;
     detection
+}
+
+/// How far (blocks) a contact takes in clipped blocks: 3 blocks of 4 px are about the
+/// width of a 1 mm deep wall of slope 1.3 at 15 px/mm.
+const JOIN_REACH_BLOCKS: usize = 3;
+
+/// Blocks clipped in one phase (`clipped`) connected to a contact, directly or through
+/// other such blocks (8-neighbours) at most [`JOIN_REACH_BLOCKS`] away, join it. A clipped block says nothing about the
+/// light, and one clipped in a single phase next to a contact is the contact's wall
+/// facing a strip, which overexposes: left out, a saturated stretch of wall breaks the
+/// ring of touched blocks around a flat-bottomed imprint, whose flat middle (it has the
+/// colour of skin at rest) then is no longer enclosed and reads 0. Blocks clipped in
+/// both phases (light from outside, such as a ceiling spot, shows in both) stay out, and
+/// so do those farther away: joined, their slopes would be filled from the contact's and
+/// read as depth beside it.
+fn join_clipped_neighbours(touched: &mut [bool], clipped: &[bool], w: usize, h: usize) {
+    let mut queue: std::collections::VecDeque<(usize, usize)> = (0..touched.len())
+        .filter(|&i| touched[i])
+        .map(|i| (i, 0))
+        .collect();
+    while let Some((i, d)) = queue.pop_front() {
+        if d >= JOIN_REACH_BLOCKS {
+            continue;
+        }
+        let (x, y) = (i % w, i / w);
+        for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+            for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                let j = ny * w + nx;
+                if !touched[j] && clipped[j] {
+                    touched[j] = true;
+                    queue.push_back((j, d + 1));
+                }
+            }
+        }
+    }
 }
 
 /// References at block resolution from no-contact frames.
@@ -699,6 +743,46 @@ mod tests {
         fill_holes(&mut m, w, h);
         assert!(m[2 * w + 2]);
         assert!(!m[0] && !m[2 * w + 5]);
+    }
+
+    #[test]
+    fn clipped_blocks_join_the_contact_they_touch_and_no_other() {
+        // 7×5 blocks: a ring of touched blocks with its right side clipped, and a
+        // clipped island away from it.
+        let (w, h) = (7, 5);
+        let mut touched = vec![false; w * h];
+        let mut clipped = vec![false; w * h];
+        for (x, y) in [
+            (0, 0),
+            (1, 0),
+            (2, 0),
+            (0, 1),
+            (0, 2),
+            (0, 3),
+            (1, 3),
+            (2, 3),
+        ] {
+            touched[y * w + x] = true;
+        }
+        for (x, y) in [(3, 0), (3, 1), (3, 2), (3, 3), (6, 4)] {
+            clipped[y * w + x] = true;
+        }
+        join_clipped_neighbours(&mut touched, &clipped, w, h);
+        for y in 0..4 {
+            assert!(touched[y * w + 3], "clipped wall block (3, {y}) joins");
+        }
+        assert!(
+            !touched[4 * w + 6],
+            "a clipped island away from contact stays out"
+        );
+        assert!(
+            !touched[w + 1] && !touched[2 * w + 2],
+            "the enclosed middle is not touched"
+        );
+        // The middle is now enclosed.
+        let mut blocks = touched.clone();
+        fill_holes(&mut blocks, w, h);
+        assert!(blocks[w + 1] && blocks[2 * w + 2]);
     }
 
     #[test]

@@ -21,7 +21,7 @@ use super::ambient::{
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
-use super::model::{GainPlanes, ModelKind, TactileModel, light, validate};
+use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -341,8 +341,16 @@ impl Reconstructor {
                 (Some(dx), Some(dy)) => Some(Arc::new([dx, dy])),
                 _ => None,
             },
-            ModelKind::Mlp | ModelKind::Light => None,
+            ModelKind::Mlp | ModelKind::Light | ModelKind::Photometric => None,
         };
+        if kind == ModelKind::Photometric && model.photometric.is_none() {
+            return Err(ReconstructError::InvalidModel {
+                field: "photometric".into(),
+                why: "absent (the model was calibrated before the photometric model \
+                      existed): calibrate again, or use the lut, mlp or light model"
+                    .into(),
+            });
+        }
         if kind == ModelKind::Light {
             for (axis, m) in [("dx", &model.dx), ("dy", &model.dy)] {
                 if m.light.is_none() {
@@ -531,7 +539,23 @@ impl Reconstructor {
             out.rejected_pixels += self.features.rejected();
             let t1 = Instant::now();
             out.timings.colour_ms += ms(t0, t1);
-            if let (ModelKind::Light, Some(lx), Some(ly)) =
+            if let (ModelKind::Photometric, Some(model)) = (self.kind, &self.model.photometric) {
+                // All four colours of each touched pixel at once (the feature rows hold
+                // each phase divided by the other's brightness; this model needs them
+                // as they are). The unread lists are the feature rows' own.
+                photometric_slopes(
+                    model,
+                    &inputs,
+                    roi,
+                    &mask,
+                    [p.as_mut_slice(), q.as_mut_slice()],
+                    &mut self.features.unread,
+                );
+                for grid in [&mut p, &mut q] {
+                    let fixed = sanitize(grid.as_mut_slice(), self.max_slope);
+                    out.sanitized_slopes += fixed.non_finite + fixed.clamped;
+                }
+            } else if let (ModelKind::Light, Some(lx), Some(ly)) =
                 (self.kind, &self.model.dx.light, &self.model.dy.light)
             {
                 // Both phases at once (see `light::read_rows`); then the same bounds.
@@ -630,8 +654,35 @@ impl Reconstructor {
     }
 }
 
-/// Median of `depth` over the pixels outside `imprint` that touch it (4-neighbours); 0
-/// when there are none (the imprint fills its region: the solver's own anchor stands).
+/// The photometric model's slopes of `mask`'s pixels (row-major over `roi`) into
+/// `slopes` (`[p, q]` grids of the region): each pixel's four colours as
+/// [`contact::colours_of`] gives them (a rejected phase is NaN, which the model reads as
+/// unlit). Pixels the model cannot read join both axes' `unread` lists (filled from
+/// their neighbours).
+fn photometric_slopes(
+    model: &PhotometricModel,
+    inputs: &Inputs<'_>,
+    roi: &Roi,
+    mask: &[bool],
+    slopes: [&mut [f32]; 2],
+    unread: &mut [Vec<usize>; 2],
+) {
+    let (w, h) = (inputs.dx.width() as usize, inputs.dx.height() as usize);
+    let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
+    let (dx, dy) = (inputs.dx.as_raw(), inputs.dy.as_raw());
+    let [p, q] = slopes;
+    for (k, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
+        let i = y * w + x;
+        let at = |raw: &[u8]| [0, 1, 2].map(|c| f32::from(raw[3 * i + c]));
+        let (colours, _) = contact::colours_of(inputs.refs, inputs.filter, i, at(dx), at(dy));
+        match model.read(colours, x as f32 * inv_w, y as f32 * inv_h) {
+            Some([sp, sq]) => [p[k], q[k]] = [sp, sq],
+            None => unread.iter_mut().for_each(|u| u.push(k)),
+        }
+    }
+}
+
 fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
     let mut ring = Vec::new();
     let mut near = vec![false; w];

@@ -42,7 +42,7 @@ pub struct StageArgs {
     /// Tactile model from `calibrate` (dx/dy pairs of camera 0 → depth).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Gradient model: lut, mlp or light (default: lut; `process`: the recording's).
+    /// Gradient model: lut, mlp, light or photometric (default: lut; `process`: the recording's).
     #[arg(long = "model-kind")]
     pub model_kind: Option<ModelKind>,
     /// Stereo calibration (dark frames of cameras 0 and 1 → depth): one OpenCV stereo

@@ -31,9 +31,9 @@ use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
 use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_SKIN_THICKNESS_MM};
 use super::model::{
-    AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, LUT_MAX_COLOUR, LightModel, Lut,
-    MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, Sample, TactileModel,
-    colour_features,
+    AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, JointSample, LUT_MAX_COLOUR,
+    LightModel, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, PhotometricModel,
+    Sample, TactileModel, colour_features,
 };
 use super::phase_check::{self, PhaseImageError};
 
@@ -591,11 +591,11 @@ pub fn calibrate(
             rejected,
         });
     }
-    let per_pair: Vec<[Vec<Sample>; 2]> = used
+    let (per_pair, joint): (Vec<[Vec<Sample>; 2]>, Vec<Vec<JointSample>>) = used
         .iter()
         .zip(&presses)
         .map(|(pair, press)| samples(pair, &refs, &settings.filter, press.circle, ball_px, w, h))
-        .collect();
+        .unzip();
 
     // Hold out every fifth press for validation when there are enough.
     let count = per_pair.len();
@@ -671,6 +671,20 @@ pub fn calibrate(
     }
     let dy = axes.pop().expect("two axes");
     let dx = axes.pop().expect("two axes");
+    // Both axes at once, from the same presses.
+    let split = |keep: bool| -> Vec<JointSample> {
+        joint
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| holdout(*i) == keep)
+            .flat_map(|(_, s)| s.iter().copied())
+            .collect()
+    };
+    let (joint_train, joint_valid) = (split(false), split(true));
+    let photometric =
+        PhotometricModel::fit(&joint_train, settings.lut_cells.0, settings.lut_cells.1);
+    fit_report.photometric_train_rms = photometric_rms(&photometric, &joint_train);
+    fit_report.photometric_validation_rms = photometric_rms(&photometric, &joint_valid);
     let model = TactileModel {
         format: MODEL_FORMAT.to_string(),
         version: MODEL_VERSION,
@@ -685,6 +699,7 @@ pub fn calibrate(
         ambient,
         dx,
         dy,
+        photometric: Some(photometric),
         fit: fit_report,
     };
     let mut report = CalibrationReport::new(
@@ -825,8 +840,28 @@ fn saturated_in_contact(pair: &CalibrationPair, c: &Circle, saturation: u8) -> [
     saturated.map(|n| n as f64 / inside.max(1) as f64)
 }
 
+/// RMS slope error of the photometric model over the samples of `set` it reads (both
+/// axes; the pixels it leaves unread are filled from their neighbours when measuring);
+/// 0 when it reads none.
+pub fn photometric_rms(model: &PhotometricModel, set: &[JointSample]) -> f32 {
+    let (mut sq, mut n) = (0.0f64, 0usize);
+    for s in set {
+        if let Some(read) = model.read(s.colours, s.position[0], s.position[1]) {
+            for (r, t) in read.iter().zip(s.slope) {
+                sq += (f64::from(*r) - f64::from(t)).powi(2);
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sq / n as f64).sqrt() as f32
+    }
+}
+
 /// Training samples of one pair: pixels inside the contact with the sphere's slopes, and
-/// a ring of flat skin around it with slope 0.
+/// a ring of flat skin around it with slope 0; per axis, and for both axes at once.
 fn samples(
     pair: &CalibrationPair,
     refs: &References,
@@ -835,8 +870,9 @@ fn samples(
     ball_px: f64,
     w: usize,
     h: usize,
-) -> [Vec<Sample>; 2] {
+) -> ([Vec<Sample>; 2], Vec<JointSample>) {
     let mut out = [Vec::new(), Vec::new()];
+    let mut joint = Vec::new();
     let outer = c.r + 15.0;
     let x0 = (c.cx - outer).floor().max(0.0) as usize;
     let x1 = ((c.cx + outer).ceil() as usize).min(w - 1);
@@ -856,6 +892,11 @@ fn samples(
             };
             let position = [x as f32 / w as f32, y as f32 / h as f32];
             let (colour, _) = contact::pixel_colours(refs, filter, &pair.dx, &pair.dy, x, y);
+            joint.push(JointSample {
+                colours: colour,
+                position,
+                slope: slopes.map(|s| s as f32),
+            });
             for (axis, f) in colour_features(colour).into_iter().enumerate() {
                 if let Some([r, b]) = f {
                     out[axis].push(Sample {
@@ -866,7 +907,7 @@ fn samples(
             }
         }
     }
-    out
+    (out, joint)
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ mod cells;
 pub mod light;
 pub mod lut;
 pub mod mlp;
+pub mod photometric;
 pub mod response;
 pub mod validate;
 
@@ -24,6 +25,7 @@ use serde::{Deserialize, Serialize};
 pub use light::LightModel;
 pub use lut::{GainPlanes, Lut};
 pub use mlp::{Mlp, MlpTraining};
+pub use photometric::{JointSample, PhotometricModel};
 
 use super::ambient::AmbientEstimate;
 use super::colour::{ColourFilter, Reference};
@@ -82,11 +84,19 @@ pub enum ModelKind {
     /// Each strip's light response per cell, inverted (extrapolates past the
     /// calibration's slopes).
     Light,
+    /// Four-light photometric stereo: each strip's light direction per cell, inverted
+    /// from all four colours at once (extrapolates, reads both axes together).
+    Photometric,
 }
 
 impl ModelKind {
-    /// Both kinds.
-    pub const ALL: [ModelKind; 3] = [ModelKind::Lut, ModelKind::Mlp, ModelKind::Light];
+    /// Every kind.
+    pub const ALL: [ModelKind; 4] = [
+        ModelKind::Lut,
+        ModelKind::Mlp,
+        ModelKind::Light,
+        ModelKind::Photometric,
+    ];
 
     /// Lower-case name.
     pub fn name(self) -> &'static str {
@@ -94,6 +104,7 @@ impl ModelKind {
             ModelKind::Lut => "lut",
             ModelKind::Mlp => "mlp",
             ModelKind::Light => "light",
+            ModelKind::Photometric => "photometric",
         }
     }
 }
@@ -110,7 +121,7 @@ impl FromStr for ModelKind {
         Self::ALL
             .into_iter()
             .find(|k| k.name().eq_ignore_ascii_case(s))
-            .ok_or_else(|| format!("unknown model {s:?} (expected lut, mlp or light)"))
+            .ok_or_else(|| format!("unknown model {s:?} (expected lut, mlp, light or photometric)"))
     }
 }
 
@@ -138,6 +149,8 @@ impl AxisModel {
                 // Refused when the reconstructor is made; slope 0 if asked anyway.
                 None => out.iter_mut().for_each(|o| *o = 0.0),
             },
+            // Reads both axes at once ([`TactileModel::photometric`]), never one axis.
+            ModelKind::Photometric => out.iter_mut().for_each(|o| *o = 0.0),
         }
     }
 }
@@ -248,6 +261,12 @@ pub struct FitReport {
     /// Light model RMS on the held-out pairs.
     #[serde(default)]
     pub light_validation_rms: f32,
+    /// Photometric model RMS on the training pairs (both axes' slopes).
+    #[serde(default)]
+    pub photometric_train_rms: f32,
+    /// Photometric model RMS on the held-out pairs.
+    #[serde(default)]
+    pub photometric_validation_rms: f32,
 }
 
 /// Format name stored in every model file.
@@ -299,6 +318,10 @@ pub struct TactileModel {
     pub dx: AxisModel,
     /// dy phase: slope along y.
     pub dy: AxisModel,
+    /// Both phases at once: four-light photometric stereo (absent from models calibrated
+    /// before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub photometric: Option<PhotometricModel>,
     /// Fit quality.
     pub fit: FitReport,
 }

@@ -8,6 +8,7 @@ use super::TactileModel;
 use super::light::LightModel;
 use super::lut::Lut;
 use super::mlp::Mlp;
+use super::photometric::PhotometricModel;
 
 /// Largest frame side a model may declare (px): no sensor camera we support gives more,
 /// and it bounds what a model file can make us allocate.
@@ -127,6 +128,29 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         if let Some(light) = &model.light {
             check_light(light).map_err(|(f, why)| (format!("{axis}.light.{f}"), why))?;
         }
+    }
+    if let Some(photometric) = &m.photometric {
+        check_photometric(photometric).map_err(|(f, why)| (format!("photometric.{f}"), why))?;
+    }
+    Ok(())
+}
+
+fn check_photometric(p: &PhotometricModel) -> Result<(), (String, String)> {
+    let fail = |field: &str, why: String| Err((field.to_string(), why));
+    for (field, v) in [("cells_x", p.cells_x), ("cells_y", p.cells_y)] {
+        if !(1..=64).contains(&v) {
+            return fail(field, format!("{v} is outside 1..=64"));
+        }
+    }
+    let want = p.cells_x * p.cells_y;
+    if p.lights.len() != want {
+        return fail(
+            "lights",
+            format!("{} cells, {want} declared", p.lights.len()),
+        );
+    }
+    if p.lights.iter().flatten().flatten().any(|v| !v.is_finite()) {
+        return fail("lights", "holds a value that is not finite".into());
     }
     Ok(())
 }
