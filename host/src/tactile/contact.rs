@@ -365,7 +365,7 @@ pub fn find_regions(
     detection
 }
 
-/// How far (blocks) a contact takes in clipped blocks: 3 blocks of 4 px are about the
+/// How far (blocks) a contact takes in clipped blocks: 3 blocks of the default 4 px are about the
 /// width of a 1 mm deep wall of slope 1.3 at 15 px/mm.
 const JOIN_REACH_BLOCKS: usize = 3;
 

@@ -656,9 +656,9 @@ impl Reconstructor {
 
 /// The photometric model's slopes of `mask`'s pixels (row-major over `roi`) into
 /// `slopes` (`[p, q]` grids of the region): each pixel's four colours as
-/// [`contact::colours_of`] gives them (a rejected phase is NaN, which the model reads as
-/// unlit). Pixels the model cannot read join both axes' `unread` lists (filled from
-/// their neighbours).
+/// [`contact::colours_of`] gives them (a rejected phase is NaN). Pixels the model cannot
+/// read (a rejected phase among them) join both axes' `unread` lists (filled from their
+/// neighbours).
 fn photometric_slopes(
     model: &PhotometricModel,
     inputs: &Inputs<'_>,

@@ -18,10 +18,10 @@
 //! - two lit strips (steep walls shadow one strip of each phase): their ratio gives a
 //!   line of slopes, and `c·|n| = 1 − a·p − b·q` a quadratic along it; of its roots the
 //!   one that keeps the lit strips lit and the shadowed ones dark is taken;
-//! - fewer: the slope is not measured (0).
+//! - fewer: the slope is not measured (`None`: the pixel is filled from its neighbours).
 //!
-//! Numbers: fitted and inverted in f64; colours that are NaN (a phase the colour filter
-//! rejected) count as not lit; slopes are bounded to ±[`MAX_SLOPE`]; a cell without
+//! Numbers: fitted and inverted in f64; a NaN colour (a phase the colour filter
+//! rejected) leaves the pixel unread, as do slopes that do not explain the colours; slopes are bounded to ±[`MAX_SLOPE`]; a cell without
 //! enough samples takes the whole frame's pair.
 
 use serde::{Deserialize, Serialize};
@@ -198,9 +198,13 @@ fn invert(colours: [f32; 4], lights: &[[f64; 2]; 4]) -> Option<[f64; 2]> {
     if colours.iter().any(|c| c.is_nan()) {
         return None;
     }
-    let lit_strips: Vec<usize> = (0..4).filter(|&k| lit(colours[k])).collect();
-    let slopes = match lit_strips.len() {
-        3 | 4 => three_or_more(colours, lights, &lit_strips),
+    let (mut lit_strips, mut count) = ([0usize; 4], 0);
+    for k in (0..4).filter(|&k| lit(colours[k])) {
+        lit_strips[count] = k;
+        count += 1;
+    }
+    let slopes = match count {
+        3 | 4 => three_or_more(colours, lights, &lit_strips[..count]),
         2 => two(colours, lights, [lit_strips[0], lit_strips[1]]),
         _ => None,
     }?;
@@ -277,7 +281,8 @@ fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
 
 /// Two lit strips `i`, `j`: on the line their ratio allows, the slope whose `|n|` makes
 /// strip `i`'s colour; of the quadratic's roots, the one that keeps both lit and the
-/// other strips darkest where they are shadowed (then the gentler one).
+/// other strips darkest where they are shadowed (a score that adds 0.01 of the slope's
+/// size, so between equals the gentler one).
 fn two(colours: [f32; 4], lights: &[[f64; 2]; 4], [i, j]: [usize; 2]) -> Option<[f64; 2]> {
     let (c1, c2) = (f64::from(colours[i]), f64::from(colours[j]));
     let ([a1, b1], [a2, b2]) = (lights[i], lights[j]);

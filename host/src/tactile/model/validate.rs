@@ -136,41 +136,40 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
 }
 
 fn check_photometric(p: &PhotometricModel) -> Result<(), (String, String)> {
-    let fail = |field: &str, why: String| Err((field.to_string(), why));
-    for (field, v) in [("cells_x", p.cells_x), ("cells_y", p.cells_y)] {
-        if !(1..=64).contains(&v) {
-            return fail(field, format!("{v} is outside 1..=64"));
-        }
-    }
-    let want = p.cells_x * p.cells_y;
-    if p.lights.len() != want {
-        return fail(
-            "lights",
-            format!("{} cells, {want} declared", p.lights.len()),
-        );
-    }
-    if p.lights.iter().flatten().flatten().any(|v| !v.is_finite()) {
-        return fail("lights", "holds a value that is not finite".into());
-    }
-    Ok(())
+    check_cells(
+        (p.cells_x, p.cells_y),
+        ("lights", "cells", p.lights.len()),
+        p.lights.iter().flatten().flatten().copied(),
+    )
 }
 
 fn check_light(l: &LightModel) -> Result<(), (String, String)> {
+    check_cells(
+        (l.cells_x, l.cells_y),
+        ("response", "values", l.response.len()),
+        l.response.iter().flatten().copied(),
+    )
+}
+
+/// A grid of per-cell entries: `cells_x`, `cells_y` in 1..=64, `entries` (field name,
+/// what one entry is called, how many there are) one per cell, every value finite.
+fn check_cells(
+    (cells_x, cells_y): (usize, usize),
+    (field, entry, len): (&str, &str, usize),
+    mut values: impl Iterator<Item = f32>,
+) -> Result<(), (String, String)> {
     let fail = |field: &str, why: String| Err((field.to_string(), why));
-    for (field, v) in [("cells_x", l.cells_x), ("cells_y", l.cells_y)] {
+    for (name, v) in [("cells_x", cells_x), ("cells_y", cells_y)] {
         if !(1..=64).contains(&v) {
-            return fail(field, format!("{v} is outside 1..=64"));
+            return fail(name, format!("{v} is outside 1..=64"));
         }
     }
-    let want = l.cells_x * l.cells_y;
-    if l.response.len() != want {
-        return fail(
-            "response",
-            format!("{} values, {want} declared", l.response.len()),
-        );
+    let want = cells_x * cells_y;
+    if len != want {
+        return fail(field, format!("{len} {entry}, {want} declared"));
     }
-    if l.response.iter().flatten().any(|v| !v.is_finite()) {
-        return fail("response", "holds a value that is not finite".into());
+    if values.any(|v| !v.is_finite()) {
+        return fail(field, "holds a value that is not finite".into());
     }
     Ok(())
 }
