@@ -337,11 +337,12 @@ pub fn find_regions(
         .map(|(&a, &b)| (a != 0) != (b != 0))
         .collect();
     join_clipped_neighbours(&mut detection.touched, &one_phase, gw, gh);
-    let mut regions: Vec<Roi> = components
+    // The regions hold the contacts with the blocks they took in (a joined block can
+    // lie past the padding of the contact's own box).
+    let (_, contacts) = label_components(&detection.touched, gw, gh);
+    let mut regions: Vec<Roi> = contacts
         .iter()
-        .zip(&keep)
-        .filter(|(_, k)| **k)
-        .map(|(c, _)| {
+        .map(|c| {
             let x0 = (c.x0 * step).saturating_sub(params.pad_px);
             let y0 = (c.y0 * step).saturating_sub(params.pad_px);
             let x1 = ((c.x1 + 1) * step + params.pad_px).min(w);
@@ -747,9 +748,9 @@ mod tests {
 
     #[test]
     fn clipped_blocks_join_the_contact_they_touch_and_no_other() {
-        // 7×5 blocks: a ring of touched blocks with its right side clipped, and a
-        // clipped island away from it.
-        let (w, h) = (7, 5);
+        // 12×6 blocks: a ring of touched blocks whose right side is clipped, a clipped
+        // chain running on from it, and a clipped island away from it.
+        let (w, h) = (12, 6);
         let mut touched = vec![false; w * h];
         let mut clipped = vec![false; w * h];
         for (x, y) in [
@@ -764,15 +765,28 @@ mod tests {
         ] {
             touched[y * w + x] = true;
         }
-        for (x, y) in [(3, 0), (3, 1), (3, 2), (3, 3), (6, 4)] {
+        // The wall (x = 3), then a chain along row 1 out to x = 9.
+        for (x, y) in [(3, 0), (3, 1), (3, 2), (3, 3), (11, 5)] {
             clipped[y * w + x] = true;
+        }
+        for x in 4..10 {
+            clipped[w + x] = true;
         }
         join_clipped_neighbours(&mut touched, &clipped, w, h);
         for y in 0..4 {
             assert!(touched[y * w + 3], "clipped wall block (3, {y}) joins");
         }
+        // (2, 0) is touched: (3, 1) is 1 block away, (4, 1) 2, (5, 1) 3; no farther.
+        for x in 4..10 {
+            assert_eq!(
+                touched[w + x],
+                x <= 5,
+                "chain block ({x}, 1) at {} blocks",
+                x - 2
+            );
+        }
         assert!(
-            !touched[4 * w + 6],
+            !touched[5 * w + 11],
             "a clipped island away from contact stays out"
         );
         assert!(
@@ -783,6 +797,65 @@ mod tests {
         let mut blocks = touched.clone();
         fill_holes(&mut blocks, w, h);
         assert!(blocks[w + 1] && blocks[2 * w + 2]);
+    }
+
+    #[test]
+    fn regions_hold_the_clipped_blocks_a_contact_takes_in() {
+        let (w, h) = (160u32, 96u32);
+        let flat = RgbImage::from_pixel(w, h, image::Rgb([120, 30, 120]));
+        let refs = block_references(&flat, &flat, 4);
+        let (mut dx, mut dy) = (flat.clone(), flat.clone());
+        // A contact (x 40..56, y 40..56), and its wall clipped in the dx phase for 3
+        // blocks beyond it (x 56..68).
+        for y in 40..56 {
+            for x in 40..56 {
+                dx.put_pixel(x, y, image::Rgb([200, 30, 60]));
+            }
+            for x in 56..68 {
+                dx.get_pixel_mut(x, y).0[0] = 255;
+            }
+        }
+        // Lights clipped in both phases: one beyond the wall, one right below the contact.
+        let white = image::Rgb([255, 255, 255]);
+        for (xs, ys) in [(68..80, 40..56), (40..44, 56..60)] {
+            for y in ys {
+                for x in xs.clone() {
+                    dx.put_pixel(x, y, white);
+                    dy.put_pixel(x, y, white);
+                }
+            }
+        }
+        let params = ContactParams::default();
+        let filter = ColourFilter::default();
+        let d = find_regions(&dx, &dy, &refs, &filter, &params, SolverKind::Dct);
+        let touched = |bx: usize, by: usize| d.touched[by * d.blocks_across + bx];
+        assert!(
+            touched(13, 12) && touched(14, 12) && touched(16, 12),
+            "wall joins"
+        );
+        assert!(
+            !touched(17, 12) && !touched(10, 14),
+            "lights clipped in both phases stay out"
+        );
+        // Every touched pixel, grown as reconstruction grows it, lies inside a region.
+        assert_eq!(d.regions.len(), 1, "{:?}", d.regions);
+        let roi = d.regions[0];
+        let inside = d.touched_pixels(&roi, params.dilate_px);
+        let wanted = {
+            let full = Roi {
+                x: 0,
+                y: 0,
+                width: w as usize,
+                height: h as usize,
+            };
+            d.touched_pixels(&full, params.dilate_px)
+        };
+        assert_eq!(
+            inside.iter().filter(|&&t| t).count(),
+            wanted.iter().filter(|&&t| t).count(),
+            "region {roi:?} cuts the grown contact"
+        );
+        assert!(roi.x + roi.width >= 68 + params.dilate_px, "{roi:?}");
     }
 
     #[test]

@@ -234,6 +234,8 @@ pub struct Reconstructor {
     /// once, so the model does not blend it per pixel).
     lut_gains: Option<Arc<[GainPlanes; 2]>>,
     slopes: Vec<f32>,
+    /// The photometric model's four colours of each touched pixel.
+    joint_colours: Vec<[f32; 4]>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
 }
@@ -255,6 +257,7 @@ impl Reconstructor {
             unread_fill: UnreadFill::default(),
             lut_gains: self.lut_gains.clone(),
             slopes: Vec::new(),
+            joint_colours: Vec::new(),
             led: Default::default(),
         }
     }
@@ -376,6 +379,7 @@ impl Reconstructor {
             features: Default::default(),
             unread_fill: UnreadFill::default(),
             slopes: Vec::new(),
+            joint_colours: Vec::new(),
             led: Default::default(),
         })
     }
@@ -532,6 +536,29 @@ impl Reconstructor {
             out.timings.colour_ms += times.colour_ms + overhead;
             out.timings.model_ms += times.model_ms;
             t2
+        } else if let (ModelKind::Photometric, Some(model)) = (self.kind, &self.model.photometric) {
+            // All four colours of each touched pixel at once, as they are (the feature
+            // rows hold each phase divided by the other's brightness: not made here).
+            let rejected = photometric_colours(&inputs, roi, &mask, &mut self.joint_colours);
+            out.rejected_pixels += rejected;
+            let t1 = Instant::now();
+            out.timings.colour_ms += ms(t0, t1);
+            photometric_slopes(
+                model,
+                (inputs.dx.width(), inputs.dx.height()),
+                roi,
+                &mask,
+                &self.joint_colours,
+                [p.as_mut_slice(), q.as_mut_slice()],
+                &mut self.features.unread,
+            );
+            for grid in [&mut p, &mut q] {
+                let fixed = sanitize(grid.as_mut_slice(), self.max_slope);
+                out.sanitized_slopes += fixed.non_finite + fixed.clamped;
+            }
+            let t2 = Instant::now();
+            out.timings.model_ms += ms(t1, t2);
+            t2
         } else {
             // Each axis' model features of the touched pixels the colour filter accepts;
             // the others get no slope on that axis.
@@ -539,23 +566,7 @@ impl Reconstructor {
             out.rejected_pixels += self.features.rejected();
             let t1 = Instant::now();
             out.timings.colour_ms += ms(t0, t1);
-            if let (ModelKind::Photometric, Some(model)) = (self.kind, &self.model.photometric) {
-                // All four colours of each touched pixel at once (the feature rows hold
-                // each phase divided by the other's brightness; this model needs them
-                // as they are). The unread lists are the feature rows' own.
-                photometric_slopes(
-                    model,
-                    &inputs,
-                    roi,
-                    &mask,
-                    [p.as_mut_slice(), q.as_mut_slice()],
-                    &mut self.features.unread,
-                );
-                for grid in [&mut p, &mut q] {
-                    let fixed = sanitize(grid.as_mut_slice(), self.max_slope);
-                    out.sanitized_slopes += fixed.non_finite + fixed.clamped;
-                }
-            } else if let (ModelKind::Light, Some(lx), Some(ly)) =
+            if let (ModelKind::Light, Some(lx), Some(ly)) =
                 (self.kind, &self.model.dx.light, &self.model.dy.light)
             {
                 // Both phases at once (see `light::read_rows`); then the same bounds.
@@ -596,8 +607,9 @@ impl Reconstructor {
             t2
         };
 
-        // Slopes the colour filter could not read (a saturated or unlit phase) are
-        // unknown, not flat: filled from their neighbours.
+        // Slopes the colour filter could not read (a saturated or unlit phase), or the
+        // photometric model could not explain, are unknown, not flat: filled from their
+        // neighbours.
         for (grid, unread) in [
             (&mut p, &self.features.unread[0]),
             (&mut q, &self.features.unread[1]),
@@ -654,29 +666,50 @@ impl Reconstructor {
     }
 }
 
-/// The photometric model's slopes of `mask`'s pixels (row-major over `roi`) into
-/// `slopes` (`[p, q]` grids of the region): each pixel's four colours as
-/// [`contact::colours_of`] gives them (a rejected phase is NaN). Pixels the model cannot
-/// read (a rejected phase among them) join both axes' `unread` lists (filled from their
-/// neighbours).
-fn photometric_slopes(
-    model: &PhotometricModel,
+/// The four normalised colours `[r_dx, b_dx, r_dy, b_dy]` of `mask`'s pixels (row-major
+/// over `roi`) into `out`, as [`contact::colours_of`] gives them (NaN for a phase the
+/// colour filter rejects); returns how many phases were rejected.
+fn photometric_colours(
     inputs: &Inputs<'_>,
     roi: &Roi,
     mask: &[bool],
+    out: &mut Vec<[f32; 4]>,
+) -> usize {
+    let w = inputs.dx.width() as usize;
+    let (dx, dy) = (inputs.dx.as_raw(), inputs.dy.as_raw());
+    out.clear();
+    let mut rejected = 0;
+    for (k, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        let i = (roi.y + k / roi.width) * w + roi.x + k % roi.width;
+        let at = |raw: &[u8]| [0, 1, 2].map(|c| f32::from(raw[3 * i + c]));
+        let (colours, _) = contact::colours_of(inputs.refs, inputs.filter, i, at(dx), at(dy));
+        rejected += usize::from(colours[0].is_nan()) + usize::from(colours[2].is_nan());
+        out.push(colours);
+    }
+    rejected
+}
+
+/// The photometric model's slopes of `mask`'s pixels (row-major over `roi`, a frame of
+/// `w × h`) into `slopes` (`[p, q]` grids of the region), from their `colours`
+/// ([`photometric_colours`], in the same order). Pixels the model cannot read (a rejected
+/// phase among them) make up both axes' `unread` lists (filled from their neighbours).
+fn photometric_slopes(
+    model: &PhotometricModel,
+    (w, h): (u32, u32),
+    roi: &Roi,
+    mask: &[bool],
+    colours: &[[f32; 4]],
     slopes: [&mut [f32]; 2],
     unread: &mut [Vec<usize>; 2],
 ) {
-    let (w, h) = (inputs.dx.width() as usize, inputs.dx.height() as usize);
+    debug_assert_eq!(colours.len(), mask.iter().filter(|m| **m).count());
     let (inv_w, inv_h) = (1.0 / w as f32, 1.0 / h as f32);
-    let (dx, dy) = (inputs.dx.as_raw(), inputs.dy.as_raw());
     let [p, q] = slopes;
-    for (k, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+    unread.iter_mut().for_each(Vec::clear);
+    let touched = mask.iter().enumerate().filter(|(_, m)| **m).map(|(k, _)| k);
+    for (k, &c) in touched.zip(colours) {
         let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
-        let i = y * w + x;
-        let at = |raw: &[u8]| [0, 1, 2].map(|c| f32::from(raw[3 * i + c]));
-        let (colours, _) = contact::colours_of(inputs.refs, inputs.filter, i, at(dx), at(dy));
-        match model.read(colours, x as f32 * inv_w, y as f32 * inv_h) {
+        match model.read(c, x as f32 * inv_w, y as f32 * inv_h) {
             Some([sp, sq]) => [p[k], q[k]] = [sp, sq],
             None => unread.iter_mut().for_each(|u| u.push(k)),
         }

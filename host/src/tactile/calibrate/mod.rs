@@ -683,8 +683,11 @@ pub fn calibrate(
     let (joint_train, joint_valid) = (split(false), split(true));
     let photometric =
         PhotometricModel::fit(&joint_train, settings.lut_cells.0, settings.lut_cells.1);
-    fit_report.photometric_train_rms = photometric_rms(&photometric, &joint_train);
-    fit_report.photometric_validation_rms = photometric_rms(&photometric, &joint_valid);
+    fit_report.photometric_train_rms = photometric_rms(&photometric, &joint_train).0;
+    (
+        fit_report.photometric_validation_rms,
+        fit_report.photometric_validation_read,
+    ) = photometric_rms(&photometric, &joint_valid);
     let model = TactileModel {
         format: MODEL_FORMAT.to_string(),
         version: MODEL_VERSION,
@@ -841,9 +844,9 @@ fn saturated_in_contact(pair: &CalibrationPair, c: &Circle, saturation: u8) -> [
 }
 
 /// RMS slope error of the photometric model over the samples of `set` it reads (both
-/// axes; the pixels it leaves unread are filled from their neighbours when measuring);
-/// 0 when it reads none.
-pub fn photometric_rms(model: &PhotometricModel, set: &[JointSample]) -> f32 {
+/// axes; 0 when it reads none), and the share of `set` it reads (the others are filled
+/// from their neighbours in use; 0 for an empty set).
+pub fn photometric_rms(model: &PhotometricModel, set: &[JointSample]) -> (f32, f32) {
     let (mut sq, mut n) = (0.0f64, 0usize);
     for s in set {
         if let Some(read) = model.read(s.colours, s.position[0], s.position[1]) {
@@ -853,11 +856,12 @@ pub fn photometric_rms(model: &PhotometricModel, set: &[JointSample]) -> f32 {
             }
         }
     }
-    if n == 0 {
+    let rms = if n == 0 {
         0.0
     } else {
         (sq / n as f64).sqrt() as f32
-    }
+    };
+    (rms, (n / 2) as f32 / set.len().max(1) as f32)
 }
 
 /// Training samples of one pair: pixels inside the contact with the sphere's slopes, and

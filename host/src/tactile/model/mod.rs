@@ -149,8 +149,9 @@ impl AxisModel {
                 // Refused when the reconstructor is made; slope 0 if asked anyway.
                 None => out.iter_mut().for_each(|o| *o = 0.0),
             },
-            // Reads both axes at once ([`TactileModel::photometric`]), never one axis.
-            ModelKind::Photometric => out.iter_mut().for_each(|o| *o = 0.0),
+            // Reads both axes at once ([`TactileModel::photometric`]), never one axis:
+            // asked for one, the slopes are unknown.
+            ModelKind::Photometric => out.iter_mut().for_each(|o| *o = f32::NAN),
         }
     }
 }
@@ -261,12 +262,17 @@ pub struct FitReport {
     /// Light model RMS on the held-out pairs.
     #[serde(default)]
     pub light_validation_rms: f32,
-    /// Photometric model RMS on the training pairs (both axes' slopes).
+    /// Photometric model RMS on the training pairs (both axes' slopes, over the samples
+    /// it reads).
     #[serde(default)]
     pub photometric_train_rms: f32,
     /// Photometric model RMS on the held-out pairs.
     #[serde(default)]
     pub photometric_validation_rms: f32,
+    /// Share of the held-out samples the photometric model reads (the RMS is over these;
+    /// the others are filled from their neighbours in use).
+    #[serde(default)]
+    pub photometric_validation_read: f32,
 }
 
 /// Format name stored in every model file.

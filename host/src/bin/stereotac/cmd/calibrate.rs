@@ -168,13 +168,16 @@ pub fn run(a: Args) -> Result<()> {
     }
     let f = cal.model.fit;
     println!(
-        "slope RMS: lut {:.4} (held-out {:.4}), mlp {:.4} (held-out {:.4}), light {:.4} (held-out {:.4}); {} training / {} held-out pairs, {} samples per axis",
+        "slope RMS: lut {:.4} (held-out {:.4}), mlp {:.4} (held-out {:.4}), light {:.4} (held-out {:.4}), photometric {:.4} (held-out {:.4} over the {:.0}% it reads); {} training / {} held-out pairs, {} samples per axis",
         f.lut_train_rms,
         f.lut_validation_rms,
         f.mlp_train_rms,
         f.mlp_validation_rms,
         f.light_train_rms,
         f.light_validation_rms,
+        f.photometric_train_rms,
+        f.photometric_validation_rms,
+        100.0 * f.photometric_validation_read,
         f.training_pairs,
         f.validation_pairs,
         f.samples_per_axis
