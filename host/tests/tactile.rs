@@ -53,6 +53,30 @@ fn ball(cx: f64, cy: f64, depth: f64) -> Scene {
     }
 }
 
+/// A reconstructor of `model` with the reference frames `refs`.
+fn reconstructor(
+    model: &TactileModel,
+    refs: &(RgbImage, RgbImage),
+    kind: ModelKind,
+    solver: SolverKind,
+) -> Reconstructor {
+    Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into())).unwrap()
+}
+
+/// The 6 mm disk, 1 mm deep with a flat bottom, whose wall has `slope`.
+fn disk(slope: f64) -> Scene {
+    Scene {
+        shapes: vec![Shape::Disk {
+            cx: 10.7,
+            cy: 8.0,
+            diameter: 6.0,
+            depth: 1.0,
+            wall: 1.0 / slope,
+            linear: true,
+        }],
+    }
+}
+
 fn reading(
     optics: &Optics,
     model: &TactileModel,
@@ -65,8 +89,7 @@ fn reading(
     let truth = scene
         .truth(optics.width, optics.height, optics.px_per_mm)
         .depth;
-    let mut rec =
-        Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into())).unwrap();
+    let mut rec = reconstructor(model, refs, kind, solver);
     let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
     assert!(r.depth_mm.as_slice().iter().all(|d| d.is_finite()));
     errors(&r.depth_mm, &truth).reading_mm
@@ -97,16 +120,7 @@ fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
 fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
     let optics = optics();
     let (model, refs) = calibrated(&optics);
-    let scene = Scene {
-        shapes: vec![Shape::Disk {
-            cx: 10.7,
-            cy: 8.0,
-            diameter: 6.0,
-            depth: 1.0,
-            wall: 1.0 / 1.6,
-            linear: true,
-        }],
-    };
+    let scene = disk(1.6);
     let read = |kind| reading(&optics, &model, &refs, kind, SolverKind::Dct, &scene);
     let (lut, light) = (read(ModelKind::Lut), read(ModelKind::Light));
     assert!(lut < 0.9, "lut read {lut:.3} mm of 1.000");
@@ -130,16 +144,7 @@ fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
 fn a_saturated_stretch_of_wall_does_not_open_a_flat_bottomed_imprint() {
     let optics = optics();
     let (model, refs) = calibrated(&optics);
-    let scene = Scene {
-        shapes: vec![Shape::Disk {
-            cx: 10.7,
-            cy: 8.0,
-            diameter: 6.0,
-            depth: 1.0,
-            wall: 1.0 / 1.3,
-            linear: true,
-        }],
-    };
+    let scene = disk(1.3);
     let ppm = optics.px_per_mm;
     let mut pair = render(&optics, &scene, 3);
     // From inside the flat middle to beyond the wall's foot, 1.6 mm high.
@@ -154,13 +159,7 @@ fn a_saturated_stretch_of_wall_does_not_open_a_flat_bottomed_imprint() {
         .truth(optics.width, optics.height, optics.px_per_mm)
         .depth;
     for kind in ModelKind::ALL {
-        let mut rec = Reconstructor::new(
-            model.clone(),
-            kind,
-            SolverKind::Dct,
-            Some((&refs.0, &refs.1).into()),
-        )
-        .unwrap();
+        let mut rec = reconstructor(&model, &refs, kind, SolverKind::Dct);
         let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
         let read = errors(&r.depth_mm, &truth).reading_mm;
         assert!(
@@ -238,13 +237,7 @@ fn no_contact_stops_after_detection() {
     let (model, refs) = calibrated(&optics);
     let pair = render(&optics, &Scene::default(), 9);
     for kind in ModelKind::ALL {
-        let mut rec = Reconstructor::new(
-            model.clone(),
-            kind,
-            SolverKind::Dct,
-            Some((&refs.0, &refs.1).into()),
-        )
-        .unwrap();
+        let mut rec = reconstructor(&model, &refs, kind, SolverKind::Dct);
         let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
         assert!(r.no_contact());
         assert_eq!(r.timings.model_ms, 0.0);
@@ -270,13 +263,7 @@ fn a_ceiling_light_spot_makes_no_phantom_bump() {
         ..optics.clone()
     };
     let pair = render(&lit, &Scene::default(), 4);
-    let mut rec = Reconstructor::new(
-        model.clone(),
-        ModelKind::Lut,
-        SolverKind::Dct,
-        Some((&refs.0, &refs.1).into()),
-    )
-    .unwrap();
+    let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
     let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
     let max = r
         .depth_mm
@@ -339,13 +326,7 @@ fn robust_across_reflectance_noise_and_falloff() {
 fn hostile_images_give_finite_output_or_typed_errors() {
     let optics = optics();
     let (model, refs) = calibrated(&optics);
-    let mut rec = Reconstructor::new(
-        model.clone(),
-        ModelKind::Mlp,
-        SolverKind::Dct,
-        Some((&refs.0, &refs.1).into()),
-    )
-    .unwrap();
+    let mut rec = reconstructor(&model, &refs, ModelKind::Mlp, SolverKind::Dct);
     let black = RgbImage::new(320, 240);
     let white = RgbImage::from_pixel(320, 240, image::Rgb([255, 255, 255]));
     let mut noise = RgbImage::new(320, 240);
@@ -509,13 +490,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         );
     }
     // Frames without LED light are flagged, not read as "no contact".
-    let mut rec = Reconstructor::new(
-        model,
-        ModelKind::Lut,
-        SolverKind::Dct,
-        Some((&refs.0, &refs.1).into()),
-    )
-    .unwrap();
+    let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
     let r = rec.reconstruct(&black, &black).unwrap();
     assert!(r.unlit() && r.no_contact(), "{}", r.unlit_fraction);
     let lit = render(&optics, &Scene::default(), 2);
