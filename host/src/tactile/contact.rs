@@ -337,6 +337,7 @@ pub fn find_regions(
         .map(|(&a, &b)| (a != 0) != (b != 0))
         .collect();
     join_clipped_neighbours(&mut detection.touched, &one_phase, gw, gh);
+    join_enclosing_clipped(&mut detection.touched, &one_phase, params.min_cells, gw, gh);
     // The regions hold the contacts with the blocks they took in (a joined block can
     // lie past the padding of the contact's own box).
     let (_, contacts) = label_components(&detection.touched, gw, gh);
@@ -399,6 +400,106 @@ fn join_clipped_neighbours(touched: &mut [bool], clipped: &[bool], w: usize, h: 
             }
         }
     }
+}
+
+/// The rest of a stretch of one-phase clipped blocks ([`join_clipped_neighbours`] took
+/// in its first [`JOIN_REACH_BLOCKS`] from the contact) joins when it closes the contact's
+/// ring: with it the touched blocks enclose more skin than without. A wall facing a
+/// bright strip can clip along a long arc of the ring (15 blocks, 60 px, seen on a skin
+/// we did not tune on); reach alone leaves the arc's middle open and the flat middle of
+/// the imprint, no longer enclosed, reads 0. A clipped stretch beside a contact that
+/// encloses nothing, or encloses a pocket of skin outside the contact's box, stays out
+/// (its slopes would be filled from the contact's and read as depth beside it).
+fn join_enclosing_clipped(
+    touched: &mut [bool],
+    clipped: &[bool],
+    min_cells: usize,
+    w: usize,
+    h: usize,
+) {
+    let rest: Vec<bool> = touched
+        .iter()
+        .zip(clipped)
+        .map(|(&t, &c)| c && !t)
+        .collect();
+    if !rest.iter().any(|&r| r) {
+        return;
+    }
+    let (labels, components) = label_components(&rest, w, h);
+    // The stretches that meet the contact (8-neighbours).
+    let mut meets = vec![false; components.len()];
+    for (i, &l) in labels.iter().enumerate() {
+        if l == 0 {
+            continue;
+        }
+        let (x, y) = (i % w, i / w);
+        let near = (y.saturating_sub(1)..=(y + 1).min(h - 1))
+            .any(|ny| (x.saturating_sub(1)..=(x + 1).min(w - 1)).any(|nx| touched[ny * w + nx]));
+        meets[l as usize - 1] |= near;
+    }
+    if !meets.iter().any(|&m| m) {
+        return;
+    }
+    let filled = |mask: &[bool]| {
+        let mut f = mask.to_vec();
+        fill_holes(&mut f, w, h);
+        f
+    };
+    let before = filled(touched);
+    // A contact's box: the middle its ring encloses lies inside it; a pocket of skin
+    // between a contact and a clipped stretch beside it lies mostly outside.
+    let (_, contacts) = label_components(touched, w, h);
+    let in_a_box = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        contacts
+            .iter()
+            .any(|c| (c.x0..=c.x1).contains(&x) && (c.y0..=c.y1).contains(&y))
+    };
+    // Skin the `chosen` stretches newly enclose (filled with them, not filled before and
+    // not one of their own blocks) inside a contact's box; 0 when a tenth of it or more
+    // lies outside every box.
+    let encloses = |chosen: &[bool]| {
+        let trial = touched_with(touched, &labels, &|k| chosen[k]);
+        let (mut inside, mut outside) = (0usize, 0usize);
+        for (i, ((&a, &b), &t)) in filled(&trial).iter().zip(&before).zip(&trial).enumerate() {
+            if a && !b && !t {
+                if in_a_box(i) {
+                    inside += 1;
+                } else {
+                    outside += 1;
+                }
+            }
+        }
+        if outside * 10 >= inside + outside {
+            0
+        } else {
+            inside
+        }
+    };
+    // All of them first (most frames gain nothing and stop here; two arcs may close the
+    // ring only together), then each one left out that the ring does not need.
+    let mut chosen = meets;
+    let all = encloses(&chosen);
+    if all < min_cells {
+        return;
+    }
+    for k in 0..chosen.len() {
+        if chosen[k] {
+            chosen[k] = false;
+            chosen[k] = encloses(&chosen) < all;
+        }
+    }
+    let joined = touched_with(touched, &labels, &|k| chosen[k]);
+    touched.copy_from_slice(&joined);
+}
+
+/// `touched` with the blocks of the components (`labels`, 1-based) that `pick` takes.
+fn touched_with(touched: &[bool], labels: &[u32], pick: &dyn Fn(usize) -> bool) -> Vec<bool> {
+    touched
+        .iter()
+        .zip(labels)
+        .map(|(&t, &l)| t || (l > 0 && pick(l as usize - 1)))
+        .collect()
 }
 
 /// References at block resolution from no-contact frames.
@@ -797,6 +898,43 @@ mod tests {
         let mut blocks = touched.clone();
         fill_holes(&mut blocks, w, h);
         assert!(blocks[w + 1] && blocks[2 * w + 2]);
+    }
+
+    #[test]
+    fn a_clipped_arc_longer_than_the_reach_closes_the_ring() {
+        // 30×30 blocks: a square ring (5..=20) whose right side (x = 20, 16 blocks) is
+        // clipped in one phase, and a clipped chain leaving the top side (x = 12, y 0..5).
+        let (w, h) = (30, 30);
+        let mut touched = vec![false; w * h];
+        let mut clipped = vec![false; w * h];
+        for i in 5..20 {
+            for (x, y) in [(i, 5), (i, 20), (5, i)] {
+                touched[y * w + x] = true;
+            }
+        }
+        for y in 5..=20 {
+            clipped[y * w + 20] = true;
+        }
+        for y in 0..5 {
+            clipped[y * w + 12] = true;
+        }
+        join_clipped_neighbours(&mut touched, &clipped, w, h);
+        assert!(
+            !touched[12 * w + 20],
+            "reach alone leaves the arc's middle open"
+        );
+        let mut blocks = touched.clone();
+        fill_holes(&mut blocks, w, h);
+        assert!(!blocks[12 * w + 12], "so the middle is not enclosed");
+        join_enclosing_clipped(&mut touched, &clipped, 3, w, h);
+        assert!((5..=20).all(|y| touched[y * w + 20]), "the whole arc joins");
+        let mut blocks = touched.clone();
+        fill_holes(&mut blocks, w, h);
+        assert!(blocks[12 * w + 12], "the middle is enclosed");
+        assert!(
+            touched[2 * w + 12] && !touched[w + 12] && !touched[12],
+            "the chain beside the ring joins as far as the reach and no farther"
+        );
     }
 
     #[test]
