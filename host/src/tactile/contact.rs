@@ -402,14 +402,18 @@ fn join_clipped_neighbours(touched: &mut [bool], clipped: &[bool], w: usize, h: 
     }
 }
 
-/// The rest of a stretch of one-phase clipped blocks ([`join_clipped_neighbours`] took
-/// in its first [`JOIN_REACH_BLOCKS`] from the contact) joins when it closes the contact's
-/// ring: with it the touched blocks enclose more skin than without. A wall facing a
-/// bright strip can clip along a long arc of the ring (15 blocks, 60 px, seen on a skin
-/// we did not tune on); reach alone leaves the arc's middle open and the flat middle of
-/// the imprint, no longer enclosed, reads 0. A clipped stretch beside a contact that
-/// encloses nothing, or encloses a pocket of skin outside the contact's box, stays out
-/// (its slopes would be filled from the contact's and read as depth beside it).
+/// The rest of a stretch of one-phase clipped blocks ([`join_clipped_neighbours`] took in
+/// its first [`JOIN_REACH_BLOCKS`] from the contact) joins when it closes the contact's
+/// ring: with it the touched blocks enclose at least `min_cells` more blocks, nine tenths
+/// of them inside some contact's bounding box (taken before this join). The stretches
+/// meeting a contact are judged together first, then each is left out that the enclosed
+/// area does not need; so a pocket beside one contact that fails the box rule keeps a
+/// ring-closing arc in the same frame out as well. A wall facing a bright strip can clip
+/// along a long arc of the ring (15 blocks, 60 px, seen on a skin we did not tune on);
+/// reach alone leaves the arc's middle open and the flat middle of the imprint, no longer
+/// enclosed, reads 0. A clipped stretch beside a contact that encloses nothing, or encloses
+/// a pocket of skin outside the contact's box, stays out (its slopes would be filled from
+/// the contact's and read as depth beside it).
 fn join_enclosing_clipped(
     touched: &mut [bool],
     clipped: &[bool],
