@@ -389,31 +389,34 @@ fn join_clipped_neighbours(touched: &mut [bool], clipped: &[bool], w: usize, h: 
         if d >= JOIN_REACH_BLOCKS {
             continue;
         }
-        let (x, y) = (i % w, i / w);
-        for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-            for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                let j = ny * w + nx;
-                if !touched[j] && clipped[j] {
-                    touched[j] = true;
-                    queue.push_back((j, d + 1));
-                }
+        for j in neighbourhood(i, w, h) {
+            if !touched[j] && clipped[j] {
+                touched[j] = true;
+                queue.push_back((j, d + 1));
             }
         }
     }
 }
 
+/// At most this many clipped stretches meeting a contact, the largest first, are weighed by
+/// [`join_enclosing_clipped`]: each can cost two hole fills of the block grid, and speckled
+/// clipping around a large contact could otherwise make many.
+const MAX_ENCLOSING_STRETCHES: usize = 8;
+
 /// The rest of a stretch of one-phase clipped blocks ([`join_clipped_neighbours`] took in
 /// its first [`JOIN_REACH_BLOCKS`] from the contact) joins when it closes the contact's
 /// ring: with it the touched blocks enclose at least `min_cells` more blocks, nine tenths
 /// of them inside some contact's bounding box (taken before this join). The stretches
-/// meeting a contact are judged together first, then each is left out that the enclosed
-/// area does not need; so a pocket beside one contact that fails the box rule keeps a
-/// ring-closing arc in the same frame out as well. A wall facing a bright strip can clip
-/// along a long arc of the ring (15 blocks, 60 px, seen on a skin we did not tune on);
-/// reach alone leaves the arc's middle open and the flat middle of the imprint, no longer
-/// enclosed, reads 0. A clipped stretch beside a contact that encloses nothing, or encloses
-/// a pocket of skin outside the contact's box, stays out (its slopes would be filled from
-/// the contact's and read as depth beside it).
+/// meeting a contact (the [`MAX_ENCLOSING_STRETCHES`] largest) are judged together first;
+/// when together they fail the box rule, each stretch that on its own encloses a pocket
+/// failing it is left out and the others are judged again (so a pocket beside one contact
+/// does not keep a ring-closing arc elsewhere out). Then each stretch is left out that the
+/// enclosed area does not need. A wall facing a bright strip can clip along a long arc of
+/// the ring (15 blocks, 60 px, seen on a skin we did not tune on); reach alone leaves the
+/// arc's middle open and the flat middle of the imprint, no longer enclosed, reads 0. A
+/// clipped stretch beside a contact that encloses nothing, or encloses a pocket of skin
+/// outside the contact's box, stays out (its slopes would be filled from the contact's and
+/// read as depth beside it).
 fn join_enclosing_clipped(
     touched: &mut [bool],
     clipped: &[bool],
@@ -430,20 +433,19 @@ fn join_enclosing_clipped(
         return;
     }
     let (labels, components) = label_components(&rest, w, h);
-    // The stretches that meet the contact (8-neighbours).
+    // The stretches that meet a contact (8-neighbours), the largest first.
     let mut meets = vec![false; components.len()];
     for (i, &l) in labels.iter().enumerate() {
-        if l == 0 {
-            continue;
+        if l != 0 && neighbourhood(i, w, h).any(|j| touched[j]) {
+            meets[l as usize - 1] = true;
         }
-        let (x, y) = (i % w, i / w);
-        let near = (y.saturating_sub(1)..=(y + 1).min(h - 1))
-            .any(|ny| (x.saturating_sub(1)..=(x + 1).min(w - 1)).any(|nx| touched[ny * w + nx]));
-        meets[l as usize - 1] |= near;
     }
-    if !meets.iter().any(|&m| m) {
+    let mut weighed: Vec<usize> = (0..components.len()).filter(|&k| meets[k]).collect();
+    if weighed.is_empty() {
         return;
     }
+    weighed.sort_by_key(|&k| std::cmp::Reverse(components[k].cells));
+    weighed.truncate(MAX_ENCLOSING_STRETCHES);
     let filled = |mask: &[bool]| {
         let mut f = mask.to_vec();
         fill_holes(&mut f, w, h);
@@ -460,9 +462,8 @@ fn join_enclosing_clipped(
             .any(|c| (c.x0..=c.x1).contains(&x) && (c.y0..=c.y1).contains(&y))
     };
     // Skin the `chosen` stretches newly enclose (filled with them, not filled before and
-    // not one of their own blocks) inside a contact's box; 0 when a tenth of it or more
-    // lies outside every box.
-    let encloses = |chosen: &[bool]| {
+    // not one of their own blocks): (inside a contact's box, outside every box).
+    let enclosed = |chosen: &[bool]| {
         let trial = touched_with(touched, &labels, &|k| chosen[k]);
         let (mut inside, mut outside) = (0usize, 0usize);
         for (i, ((&a, &b), &t)) in filled(&trial).iter().zip(&before).zip(&trial).enumerate() {
@@ -474,27 +475,55 @@ fn join_enclosing_clipped(
                 }
             }
         }
-        if outside * 10 >= inside + outside {
-            0
-        } else {
-            inside
-        }
+        (inside, outside)
     };
-    // All of them first (most frames gain nothing and stop here; two arcs may close the
-    // ring only together), then each one left out that the ring does not need.
-    let mut chosen = meets;
-    let all = encloses(&chosen);
+    // The box rule: less than a tenth of the newly enclosed skin outside every box.
+    let passes = |(inside, outside): (usize, usize)| outside * 10 < inside + outside;
+    // The enclosed skin inside the boxes, 0 when the box rule fails.
+    let gain = |e: (usize, usize)| if passes(e) { e.0 } else { 0 };
+    let mut chosen = vec![false; components.len()];
+    for &k in &weighed {
+        chosen[k] = true;
+    }
+    // All of them first (most frames enclose nothing new and stop here; two arcs may close
+    // the ring only together).
+    let together = enclosed(&chosen);
+    if together.0 + together.1 < min_cells {
+        return;
+    }
+    if !passes(together) {
+        for &k in &weighed {
+            let mut alone = vec![false; components.len()];
+            alone[k] = true;
+            let e = enclosed(&alone);
+            if e.1 > 0 && !passes(e) {
+                chosen[k] = false;
+            }
+        }
+    }
+    let all = if passes(together) {
+        together.0
+    } else {
+        gain(enclosed(&chosen))
+    };
     if all < min_cells {
         return;
     }
     for k in 0..chosen.len() {
         if chosen[k] {
             chosen[k] = false;
-            chosen[k] = encloses(&chosen) < all;
+            chosen[k] = gain(enclosed(&chosen)) < all;
         }
     }
     let joined = touched_with(touched, &labels, &|k| chosen[k]);
     touched.copy_from_slice(&joined);
+}
+
+/// Cell `i` of a `w × h` grid (row-major) and its up to eight neighbours inside the grid.
+fn neighbourhood(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (i % w, i / w);
+    (y.saturating_sub(1)..=(y + 1).min(h - 1))
+        .flat_map(move |ny| (x.saturating_sub(1)..=(x + 1).min(w - 1)).map(move |nx| ny * w + nx))
 }
 
 /// `touched` with the blocks of the components (`labels`, 1-based) that `pick` takes.
@@ -581,13 +610,10 @@ pub(crate) fn label_components(mask: &[bool], w: usize, h: usize) -> (Vec<u32>, 
             c.y0 = c.y0.min(y);
             c.y1 = c.y1.max(y);
             c.cells += 1;
-            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                    let j = ny * w + nx;
-                    if mask[j] && labels[j] == 0 {
-                        labels[j] = id;
-                        stack.push(j);
-                    }
+            for j in neighbourhood(i, w, h) {
+                if mask[j] && labels[j] == 0 {
+                    labels[j] = id;
+                    stack.push(j);
                 }
             }
         }
@@ -939,6 +965,60 @@ mod tests {
             touched[2 * w + 12] && !touched[w + 12] && !touched[12],
             "the chain beside the ring joins as far as the reach and no farther"
         );
+    }
+
+    #[test]
+    fn a_pocket_beside_a_contact_does_not_keep_a_ring_closing_arc_out() {
+        // 30×32 blocks: a square ring (x 5..=20, y 10..=25) whose right side is clipped in
+        // one phase, and above its top side a clipped loop (x 8..=14, y 1..=9) that with
+        // the top side encloses a pocket of skin mostly outside the ring's box.
+        let (w, h) = (30, 32);
+        let mut touched = vec![false; w * h];
+        let mut clipped = vec![false; w * h];
+        for i in 5..20 {
+            for (x, y) in [(i, 10), (i, 25), (5, i + 5)] {
+                touched[y * w + x] = true;
+            }
+        }
+        for y in 10..=25 {
+            clipped[y * w + 20] = true;
+        }
+        for y in 1..=9 {
+            clipped[y * w + 8] = true;
+            clipped[y * w + 14] = true;
+        }
+        for x in 8..=14 {
+            clipped[w + x] = true;
+        }
+        // The loop alone (the right side lit normally, touched but for its middle): it
+        // stays out.
+        let mut alone = touched.clone();
+        let mut loop_only = clipped.clone();
+        for y in 10..=25 {
+            alone[y * w + 20] = !(14..=21).contains(&y);
+            loop_only[y * w + 20] = false;
+        }
+        join_clipped_neighbours(&mut alone, &loop_only, w, h);
+        join_enclosing_clipped(&mut alone, &loop_only, 3, w, h);
+        assert!(
+            !alone[w + 11],
+            "a loop enclosing a pocket outside the box stays out"
+        );
+        join_clipped_neighbours(&mut touched, &clipped, w, h);
+        assert!(!touched[17 * w + 20] && !touched[w + 11]);
+        join_enclosing_clipped(&mut touched, &clipped, 3, w, h);
+        assert!(
+            (10..=25).all(|y| touched[y * w + 20]),
+            "the whole arc joins"
+        );
+        assert!(
+            !touched[w + 11] && !touched[3 * w + 8] && !touched[3 * w + 14],
+            "the loop joins only as far as the reach"
+        );
+        let mut blocks = touched.clone();
+        fill_holes(&mut blocks, w, h);
+        assert!(blocks[17 * w + 12], "the ring's middle is enclosed");
+        assert!(!blocks[4 * w + 11], "the pocket above it is not");
     }
 
     #[test]
