@@ -56,6 +56,26 @@ pub(crate) fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> Outp
     }
 }
 
+/// Whether two paths name one file: the same path, the same name in the same folder
+/// reached another way (`./a` and `a`), or the same existing file (links): two outputs of
+/// one command must not, or the second would replace the first.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    // The folder resolved (it exists when the file is to be written), the name as given.
+    let resolved = |p: &Path| {
+        let folder = p.parent().filter(|f| !f.as_os_str().is_empty());
+        Some(
+            folder
+                .unwrap_or(Path::new("."))
+                .canonicalize()
+                .ok()?
+                .join(p.file_name()?),
+        )
+    };
+    a == b
+        || matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
+        || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
+}
+
 /// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, synced,
 /// then renamed over `path`. A crash or a full disk leaves the old file (or none), never
 /// a truncated one. For files users keep: models, calibrations, firmware images.
@@ -336,6 +356,27 @@ pub fn write_points_ply(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn same_file_sees_one_file_named_two_ways() {
+        let dir = std::env::temp_dir().join(format!("stereotac-same-file-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        let a = dir.join("a.json");
+        // Not there yet: the same name in the same folder, however the folder is reached.
+        assert!(same_file(&a, &dir.join("sub").join("..").join("a.json")));
+        assert!(same_file(&a, &a));
+        assert!(!same_file(&a, &dir.join("b.json")));
+        assert!(!same_file(&a, &dir.join("sub").join("a.json")));
+        // There: a link to it too (where the platform makes them).
+        std::fs::write(&a, b"x").unwrap();
+        #[cfg(unix)]
+        {
+            let link = dir.join("sub").join("link.json");
+            std::os::unix::fs::symlink(&a, &link).unwrap();
+            assert!(same_file(&a, &link));
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn grey_is_the_image_crates_rec709_luma() {

@@ -255,7 +255,55 @@ fn output_folders() {
         ],
         &["exists and holds", "nothing is ever written over"],
     );
+    // A calibration's report never replaces a file without --force, and never the model
+    // it comes with (refused before the presses are read: the folder is empty).
+    let (model, report) = (dir.join("model.json"), dir.join("report.json"));
+    std::fs::write(&model, b"the user's model").unwrap();
+    let calibrate = |out: &Path, report: &Path| {
+        [
+            "calibrate",
+            s(&out_empty(&dir)),
+            "--ball-diameter-mm",
+            "8",
+            "--out",
+            s(out),
+            "--report",
+            s(report),
+        ]
+        .map(str::to_owned)
+    };
+    let args = calibrate(&dir.join("new.json"), &model);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    refused(&args, &["model.json exists", "--force", "--report"]);
+    let args = calibrate(&report, &dir.join(".").join("report.json"));
+    let mut args: Vec<&str> = args.iter().map(String::as_str).collect();
+    args.push("--force");
+    refused(&args, &["the model file --out names"]);
+    assert_eq!(std::fs::read(&model).unwrap(), b"the user's model");
+    // Two outputs of stereo-convert naming one file: refused, nothing written.
+    let (calib, _, _) = stereo_inputs(&dir);
+    let ros = dir.join("ros.yaml");
+    refused(
+        &[
+            "stereo-convert",
+            "--calib",
+            s(&calib),
+            "--ros-left",
+            s(&ros),
+            "--ros-right",
+            s(&dir.join(".").join("ros.yaml")),
+        ],
+        &["ros.yaml", "name one file"],
+    );
+    assert!(!ros.exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An empty folder in `dir` (made once).
+fn out_empty(dir: &Path) -> PathBuf {
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    empty
 }
 
 /// Model files: not JSON, not a model, another version, bytes that are not text. (Damaged

@@ -492,9 +492,27 @@ fn calibration_rejects_bad_input_with_clear_errors() {
     // Frames without LED light are flagged, not read as "no contact".
     let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
     let r = rec.reconstruct(&black, &black).unwrap();
-    assert!(r.unlit() && r.no_contact(), "{}", r.unlit_fraction);
+    assert!(r.unlit() && r.no_contact(), "{:?}", r.unlit_fraction);
     let lit = render(&optics, &Scene::default(), 2);
     assert!(!rec.reconstruct(&lit.dx, &lit.dy).unwrap().unlit());
+    // One phase unlit is enough: the other's colours alone would read as slopes (a
+    // pressed disk's dx beside a black dy read 0.57 mm for 1 mm, with exit 0).
+    let pressed = render(&optics, &disk(0.79), 3);
+    for (dx, dy, phase) in [(&pressed.dx, &black, "dy"), (&black, &pressed.dy, "dx")] {
+        let r = rec.reconstruct(dx, dy).unwrap();
+        assert_eq!(r.unlit_phase(), Some(phase), "{:?}", r.unlit_fraction);
+        let err = r.require_lit().expect_err("refused");
+        assert!(
+            err.to_string().contains(&format!("of the {phase} frame")),
+            "{err}"
+        );
+    }
+    assert!(
+        rec.reconstruct(&pressed.dx, &pressed.dy)
+            .unwrap()
+            .require_lit()
+            .is_ok()
+    );
 }
 
 #[test]

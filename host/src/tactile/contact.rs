@@ -158,7 +158,7 @@ fn block_departures(
     dy: &BlockMeans,
     refs: &References,
     filter: &ColourFilter,
-) -> (Vec<f32>, usize) {
+) -> (Vec<f32>, [usize; 2]) {
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
         // SAFETY: `block_departures_avx2` only needs AVX2, detected just above.
@@ -176,7 +176,7 @@ fn block_departures_avx2(
     dy: &BlockMeans,
     refs: &References,
     filter: &ColourFilter,
-) -> (Vec<f32>, usize) {
+) -> (Vec<f32>, [usize; 2]) {
     block_departures_portable(dx, dy, refs, filter)
 }
 
@@ -186,7 +186,7 @@ fn block_departures_portable(
     dy: &BlockMeans,
     refs: &References,
     filter: &ColourFilter,
-) -> (Vec<f32>, usize) {
+) -> (Vec<f32>, [usize; 2]) {
     let n = dx.len().min(dy.len());
     let (ref_dx, ref_dy) = (refs.dx.planes(0..n), refs.dy.planes(0..n));
     let (rx, gx, bx, cx) = (
@@ -202,15 +202,16 @@ fn block_departures_portable(
         &dy.clipped[..n],
     );
     let mut out = vec![0.0f32; n];
-    let mut unlit = 0usize;
+    let (mut unlit_dx, mut unlit_dy) = (0usize, 0usize);
     for i in 0..n {
         let (d_dx, lit_dx) = ref_dx.departure(filter, i, [rx[i], gx[i], bx[i]]);
         let (d_dy, lit_dy) = ref_dy.departure(filter, i, [ry[i], gy[i], by[i]]);
-        unlit += usize::from(!(lit_dx | lit_dy));
+        unlit_dx += usize::from(!lit_dx);
+        unlit_dy += usize::from(!lit_dy);
         let clipped = (cx[i] | cy[i]) != 0;
         out[i] = if clipped { f32::NAN } else { 0.0 + d_dx + d_dy };
     }
-    (out, unlit)
+    (out, [unlit_dx, unlit_dy])
 }
 
 /// Where contact was found: the regions to integrate, and the blocks (of
@@ -225,9 +226,10 @@ pub struct Detection {
     pub blocks_across: usize,
     /// Per block: part of a contact large enough to count.
     pub touched: Vec<bool>,
-    /// Fraction of blocks where the colour filter accepted neither phase (no LED light,
-    /// saturated, white light): above a half, the frames are not lit phase images.
-    pub unlit_fraction: f32,
+    /// Per phase (dx, dy): the fraction of blocks where the colour filter rejected it (no
+    /// LED light, saturated, white light). Above a half in either, the pair is not a lit
+    /// dx/dy pair: one unlit frame alone makes the other's colours read as slopes.
+    pub unlit_fraction: [f32; 2],
 }
 
 impl Detection {
@@ -315,7 +317,7 @@ pub fn find_regions(
         step,
         blocks_across: gw,
         touched: vec![false; gw * gh],
-        unlit_fraction: unlit as f32 / (gw * gh).max(1) as f32,
+        unlit_fraction: unlit.map(|u| u as f32 / (gw * gh).max(1) as f32),
     };
     if !marked.iter().any(|&m| m) {
         return detection;
@@ -748,10 +750,11 @@ mod tests {
             let refs = block_references(&rdx, &rdy, step);
             let (a, b) = (BlockMeans::of(&dx, step), BlockMeans::of(&dy, step));
             let (fast, unlit) = block_departures(&a, &b, &refs, &filter);
-            let mut want_unlit = 0;
+            let mut want_unlit = [0; 2];
             for (i, got) in fast.iter().enumerate() {
                 let (colour, d) = colours_of(&refs, &filter, i, a.mean(i), b.mean(i));
-                want_unlit += usize::from(colour[0].is_nan() && colour[2].is_nan());
+                want_unlit[0] += usize::from(colour[0].is_nan());
+                want_unlit[1] += usize::from(colour[2].is_nan());
                 let want = if a.clipped[i] > 0 || b.clipped[i] > 0 {
                     f32::NAN
                 } else {
@@ -764,7 +767,7 @@ mod tests {
             }
             assert_eq!(unlit, want_unlit);
             assert!(fast.iter().any(|d| d.is_nan()) && fast.iter().any(|&d| d > 0.0));
-            assert!(unlit > 0 && unlit < fast.len());
+            assert!(unlit.iter().all(|&u| u > 0 && u < fast.len()));
         }
     }
 
@@ -779,7 +782,7 @@ mod tests {
             step,
             blocks_across: bw,
             touched: (0..bw * bh).map(|_| rng.uniform() < 0.15).collect(),
-            unlit_fraction: 0.0,
+            unlit_fraction: [0.0; 2],
         };
         for (x, y, width, height, grow) in [
             (0, 0, 52, 36, 6),

@@ -110,14 +110,17 @@ pub enum ReconstructError {
         /// Pixel row.
         y: usize,
     },
-    /// Most of the frame shows no usable LED light: not a lit dx/dy pair, so "no contact"
-    /// would mean nothing (see [`Reconstruction::require_lit`]).
+    /// Most of one phase's frame shows no usable LED light: not a lit dx/dy pair, so its
+    /// depth (or "no contact") would mean nothing (see [`Reconstruction::require_lit`]).
     #[error(
-        "{percent:.0}% of the frame shows no usable LED light (black, white, overexposed, \
-         or taken with the LEDs off): not a lit dx/dy pair"
+        "{percent:.0}% of the {phase} frame shows no usable LED light (black, white, \
+         overexposed, or taken with the LEDs off): not a lit dx/dy pair; give the {phase} \
+         frame its strips lit"
     )]
     Unlit {
-        /// Share of the frame without usable LED light (%).
+        /// Which frame: "dx" or "dy".
+        phase: &'static str,
+        /// Share of that frame without usable LED light (%).
         percent: f32,
     },
     /// The model's stored ambient light does not cover its own frame size.
@@ -164,10 +167,10 @@ pub struct Reconstruction {
     pub rejected_pixels: usize,
     /// Slopes replaced or clamped by the sanitiser.
     pub sanitized_slopes: usize,
-    /// Fraction of the frame where the colour filter accepted neither phase; above
-    /// [`phase_check::MIN_LIT_FRACTION`]'s complement the pair is not a lit dx/dy pair
-    /// and "no contact" means nothing ([`Self::unlit`]).
-    pub unlit_fraction: f32,
+    /// Per phase (dx, dy), the fraction of the frame where the colour filter rejected it;
+    /// above [`phase_check::MIN_LIT_FRACTION`]'s complement in either, the pair is not a
+    /// lit dx/dy pair and its depth or "no contact" means nothing ([`Self::unlit`]).
+    pub unlit_fraction: [f32; 2],
     /// Which ambient light was removed.
     pub ambient: AmbientSource,
     /// Stage timings.
@@ -197,15 +200,25 @@ impl Reconstruction {
     /// `true` when most of the frame shows no usable LED light (black, white, saturated
     /// or unlit frames): the result says nothing about contact.
     pub fn unlit(&self) -> bool {
-        self.unlit_fraction > 1.0 - phase_check::MIN_LIT_FRACTION
+        self.unlit_phase().is_some()
+    }
+
+    /// The phase ("dx" or "dy") whose frame shows no usable LED light over most of it,
+    /// the worse of the two when both do.
+    pub fn unlit_phase(&self) -> Option<&'static str> {
+        let [dx, dy] = self.unlit_fraction;
+        let worse = if dy > dx { ("dy", dy) } else { ("dx", dx) };
+        (worse.1 > 1.0 - phase_check::MIN_LIT_FRACTION).then_some(worse.0)
     }
 
     /// The reconstruction, or [`ReconstructError::Unlit`] when it says nothing about
     /// contact ([`Self::unlit`]): for callers that hand one result on (files, Python).
     pub fn require_lit(self) -> Result<Self, ReconstructError> {
-        if self.unlit() {
+        if let Some(phase) = self.unlit_phase() {
+            let share = self.unlit_fraction[usize::from(phase == "dy")];
             return Err(ReconstructError::Unlit {
-                percent: self.unlit_fraction * 100.0,
+                phase,
+                percent: share * 100.0,
             });
         }
         Ok(self)

@@ -7,6 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stereotac::out_dir::{OutDir, Replace};
+use stereotac::output::{same_file, write_atomic};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
@@ -62,24 +63,35 @@ pub struct Args {
     #[arg(long)]
     pub overlays: Option<PathBuf>,
     /// Also write the calibration report (presses, reasons, fit per region, coverage,
-    /// warnings) as JSON here.
+    /// warnings) as JSON here (an existing file is kept unless --force).
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// Model file to write (an existing file is kept unless --force).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace the model file if it exists.
+    /// Replace the model file, the report and the overlays' files if they exist.
     #[arg(long)]
     pub force: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    // Before the work, not after: a model is never replaced by accident.
-    anyhow::ensure!(
-        a.force || !a.out.exists(),
-        "{} exists: pass --force to replace it, or choose another --out",
-        a.out.display()
-    );
+    // Before the work, not after: a model or a report is never replaced by accident.
+    for (path, flag) in
+        std::iter::once((&a.out, "--out")).chain(a.report.iter().map(|r| (r, "--report")))
+    {
+        anyhow::ensure!(
+            a.force || !path.exists(),
+            "{} exists: pass --force to replace it, or choose another {flag}",
+            path.display()
+        );
+    }
+    if let Some(report) = &a.report {
+        anyhow::ensure!(
+            !same_file(report, &a.out),
+            "--report {} is the model file --out names: give the report a file of its own",
+            report.display()
+        );
+    }
     let overrides: HashMap<String, Circle> = match &a.overrides {
         Some(path) => serde_json::from_slice(
             &std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
@@ -212,7 +224,7 @@ pub fn run(a: Args) -> Result<()> {
         dir.keep();
     }
     if let Some(path) = &a.report {
-        std::fs::write(path, serde_json::to_vec_pretty(&cal.report_json())?)
+        write_atomic(path, &serde_json::to_vec_pretty(&cal.report_json())?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
     cal.model.save(&a.out)?;

@@ -47,7 +47,8 @@ pub struct Args {
     /// Poisson solver: dct (Neumann, default) or dst (Dirichlet).
     #[arg(long, default_value = "dct")]
     pub solver: SolverKind,
-    /// Gradient model: lut (default) or mlp.
+    /// Gradient model: lut (default), mlp, light or photometric (each only with a model
+    /// file that holds it; a missing one is named).
     #[arg(long = "model-kind", default_value = "lut")]
     pub model_kind: ModelKind,
     /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:

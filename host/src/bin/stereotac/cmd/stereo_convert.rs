@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail, ensure};
-use stereotac::output::write_atomic;
+use stereotac::output::{same_file, write_atomic};
 use stereotac::stereo::ros_info::camera_info_pair;
 use stereotac::stereo::{LengthUnit, StereoCalibration};
 
@@ -46,12 +46,20 @@ pub fn run(a: Args) -> Result<()> {
     if outputs.is_empty() {
         bail!("nothing to write: give --opencv FILE and/or --ros-left FILE --ros-right FILE");
     }
-    for path in &outputs {
+    for (i, path) in outputs.iter().enumerate() {
         ensure!(
             a.force || !path.exists(),
             "{} exists: pass --force to replace it",
             path.display()
         );
+        if let Some(other) = outputs[..i].iter().find(|o| same_file(o, path)) {
+            bail!(
+                "{} and {} name one file: each output needs a file of its own (the second \
+                 would replace the first)",
+                other.display(),
+                path.display()
+            );
+        }
     }
     let calib = crate::stages::load_calibration(&a.calib, a.units)?;
     let mut written = Vec::new();
