@@ -225,13 +225,20 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<Grid<f32>, OutputError> {
 
 /// Writes `grid` as a 16-bit grey PNG with `counts_per_unit` counts per unit of the
 /// grid (e.g. 1000 per mm: micrometres). Values are rounded and clamped to 0..=65535;
-/// NaN is written as 0 (the usual "no depth" value of depth images).
-pub fn write_png16(path: &Path, grid: &Grid<f32>, counts_per_unit: f32) -> Result<(), OutputError> {
+/// NaN is written as 0 (the usual "no depth" value of depth images). Returns how many
+/// values were above the largest count (written as 65535: the caller says so).
+pub fn write_png16(
+    path: &Path,
+    grid: &Grid<f32>,
+    counts_per_unit: f32,
+) -> Result<usize, OutputError> {
+    let mut above = 0;
     let data: Vec<u16> = grid
         .as_slice()
         .iter()
         .map(|v| {
             let c = (v * counts_per_unit).round();
+            above += usize::from(c > 65535.0);
             if c.is_nan() {
                 0
             } else {
@@ -245,7 +252,8 @@ pub fn write_png16(path: &Path, grid: &Grid<f32>, counts_per_unit: f32) -> Resul
         data,
     )
     .expect("buffer length matches");
-    img.save(path).map_err(image_error(path))
+    img.save(path).map_err(image_error(path))?;
+    Ok(above)
 }
 
 /// A perceptually ordered map: piecewise linear through five anchor colours.
@@ -521,7 +529,11 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let g = Grid::from_vec(3, 1, vec![1.5, f32::NAN, 700.0]).unwrap();
         let png = dir.join("a.png");
-        write_png16(&png, &g, 100.0).unwrap();
+        assert_eq!(
+            write_png16(&png, &g, 100.0).unwrap(),
+            1,
+            "700 mm is past 655.35"
+        );
         let img = image::open(&png).unwrap().into_luma16();
         assert_eq!(img.as_raw(), &vec![150, 0, 65535]);
         let ply = dir.join("a.ply");

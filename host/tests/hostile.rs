@@ -205,7 +205,39 @@ fn arguments() {
         &["--sim", "stream", "--duration-s", "NaN"],
         &["--duration-s"],
     );
+    // An exposure that cannot fit in one LED phase: no frame could ever be labelled.
+    for (flag, value) in [("--period-ms", "5"), ("--exposure-us", "1e30")] {
+        refused(
+            &[
+                "--sim",
+                "run",
+                "--camera",
+                "sim",
+                "--duration-s",
+                "1",
+                flag,
+                value,
+            ],
+            &["does not fit in one phase", "--exposure-us"],
+        );
+    }
     let dir = temp_dir("hostile-args");
+    // A working range whose disparities reach past the image: refused with the nearest
+    // depth that fits, rather than a run that matches nothing and blames the texture.
+    let scaled = dir.join("scaled");
+    refused(
+        &[
+            "stereo",
+            "--synthetic",
+            "150",
+            "--scale",
+            "10",
+            "--out-dir",
+            s(&scaled),
+        ],
+        &["px wide", "--near-mm to about"],
+    );
+    assert!(!scaled.exists(), "a refused run leaves no folder");
     // Refused before the (empty) directory is even read.
     for (flag, value, says) in [
         ("--px-per-mm", "1e9", "px/mm"),

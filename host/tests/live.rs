@@ -507,6 +507,61 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Stereo results that warn (here a working range the scene is not in) are said on
+/// stderr once and counted in the closing figures, as `stereo` says them; a recording
+/// with one camera says that no stereo pair was made.
+#[test]
+fn live_stereo_warnings_are_said_and_counted() {
+    let (ok, _, err) = stereotac(&[
+        "--sim",
+        "run",
+        "--camera",
+        "sim",
+        "--camera",
+        "sim",
+        "--size",
+        "320x240",
+        "--mode",
+        "vision",
+        "--period-ms",
+        "100",
+        "--duration-s",
+        "1",
+        "--near-mm",
+        "900",
+        "--far-mm",
+        "1000",
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(err.matches("warning: stereo frame").count(), 1, "{err}");
+    let counted = err
+        .lines()
+        .find_map(|l| l.strip_prefix("stereo: "))
+        .and_then(|l| {
+            let (pairs, rest) = l.split_once(" frame pairs, ")?;
+            let warned = rest.split_once(" with warnings")?.0;
+            Some((pairs.parse::<u64>().ok()?, warned.parse::<u64>().ok()?))
+        });
+    assert!(
+        matches!(counted, Some((pairs, warned)) if pairs > 0 && warned == pairs),
+        "{err}"
+    );
+    let dir = temp_dir("live-one-camera");
+    let one = dir.join("one.mcap");
+    record_sim(&one, &["--mode", "vision", "--duration-s", "1"]);
+    let calib = dir.join("rig.yaml");
+    std::fs::write(
+        &calib,
+        stereotac::stereo::synthetic::StereoRig::sensor()
+            .calibration()
+            .to_opencv_yaml(),
+    )
+    .unwrap();
+    let (_, _, err) = stereotac(&["process", path(&one), "--calib", path(&calib)]);
+    assert!(err.contains("no stereo frame pair was made"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn sigterm_and_sighup_finish_the_recording_with_its_summary_and_index() {
     for signal in ["TERM", "HUP"] {

@@ -119,6 +119,26 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
         "300,100",
     ]);
     assert!(!ok && err.contains("LO,HI"), "{err}");
+    // A scene beyond what depth16.png holds (655.35 mm at 0.01 mm a count): said, not
+    // silently written as 65535.
+    let far = dir.join("far");
+    let (ok, out, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "800",
+        "--far-mm",
+        "1500",
+        "--out-dir",
+        far.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let s: Value = serde_json::from_str(&out).expect("JSON summary");
+    let warned = s["warnings"].as_array().unwrap().iter().any(|w| {
+        let w = w.as_str().unwrap();
+        w.contains("deeper than 655.35 mm") && w.contains("depth.npy")
+    });
+    assert!(warned, "{s}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -444,12 +464,16 @@ fn calibrations_convert_between_formats_and_read_back() {
         "--opencv",
         &p("mm.yaml"),
         "--ros-left",
-        &p("left.yaml"),
+        &p("ros/left.yaml"),
         "--ros-right",
-        &p("right.yaml"),
+        &p("ros/right.yaml"),
     ]);
     assert!(ok, "{err}");
     assert!(out.contains("baseline 14.000 mm"), "{out}");
+    // (`ros/` did not exist: made, as `stereo --out-dir` is.)
+    for f in ["left.yaml", "right.yaml"] {
+        std::fs::rename(dir.join("ros").join(f), dir.join(f)).unwrap();
+    }
     let read = |files: &[&str]| {
         let paths: Vec<_> = files.iter().map(|f| dir.join(f)).collect();
         stereotac::stereo::StereoCalibration::load(&paths).unwrap()

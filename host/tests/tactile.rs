@@ -370,22 +370,52 @@ fn hostile_images_give_finite_output_or_typed_errors() {
         Err(ReconstructError::InvalidModel { field, .. }) if field == "dx.lut.table"
     ));
     // Degenerate frame sizes run through the same code (model resized with a background
-    // of that size): 1×N and N×1 frames of noise.
+    // of that size): 1×N and N×1 frames of flat skin with noise over their middle third
+    // (contact there, integrated; noise over the whole frame is refused as light that
+    // changed since the references).
     for (w, h) in [(1usize, 57usize), (57, 1), (3, 3)] {
+        let flat = RgbImage::from_pixel(w as u32, h as u32, image::Rgb([150, 20, 130]));
         let img = RgbImage::from_fn(w as u32, h as u32, |x, y| {
-            image::Rgb([(x * 37 % 256) as u8, 9, (y * 53 % 256) as u8])
+            let along = (x as usize).max(y as usize);
+            if (w.max(h) / 3..2 * w.max(h) / 3).contains(&along) {
+                image::Rgb([(x * 37 % 256) as u8, 9, (y * 53 % 256) as u8])
+            } else {
+                image::Rgb([150, 20, 130])
+            }
         });
         let mut m = model.clone();
         m.width = w;
         m.height = h;
-        m.background = Background::from_images(&img, &img, m.background.factor);
+        m.background = Background::from_images(&flat, &flat, m.background.factor);
         let mut rec = Reconstructor::new(m, ModelKind::Lut, SolverKind::Dct, None).unwrap();
         let r = rec.reconstruct(&img, &img).unwrap();
         assert!(
             r.depth_mm.as_slice().iter().all(|d| d.is_finite()),
             "{w}x{h}"
         );
+        if w.max(h) > 3 {
+            assert!(
+                !r.no_contact(),
+                "{w}x{h}: the middle third reads as contact"
+            );
+        }
+        let everywhere = rec.reconstruct(&noise_like(&img), &noise_like(&img));
+        assert!(
+            match &everywhere {
+                Ok(r) => r.depth_mm.as_slice().iter().all(|d| d.is_finite()),
+                Err(e) => matches!(e, ReconstructError::LightChanged { .. }),
+            },
+            "{w}x{h}: {:?}",
+            everywhere.err()
+        );
     }
+}
+
+/// Noise of `img`'s size over the whole frame.
+fn noise_like(img: &RgbImage) -> RgbImage {
+    RgbImage::from_fn(img.width(), img.height(), |x, y| {
+        image::Rgb([(x * 37 % 256) as u8, 9, (y * 53 % 256) as u8])
+    })
 }
 
 #[test]
@@ -435,6 +465,36 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         "{err}"
     );
     assert!(err.to_string().contains("flat: no contact found"), "{err}");
+    // A press whose dy is black, or whose phases are swapped, is set aside saying so
+    // (not "no contact found").
+    let press = ball_presses(&optics, 1, 6.0, 5).remove(0);
+    for (dx, dy, says) in [
+        (
+            press.dx.clone(),
+            RgbImage::new(optics.width as u32, optics.height as u32),
+            "dy",
+        ),
+        (press.dy.clone(), press.dx.clone(), "swapped"),
+    ] {
+        let bad = CalibrationPair {
+            name: "bad".into(),
+            dx,
+            dy,
+            dark: None,
+        };
+        let err = calibrate(
+            std::slice::from_ref(&bad),
+            Some((&refs.0, &refs.1).into()),
+            &s,
+            |_| {},
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("bad: ") && err.contains(says) && !err.contains("no contact found"),
+            "{says}: {err}"
+        );
+    }
     assert!(matches!(
         calibrate(std::slice::from_ref(&pair), None, &s, |_| {}),
         Err(CalibrationError::TooFewForMedian(1))
@@ -513,6 +573,26 @@ fn calibration_rejects_bad_input_with_clear_errors() {
             .require_lit()
             .is_ok()
     );
+    // The exposure changed since the references (0.6× and 1.4×): the whole skin departs
+    // from them. Refused with the fix, not read as a frame-wide contact.
+    for gain in [0.6f32, 1.4] {
+        let scale = |img: &RgbImage| {
+            let mut out = img.clone();
+            for v in out.iter_mut() {
+                *v = (f32::from(*v) * gain).round().min(255.0) as u8;
+            }
+            out
+        };
+        let err = rec
+            .reconstruct(&scale(&lit.dx), &scale(&lit.dy))
+            .expect_err("refused");
+        assert!(
+            matches!(err, ReconstructError::LightChanged { .. })
+                && err.to_string().contains("--ref-dx/--ref-dy"),
+            "{gain}: {err}"
+        );
+        assert!(err.refuses_this_pair_only());
+    }
 }
 
 #[test]
@@ -560,7 +640,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 21] = [
+    let cases: [(&str, Damage); 28] = [
         ("dx.lut.gain_negative", |m| {
             m["dx"]["lut"]["gain_negative"]
                 .as_array_mut()
@@ -625,11 +705,57 @@ fn model_files_round_trip_and_refuse_other_versions() {
         ("contact.threshold", |m| {
             m["contact"]["threshold"] = (-1.0).into()
         }),
+        // Values a hand edit makes that used to load and read nonsense (or "no LED
+        // light", blamed on the frames).
+        ("contact.threshold", |m| {
+            m["contact"]["threshold"] = 1e30.into()
+        }),
+        ("dx.lut.max_value", |m| {
+            m["dx"]["lut"]["max_value"] = 1e30.into()
+        }),
+        ("dx.lut.gain", |m| m["dx"]["lut"]["gain"][0] = (-5.0).into()),
+        ("background.dy", |m| {
+            m["background"]["dy"][0][2] = (-50.0).into()
+        }),
+        ("filter.min_led", |m| m["filter"]["min_led"] = 1e30.into()),
+        ("filter.max_white_ratio", |m| {
+            m["filter"]["max_white_ratio"] = 0.into()
+        }),
+        ("filter.saturation", |m| {
+            m["filter"]["saturation"] = 0.into()
+        }),
         ("dy.mlp.layers", |m| {
             m["dy"]["mlp"]["layers"] = serde_json::json!([])
         }),
         ("background.width/height", |m| m["height"] = 100.into()),
     ];
+    // Damage that is not JSON for a model (a key gone, a NaN typed into a table, text
+    // where a number goes) names where it is.
+    let text = serde_json::to_string(&good).unwrap();
+    let mut missing = good.clone();
+    missing["contact"]
+        .as_object_mut()
+        .unwrap()
+        .remove("threshold");
+    let mut text_in_table = good.clone();
+    text_in_table["dx"]["lut"]["table"][7] = "x".into();
+    for (bytes, at) in [
+        (serde_json::to_vec(&missing).unwrap(), "at `contact`"),
+        (
+            serde_json::to_vec(&text_in_table).unwrap(),
+            "at `dx.lut.table[7]`",
+        ),
+        (
+            text.replacen("\"threshold\":", "\"threshold\":NaN,\"x\":", 1)
+                .into_bytes(),
+            "at `contact.threshold`",
+        ),
+    ] {
+        let err = TactileModel::from_json("m.json", &bytes)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(at) && err.contains("m.json"), "{at}: {err}");
+    }
     for (field, damage) in cases {
         let mut m = good.clone();
         damage(&mut m);
@@ -874,6 +1000,10 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
         header.contains(&format!("element face {}\n", 2 * (w - 1) * (h - 1))),
         "{header}"
     );
+    // Replaced with --force and no --mesh: the earlier pair's mesh goes with the rest.
+    let (out, _, _) = run(&Scene::default(), "fixed", &["--force"]);
+    assert!(!out.join("depth_mesh.ply").exists(), "a stale mesh is left");
+    assert!(out.join("summary.json").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -74,6 +74,8 @@ pub struct RecordingReader {
     /// Bytes read so far (for progress).
     read_bytes: u64,
     len: u64,
+    /// Records handed out so far: a file that ends before the first holds nothing.
+    handed_out: u64,
 }
 
 impl std::fmt::Debug for RecordingReader {
@@ -127,6 +129,7 @@ impl RecordingReader {
             done: false,
             read_bytes: 0,
             len,
+            handed_out: 0,
         })
     }
 
@@ -158,8 +161,19 @@ impl RecordingReader {
             return None;
         }
         let r = self.advance();
-        if !matches!(r, Some(Ok(_))) {
+        if matches!(r, Some(Ok(_))) {
+            self.handed_out += 1;
+        } else {
             self.done = true;
+        }
+        if r.is_none() && self.handed_out == 0 && self.truncated.is_some() {
+            // Cut before anything was read: nothing to go on, so not a warning.
+            let why = self.truncated.take().unwrap_or_default();
+            return Some(Err(self.format(format!(
+                "holds no message, metadata or attachment ({} bytes): an empty or cut file, \
+                 or not an MCAP recording ({why})",
+                self.len
+            ))));
         }
         r
     }
@@ -192,6 +206,17 @@ impl RecordingReader {
                          bytes (it was stopped mid-chunk: killed, or the disk was full); \
                          everything before that chunk was read",
                         self.read_bytes
+                    ));
+                    return None;
+                }
+                // A chunk whose bytes are not the ones written (a damaged disk or copy):
+                // what came before it is sound and is kept, as with a cut file; nothing
+                // after it is read (its records cannot be told from damage).
+                Err(mcap::McapError::BadChunkCrc { .. }) => {
+                    self.truncated = Some(format!(
+                        "a chunk ending by byte {} of {} fails its checksum (the file is \
+                         damaged there); everything before that chunk was read, nothing after",
+                        self.read_bytes, self.len
                     ));
                     return None;
                 }
@@ -590,6 +615,34 @@ mod tests {
         path
     }
 
+    /// [`json_recording`] uncompressed, in chunks of 4 kB (a flipped byte fails a chunk's
+    /// checksum rather than its decompression).
+    fn json_recording_uncompressed(name: &str, n: u64) -> PathBuf {
+        let path =
+            std::env::temp_dir().join(format!("stereotac-{name}-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new()
+            .compression(None)
+            .chunk_size(Some(4096))
+            .create(file)
+            .unwrap();
+        let channel = w
+            .add_channel(0, topics::LED_PHASE, "json", &BTreeMap::new())
+            .unwrap();
+        for i in 0..n {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, format!("{{\"i\": {i}}}").as_bytes())
+                .unwrap();
+        }
+        w.finish().unwrap();
+        path
+    }
+
     /// The stream gives what `frames` gives, in order; a missing file is its first item;
     /// a file cut short ends the stream and says so.
     #[test]
@@ -615,6 +668,27 @@ mod tests {
             item.unwrap();
         }
         assert!(s.truncated().is_some(), "a cut file is reported");
+        // Cut before any message, or empty: an error, not a warning.
+        for end in [0, 8, 40] {
+            std::fs::write(&cut, &bytes[..end]).unwrap();
+            let e = stream(&cut, 4).find_map(Result::err).expect("refused");
+            assert!(e.to_string().contains("holds no message"), "{end}: {e}");
+        }
+        // A damaged chunk: what came before it is read, and the damage said.
+        let damaged = json_recording_uncompressed("damaged", 2000);
+        let mut bytes = std::fs::read(&damaged).unwrap();
+        let middle = bytes.len() / 2;
+        bytes[middle] ^= 0x10;
+        std::fs::write(&damaged, &bytes).unwrap();
+        let mut s = stream(&damaged, 4);
+        let read = s.by_ref().map(Result::unwrap).count();
+        assert!(read > 0 && read < 2000, "{read}");
+        assert!(
+            s.truncated().unwrap().contains("fails its checksum"),
+            "{:?}",
+            s.truncated()
+        );
+        let _ = std::fs::remove_file(damaged);
         let e = stream(&path.with_extension("missing.mcap"), 4)
             .next()
             .unwrap()

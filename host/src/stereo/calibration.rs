@@ -8,8 +8,9 @@
 //! ([`LengthUnit`], `--units m`). A ROS pair carries the same extrinsics inside its
 //! rectification, `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))` with `Tx = P2[0,3] / P2[0,0]`,
 //! in metres as everywhere in ROS. A rig that is not plausible for this sensor (a
-//! baseline under 1 mm or over 1 m, a focal length outside 0.1–10× the image width) is
-//! refused with the number and its likely cause.
+//! baseline under 1 mm or over 1 m, a focal length outside 0.1–10× the image width, the
+//! cameras turned more than 60° apart) is refused with the number and its likely cause. A
+//! rotation written with few digits (up to 1e-4 off) is read as the nearest rotation.
 
 use std::collections::BTreeMap;
 
@@ -97,6 +98,9 @@ impl LengthUnit {
 
 /// Smallest and largest plausible baselines (mm).
 pub const BASELINE_RANGE_MM: (f64, f64) = (1.0, 1000.0);
+/// The largest turn between a stereo pair's cameras (degrees): toed-in rigs converge by
+/// a few tens of degrees at most; more is a rotation of another convention or rig.
+pub const MAX_RIG_TURN_DEG: f64 = 60.0;
 /// Plausible focal lengths, as multiples of the image width.
 pub const FOCAL_RANGE_OF_WIDTH: (f64, f64) = (0.1, 10.0);
 
@@ -415,8 +419,13 @@ impl<'a> Fields<'a> {
 
     /// Image size: `image_width`/`image_height`, or `image_size`/`imageSize` `[w, h]`.
     fn image_size(&self) -> Result<(u32, u32), CalibError> {
+        // Every form the file gives, which must agree.
+        let mut found: Vec<(&str, (u32, u32))> = Vec::new();
         if self.has("image_width") || self.has("image_height") {
-            return Ok((self.size("image_width")?, self.size("image_height")?));
+            found.push((
+                "image_width/image_height",
+                (self.size("image_width")?, self.size("image_height")?),
+            ));
         }
         for field in ["image_size", "imageSize"] {
             if self.has(field) {
@@ -429,13 +438,25 @@ impl<'a> Fields<'a> {
                         format!("expected [width, height], 1 to {MAX_FRAME_SIDE} px each"),
                     ));
                 }
-                return Ok((d[0] as u32, d[1] as u32));
+                found.push((field, (d[0] as u32, d[1] as u32)));
             }
         }
-        Err(CalibError::Missing {
-            file: self.file.into(),
-            field: "image_width/image_height".into(),
-        })
+        let Some(&(first, size)) = found.first() else {
+            return Err(CalibError::Missing {
+                file: self.file.into(),
+                field: "image_width/image_height".into(),
+            });
+        };
+        if let Some(&(other, (w, h))) = found.iter().find(|(_, s)| *s != size) {
+            return Err(self.invalid(
+                other,
+                format!(
+                    "{w}×{h}, but `{first}` in the same file says {}×{}: give one image size",
+                    size.0, size.1
+                ),
+            ));
+        }
+        Ok(size)
     }
 }
 
@@ -456,18 +477,42 @@ fn read_bounded(path: &std::path::Path) -> Result<String, String> {
     Ok(text)
 }
 
-/// Whether `r` is a rotation (orthonormal, determinant +1) to 1e-6.
-fn is_rotation(r: &Matrix3<f64>) -> bool {
-    (r.transpose() * r - Matrix3::identity()).abs().max() < 1e-6
-        && (r.determinant() - 1.0).abs() < 1e-6
+/// How far `RᵀR` may be from the identity, and `det R` from 1, for `R` to be read as a
+/// rotation written with fewer digits (five decimals are about 1e-5 off); it is then
+/// taken as the nearest rotation.
+const ROTATION_ROUNDING: f64 = 1e-4;
+
+/// `r`'s distance from a rotation: the largest entry of `RᵀR − I` and `|det R − 1|`.
+fn rotation_error(r: &Matrix3<f64>) -> f64 {
+    let orthonormal = (r.transpose() * r - Matrix3::identity()).abs().max();
+    orthonormal.max((r.determinant() - 1.0).abs())
 }
 
-fn check_rotation(f: &Fields<'_>, field: &str, r: &Matrix3<f64>) -> Result<(), CalibError> {
-    if is_rotation(r) {
-        Ok(())
-    } else {
-        Err(f.invalid(field, "not a rotation matrix"))
+/// `r` as a rotation: as it is, or the nearest rotation when it is one written with fewer
+/// digits ([`ROTATION_ROUNDING`]); otherwise an error with how far off it is.
+fn rotation(f: &Fields<'_>, field: &str, r: Matrix3<f64>) -> Result<Matrix3<f64>, CalibError> {
+    let error = rotation_error(&r);
+    if error <= 1e-9 {
+        return Ok(r);
     }
+    if error <= ROTATION_ROUNDING {
+        // The nearest rotation (polar decomposition): U·Vᵀ of the SVD.
+        let svd = r.svd(true, true);
+        if let (Some(u), Some(v_t)) = (svd.u, svd.v_t) {
+            let nearest = u * v_t;
+            if rotation_error(&nearest) <= 1e-9 {
+                return Ok(nearest);
+            }
+        }
+    }
+    Err(f.invalid(
+        field,
+        format!(
+            "not a rotation matrix: RᵀR is off the identity or det R off 1 by {error:.1e} \
+             (rounding up to {ROTATION_ROUNDING:.0e} is read as rotation; det R = {:.6})",
+            r.determinant()
+        ),
+    ))
 }
 
 /// Extrinsics from a rectification: `X_right = R2ᵀ·(R1·X_left + (Tx, 0, 0))`.
@@ -508,27 +553,50 @@ impl StereoCalibration {
                 Err(why) => Err(CalibError::Read { file, why }),
             }
         };
-        match files {
+        let (c, mut notes) = match files {
             [one] => {
                 let (name, text) = read(one)?;
                 let mut notes = Vec::new();
                 let c = Self::opencv_noting(&name, &text, unit, &mut notes)?;
-                Ok((c, notes))
+                (c, notes)
             }
             [left, right] => {
                 let (l, r) = (read(left)?, read(right)?);
                 let mut notes = Vec::new();
                 let c = Self::ros_noting((&l.0, &l.1), (&r.0, &r.1), &mut notes)?;
-                Ok((c, notes))
+                (c, notes)
             }
-            [] => Err(CalibError::Files(
-                "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS)".into(),
-            )),
-            _ => Err(CalibError::Files(format!(
-                "--calib takes one OpenCV file or two ROS files, found {}",
-                files.len()
-            ))),
-        }
+            [] => {
+                return Err(CalibError::Files(
+                    "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS)"
+                        .into(),
+                ));
+            }
+            _ => {
+                return Err(CalibError::Files(format!(
+                    "--calib takes one OpenCV file or two ROS files, found {}",
+                    files.len()
+                )));
+            }
+        };
+        notes.extend(c.swapped_note());
+        Ok((c, notes))
+    }
+
+    /// A note when the camera called right sits left of the one called left (`T`'s x
+    /// positive, in the left camera's turned frame): depth is computed either way, but
+    /// if the images are named as the calibration names them, nothing will match.
+    fn swapped_note(&self) -> Option<String> {
+        // Where the right camera's centre is, in the left camera's frame: −Rᵀ·T.
+        let centre = -(self.r.transpose() * self.t);
+        (centre.x < 0.0).then(|| {
+            format!(
+                "the calibration puts the right camera {:.1} mm to the left of the left one \
+                 (`T` x is {:+.3}; a right camera to the right has it negative): if depth comes \
+                 out empty, the images (or the files) are given the wrong way round",
+                -centre.x, self.t.x
+            )
+        })
     }
 
     /// Read an OpenCV stereo YAML with `T` in mm (see [`Self::from_opencv_yaml_in`]).
@@ -566,18 +634,50 @@ impl StereoCalibration {
             })
         };
         let name = |k: &'static str, m: &'static str| if f.has(k) || !f.has(m) { k } else { m };
+        // Both names of one matrix given (OpenCV's samples use M, others K): they must
+        // agree, or which one is meant cannot be told.
+        for (k, m) in [("K1", "M1"), ("K2", "M2")] {
+            if f.has(k) && f.has(m) && f.camera_matrix(k)? != f.camera_matrix(m)? {
+                return Err(f.invalid(
+                    m,
+                    format!(
+                        "differs from `{k}` in the same file: give one camera matrix per camera"
+                    ),
+                ));
+            }
+        }
         let (left, right) = (
             camera(name("K1", "M1"), "D1")?,
             camera(name("K2", "M2"), "D2")?,
         );
         let (r, t) = if f.has("R") || f.has("T") || !f.has("R1") {
-            let r = f.matrix3("R")?;
-            check_rotation(&f, "R", &r)?;
-            (r, f.vector3("T")?)
+            let r = rotation(&f, "R", f.matrix3("R")?)?;
+            let t = f.vector3("T")?;
+            // The rectification too, when given: it must describe the same rig.
+            if f.has("R1") && f.has("R2") && f.has("P2") {
+                let r1 = rotation(&f, "R1", f.matrix3("R1")?)?;
+                let r2 = rotation(&f, "R2", f.matrix3("R2")?)?;
+                let (r_rect, t_rect) = extrinsics_from_rectification(&r1, &r2, &f.matrix3x4("P2")?);
+                let turn = Rotation3::from_matrix_unchecked(r.transpose() * r_rect)
+                    .angle()
+                    .to_degrees();
+                let (b, b_rect) = (t.norm(), t_rect.norm());
+                if turn.is_nan()
+                    || turn > 0.1
+                    || b_rect.is_nan()
+                    || (b - b_rect).abs() > 0.01 * b.max(b_rect)
+                {
+                    return Err(CalibError::Inconsistent(format!(
+                        "{file}: `R`/`T` and `R1`/`R2`/`P2` describe different rigs (baseline \
+                         {b:.3} against {b_rect:.3}, turns {turn:.2}° apart): give one, or \
+                         both from one calibration"
+                    )));
+                }
+            }
+            (r, t)
         } else {
-            let (r1, r2) = (f.matrix3("R1")?, f.matrix3("R2")?);
-            check_rotation(&f, "R1", &r1)?;
-            check_rotation(&f, "R2", &r2)?;
+            let r1 = rotation(&f, "R1", f.matrix3("R1")?)?;
+            let r2 = rotation(&f, "R2", f.matrix3("R2")?)?;
             let p2 = f.matrix3x4("P2")?;
             extrinsics_from_rectification(&r1, &r2, &p2)
         };
@@ -610,8 +710,11 @@ impl StereoCalibration {
                 k: f.camera_matrix("camera_matrix")?,
                 distortion: f.distortion("distortion_coefficients", &f.model()?)?,
             };
-            let r = f.matrix3("rectification_matrix")?;
-            check_rotation(&f, "rectification_matrix", &r)?;
+            let r = rotation(
+                &f,
+                "rectification_matrix",
+                f.matrix3("rectification_matrix")?,
+            )?;
             Ok((camera, r, f.matrix3x4("projection_matrix")?))
         };
         let (left, r1, p1) = read(left_file, left_text)?;
@@ -663,6 +766,16 @@ impl StereoCalibration {
             return Err(CalibError::Inconsistent(format!(
                 "the baseline must be finite and non-zero, found T = {:?}",
                 t.as_slice()
+            )));
+        }
+        // A rotation far from the identity is no stereo pair (and half of a half turn, which
+        // rectification takes, has no one answer).
+        let turn = Rotation3::from_matrix_unchecked(r).angle().to_degrees();
+        if turn.is_nan() || turn > MAX_RIG_TURN_DEG {
+            return Err(CalibError::Inconsistent(format!(
+                "`R` turns the right camera {turn:.1}° from the left: a stereo pair's cameras \
+                 look the same way (within {MAX_RIG_TURN_DEG}°); R may be in another \
+                 convention (a camera's pose in the world) or belong to another rig"
             )));
         }
         let baseline = t.norm();
@@ -726,6 +839,59 @@ pub(crate) mod tests {
     use super::*;
 
     /// A pair like the sensor's: 14 mm baseline, slightly rotated and offset.
+    /// A calibration whose right camera sits to the left says so (the images are likely
+    /// given the wrong way round); the usual one says nothing.
+    #[test]
+    fn a_right_camera_on_the_left_is_noted() {
+        let dir = std::env::temp_dir().join(format!("stereotac-swapped-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("c.yaml");
+        let mut c = sensor_pair(Distortion::NONE);
+        std::fs::write(&file, c.to_opencv_yaml()).unwrap();
+        let (_, notes) =
+            StereoCalibration::load_noting(std::slice::from_ref(&file), LengthUnit::Mm).unwrap();
+        assert!(notes.is_empty(), "{notes:?}");
+        c.t = -c.t;
+        std::fs::write(&file, c.to_opencv_yaml()).unwrap();
+        let (_, notes) = StereoCalibration::load_noting(&[file], LengthUnit::Mm).unwrap();
+        assert!(
+            notes.len() == 1 && notes[0].contains("to the left of the left one"),
+            "{notes:?}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A rotation written with five decimals is read as the nearest rotation; a half turn
+    /// (a valid rotation, but no stereo pair: it used to read as no turn at all) and a
+    /// quarter turn are refused naming `R` and the angle.
+    #[test]
+    fn rotations_rounded_are_read_and_turned_rigs_refused() {
+        let mut c = sensor_pair(Distortion::NONE);
+        c.r = *Rotation3::from_euler_angles(0.01, 0.087, -0.02).matrix();
+        let exact = c.r;
+        c.r = c.r.map(|v| (v * 1e5).round() / 1e5);
+        assert!(rotation_error(&c.r) > 1e-7, "the rounding changed it");
+        let read = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap();
+        assert!(rotation_error(&read.r) < 1e-9);
+        assert!((read.r - exact).abs().max() < 2e-5, "{}", read.r - exact);
+        for (axis, angle, says) in [
+            (Vector3::x_axis(), 180.0f64, "180.0°"),
+            (Vector3::y_axis(), 180.0, "180.0°"),
+            (Vector3::z_axis(), 90.0, "90.0°"),
+        ] {
+            c.r = *Rotation3::from_axis_angle(&axis, angle.to_radians()).matrix();
+            let e = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("`R` turns the right camera") && e.contains(says),
+                "{e}"
+            );
+        }
+        c.r = *Rotation3::from_axis_angle(&Vector3::y_axis(), 20f64.to_radians()).matrix();
+        assert!(StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).is_ok());
+    }
+
     pub(crate) fn sensor_pair(distortion: Distortion) -> StereoCalibration {
         let k = Matrix3::new(420.0, 0.0, 322.5, 0.0, 421.0, 238.0, 0.0, 0.0, 1.0);
         let k2 = Matrix3::new(425.0, 0.0, 318.0, 0.0, 424.0, 243.5, 0.0, 0.0, 1.0);
@@ -785,6 +951,39 @@ pub(crate) mod tests {
         let read = StereoCalibration::from_opencv_yaml("r.yaml", &text).unwrap();
         assert!((read.r - c.r).abs().max() < 1e-12);
         assert!((read.t - c.t).abs().max() < 1e-9, "{:?}", read.t);
+        // With R and T beside the rectification (as OpenCV writes them): they must agree.
+        let with = |t: Vector3<f64>| {
+            format!(
+                "{text}{}{}",
+                m("R", 3, 3, rm(&c.r)),
+                m("T", 3, 1, t.as_slice().to_vec())
+            )
+        };
+        assert!(StereoCalibration::from_opencv_yaml("r.yaml", &with(c.t)).is_ok());
+        let e = StereoCalibration::from_opencv_yaml("r.yaml", &with(c.t * 1.5))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("describe different rigs") && e.contains("r.yaml"),
+            "{e}"
+        );
+        // Two image sizes, or two names of one camera matrix, that disagree.
+        let e = StereoCalibration::from_opencv_yaml(
+            "r.yaml",
+            &format!("{}image_size: [ 320, 240 ]\n", with(c.t)),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("image_size") && e.contains("640×480"), "{e}");
+        let mut k = c.left.k;
+        k[(0, 0)] *= 1.1;
+        let e = StereoCalibration::from_opencv_yaml(
+            "r.yaml",
+            &format!("{}{}", with(c.t), m("M1", 3, 3, rm(&k))),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("M1") && e.contains("differs from `K1`"), "{e}");
     }
 
     #[test]
@@ -924,7 +1123,10 @@ pub(crate) mod tests {
         let mut c = sensor_pair(Distortion::NONE);
         c.r[(0, 0)] = 2.0;
         let e = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap_err();
-        assert!(e.to_string().contains("not a rotation"), "{e}");
+        assert!(
+            e.to_string().contains("not a rotation") && e.to_string().contains("off the identity"),
+            "{e}"
+        );
         let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
         assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
     }

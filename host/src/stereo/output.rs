@@ -91,6 +91,9 @@ pub struct OutputOptions {
     pub colour_range: PictureRange,
     /// Also write `mesh.ply` ([`write_mesh`]).
     pub mesh: bool,
+    /// Files the caller wrote into the folder before (the inputs of a built-in capture):
+    /// listed first among the summary's files.
+    pub written_before: &'static [&'static str],
 }
 
 impl Default for OutputOptions {
@@ -98,6 +101,7 @@ impl Default for OutputOptions {
         Self {
             colour_range: PictureRange::Auto,
             mesh: false,
+            written_before: &[],
         }
     }
 }
@@ -137,6 +141,16 @@ pub fn write_mesh(path: &Path, frame: &StereoFrame) -> Result<usize, OutputError
     )
 }
 
+/// The warning for `beyond` of `valid` depths past what `depth16.png` holds.
+fn depth16_warning(beyond: usize, valid: usize) -> String {
+    format!(
+        "{beyond} pixels ({:.1}% of the depths) are deeper than 655.35 mm, the most \
+         depth16.png holds (0.01 mm a count): they are 65535 there; depth.npy and depth.ply \
+         hold their depth",
+        100.0 * beyond as f64 / valid.max(1) as f64
+    )
+}
+
 /// Writes `frame` (processed by `pipeline` with `config`) into `dir`, which must exist,
 /// with its pictures and mesh as `options` say, and returns its summary.
 pub fn write_outputs(
@@ -152,8 +166,9 @@ pub fn write_outputs(
     write_grey_png(&dir.join("right_rect.png"), &frame.right)?;
     write_npy(&dir.join("disparity.npy"), &frame.disparity)?;
     write_npy(&dir.join("depth.npy"), &frame.depth_mm)?;
-    // 100 counts per mm: 0.01 mm steps up to 655 mm.
-    write_png16(&dir.join("depth16.png"), &frame.depth_mm, 100.0)?;
+    // 100 counts per mm: 0.01 mm steps up to 655.35 mm; deeper pixels are counted and
+    // warned about below (depth.npy holds them).
+    let beyond_png16 = write_png16(&dir.join("depth16.png"), &frame.depth_mm, 100.0)?;
     let searched = (
         RangeChoice::Fixed {
             lo: config.near_mm as f32,
@@ -195,7 +210,8 @@ pub fn write_outputs(
         Some(&grey),
         "stereotac stereo point cloud, mm, rectified left camera frame",
     )?;
-    let mut files = FILES.to_vec();
+    let mut files: Vec<&'static str> = options.written_before.to_vec();
+    files.extend(FILES);
     let mesh_triangles = if options.mesh {
         files.insert(files.len() - 1, "mesh.ply");
         Some(write_mesh(&dir.join("mesh.ply"), frame)?)
@@ -230,7 +246,10 @@ pub fn write_outputs(
         files,
         mesh_triangles,
         colour_ranges,
-        warnings: super::warnings::of(&frame.stats, &depths, w * h, config.near_mm, config.far_mm),
+        warnings: super::warnings::of(&frame.stats, &depths, w * h, config.near_mm, config.far_mm)
+            .into_iter()
+            .chain((beyond_png16 > 0).then(|| depth16_warning(beyond_png16, depths.len())))
+            .collect(),
     };
     let path = dir.join("summary.json");
     let json = serde_json::to_vec_pretty(&summary).expect("the summary serialises");

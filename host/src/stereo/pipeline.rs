@@ -92,6 +92,21 @@ pub enum StereoError {
         /// The calibration's.
         want: (u32, u32),
     },
+    /// The disparities the working range asks for reach past the image: no pixel could
+    /// be matched.
+    #[error(
+        "the working range needs disparities up to {max} px but the rectified image is \
+         {width} px wide: nothing could match; raise --near-mm to about {nearest_mm:.0} mm \
+         (the nearest depth this rig sees at this scale), or lower --scale"
+    )]
+    RangeBeyondImage {
+        /// Largest disparity searched (px).
+        max: u32,
+        /// Rectified width (px).
+        width: u32,
+        /// The nearest depth whose disparity fits the image (mm).
+        nearest_mm: f64,
+    },
     /// A frame of the wrong size.
     #[error("{camera} frame: {source}")]
     FrameSize {
@@ -195,6 +210,16 @@ impl StereoPipeline {
                 config.far_mm,
             )?
         };
+        let width = rectification.width;
+        if params.max_disparity() + 2 > width {
+            let fb = rectification.focal() * rectification.baseline();
+            return Err(StereoError::RangeBeyondImage {
+                max: params.max_disparity(),
+                width,
+                // (The range is rounded up to 16 disparities: 16 px of margin.)
+                nearest_mm: (fb / (f64::from(width) - 19.0).max(1.0)).ceil(),
+            });
+        }
         let matcher = Matcher::new(config.matcher, params, config.sgm_paths)?;
         Ok(Self {
             config,

@@ -37,6 +37,11 @@ pub struct ContactParams {
     pub dilate_px: usize,
 }
 
+/// The largest contact threshold that means something: a block gone black in both phases
+/// departs from flat skin by 4 (each phase's weights sum to 2), so a threshold above that
+/// would see only light more than doubled, never a press.
+pub const MAX_THRESHOLD: f32 = 4.0;
+
 impl Default for ContactParams {
     fn default() -> Self {
         Self {

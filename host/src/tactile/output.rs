@@ -17,10 +17,11 @@ use super::contact::Roi;
 use super::reconstruct::{Reconstruction, StageTimings};
 use crate::grid::Grid;
 
-/// Writes depth as a 16-bit grey PNG, one count per micrometre (0 … 65.535 mm);
-/// negative depths are written as 0.
+/// Writes depth as a 16-bit grey PNG, one count per micrometre (0 … 65.535 mm, beyond
+/// any skin's thickness: deeper depth is refused before it is written); negative depths
+/// are written as 0.
 pub fn write_depth_png16(path: &Path, depth_mm: &Grid<f32>) -> Result<(), OutputError> {
-    write_png16(path, depth_mm, 1000.0)
+    write_png16(path, depth_mm, 1000.0).map(drop)
 }
 
 /// Writes a binary little-endian PLY with one vertex per pixel: `x`, `y` in mm from the

@@ -123,6 +123,18 @@ pub enum ReconstructError {
         /// Share of that frame without usable LED light (%).
         percent: f32,
     },
+    /// Most of the frame departs from the reference frames although the pair is lit and
+    /// its phases are the right way round: the light changed since they were taken.
+    #[error(
+        "{percent:.0}% of the frame departs from the reference frames (flat skin): nothing \
+         presses most of the skin at once, so the light changed since they were taken \
+         (exposure, gain, LED brightness, room light); give reference frames taken now \
+         (--ref-dx/--ref-dy) or recalibrate"
+    )]
+    LightChanged {
+        /// Share of the frame read as contact (%).
+        percent: f32,
+    },
     /// The model's stored ambient light does not cover its own frame size.
     #[error(
         "the model's ambient estimate ({blocks:?} blocks) does not cover its {width}x{height} \
@@ -186,6 +198,7 @@ impl ReconstructError {
             Self::DepthBeyondSkin { .. }
                 | Self::NonFiniteDepth { .. }
                 | Self::FramePair(_)
+                | Self::LightChanged { .. }
                 | Self::Unlit { .. }
         )
     }
@@ -484,6 +497,12 @@ impl Reconstructor {
         if touched as f32 > LARGE_CONTACT_FRACTION * detection.touched.len() as f32 {
             phase_check::check_pair(dx, dy, &filter, "frame pair")
                 .map_err(ReconstructError::FramePair)?;
+            // Lit phases the right way round, yet most of the skin departs from its
+            // reference: nothing presses most of the skin at once (a flat plate shows only
+            // its edges), so the light changed since the references were taken.
+            return Err(ReconstructError::LightChanged {
+                percent: 100.0 * touched as f32 / detection.touched.len().max(1) as f32,
+            });
         }
         let mut out = Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),

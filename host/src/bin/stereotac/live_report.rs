@@ -24,6 +24,8 @@ pub struct Report {
     skipped: (u64, u64),
     /// Pairs whose LEDs-off frame was brighter than their lit frames (not used).
     dark_refused: u64,
+    /// Stereo frames with warnings (almost nothing matched, a scene outside the range).
+    stereo_warned: u64,
 }
 
 impl Report {
@@ -36,6 +38,7 @@ impl Report {
             contacts: 0,
             skipped: (0, 0),
             dark_refused: 0,
+            stereo_warned: 0,
         }
     }
 
@@ -61,6 +64,16 @@ impl Report {
             Output::Stereo { record, .. } => {
                 self.stereo_latency.extend(record.latency_ms);
                 self.skipped.1 = self.skipped.1.max(record.jobs_skipped);
+                if let Some(first) = record.warnings.first() {
+                    if self.stereo_warned == 0 {
+                        eprintln!(
+                            "warning: stereo frame {}: {first} (said once; the closing \
+                             figures count the frames with warnings, each record holds its own)",
+                            record.sequence
+                        );
+                    }
+                    self.stereo_warned += 1;
+                }
                 self.jsonl || emit(format_args!("{}", stereo_line(record)))
             }
         };
@@ -94,11 +107,18 @@ impl Report {
         }
         if let Some(s) = &pipeline.stereo {
             eprintln!(
-                "stereo: {} frame pairs, {} skipped while busy{}",
+                "stereo: {} frame pairs, {} with warnings, {} skipped while busy{}",
                 s.frames(),
+                self.stereo_warned,
                 self.skipped.1,
                 fmt(self.stereo_latency)
             );
+            if s.frames() == 0 {
+                eprintln!(
+                    "warning: no stereo frame pair was made: stereo depth needs LEDs-off \
+                     frames of two cameras taken at one phase (vision or interleaved mode)"
+                );
+            }
         }
     }
 }

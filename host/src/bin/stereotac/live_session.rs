@@ -46,6 +46,18 @@ pub fn start(
     outputs: Outputs<'_>,
     check: impl FnOnce(&[Box<dyn FrameSource>]) -> Result<()>,
 ) -> Result<Live> {
+    // Before connecting: an exposure that cannot fit in one phase gives no frame at all
+    // (each straddles two phases), which a run would find out only at its end.
+    let (exposure, latency) = (cameras.exposure_us, cameras.trigger_latency_us);
+    let phase_us = f64::from(sequence.period_ms) * 1000.0;
+    if exposure + latency >= phase_us {
+        bail!(
+            "--exposure-us {exposure} plus --trigger-latency-us {latency} does not fit in \
+             one phase of --period-ms {}: every frame would straddle two LED phases and none \
+             could be labelled; shorten the exposure or lengthen the period",
+            sequence.period_ms
+        );
+    }
     let opened = open(device)?;
     let sources = cameras.open_all(&opened)?;
     check(&sources)?;

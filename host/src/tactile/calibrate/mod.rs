@@ -86,6 +86,12 @@ pub enum Rejection {
         /// The skin's thickness (mm).
         skin_mm: f64,
     },
+    /// The pair does not look like this sensor's dx and dy phases (a frame without LED
+    /// light, or the two given the wrong way round): said instead of "no contact".
+    NotPhasePair {
+        /// What the phase check found.
+        why: String,
+    },
     /// The outline is not a circle (two contacts, a smear, a ball that slid).
     NotCircular {
         /// RMS distance of the outline from the circle (px).
@@ -98,6 +104,7 @@ pub enum Rejection {
 impl fmt::Display for Rejection {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            Rejection::NotPhasePair { why } => write!(f, "{why}"),
             Rejection::NoContact { threshold } => write!(
                 f,
                 "no contact found (no region departs from flat skin by more than {threshold:.3}): is the ball pressed in, are the reference frames right?"
@@ -488,6 +495,16 @@ pub fn calibrate(
             done: done + 1,
             total: pairs.len(),
         });
+        // A frame without LED light, or the phases swapped, would be set aside as "no
+        // contact" or "larger than the ball": say what it is (a pass over the pair).
+        if let Err(e) = phase_check::check_pair(&pair.dx, &pair.dy, &settings.filter, "press") {
+            rejected.push(RejectedPress {
+                name: pair.name.clone(),
+                circle: None,
+                reason: Rejection::NotPhasePair { why: e.to_string() },
+            });
+            continue;
+        }
         let (circle, overridden, fit_rms_px) = match (settings.overrides.get(&pair.name), fit) {
             (Some(c), _) => (*c, true, 0.0),
             (None, Some(f)) => {

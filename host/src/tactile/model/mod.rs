@@ -344,10 +344,12 @@ pub enum ModelError {
         source: std::io::Error,
     },
     /// Not valid JSON for a model.
-    #[error("{path}: not a stereotac model file: {source}")]
+    #[error("{path}: not a stereotac model file: {}{source}", at_field(field))]
     Parse {
         /// File.
         path: String,
+        /// Where in the model (`dx.lut.table[12]`; empty at the top).
+        field: String,
         /// Cause.
         source: serde_json::Error,
     },
@@ -414,17 +416,41 @@ impl TactileModel {
         Self::from_json(&name, &bytes)
     }
 
+    /// The model read with the path of the field being read, so an error names it (a key
+    /// missing deep inside, a NaN written by hand into a table).
+    fn read_with_path(name: &str, bytes: &[u8]) -> Result<Self, ModelError> {
+        let reader = &mut serde_json::Deserializer::from_slice(bytes);
+        serde_path_to_error::deserialize(reader).map_err(|e| {
+            let field = e.path().to_string();
+            ModelError::Parse {
+                path: name.to_string(),
+                field: if field == "." { String::new() } else { field },
+                source: e.into_inner(),
+            }
+        })
+    }
+
     /// Reads and checks a model's JSON; `name` says where it came from in errors.
     pub fn from_json(name: &str, bytes: &[u8]) -> Result<Self, ModelError> {
+        // (Header first: another format or version is said as such, not as its fields.)
         #[derive(Deserialize)]
         struct Header {
             format: String,
             version: u32,
         }
-        let header: Header = serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
-            path: name.to_string(),
-            source,
-        })?;
+        let header: Header = match serde_json::from_slice(bytes) {
+            Ok(h) => h,
+            // Not JSON (a NaN typed in, a cut file): the full read says where.
+            Err(source) => {
+                return Err(Self::read_with_path(name, bytes)
+                    .err()
+                    .unwrap_or(ModelError::Parse {
+                        path: name.to_string(),
+                        field: String::new(),
+                        source,
+                    }));
+            }
+        };
         if header.format != MODEL_FORMAT || header.version != MODEL_VERSION {
             return Err(ModelError::Version {
                 path: name.to_string(),
@@ -432,15 +458,21 @@ impl TactileModel {
                 version: header.version,
             });
         }
-        let model: Self = serde_json::from_slice(bytes).map_err(|source| ModelError::Parse {
-            path: name.to_string(),
-            source,
-        })?;
+        let model = Self::read_with_path(name, bytes)?;
         validate::check(&model).map_err(|(field, why)| ModelError::Invalid {
             path: name.to_string(),
             field,
             why,
         })?;
         Ok(model)
+    }
+}
+
+/// `at `field`: ` before a parse error's cause, or nothing at the top of the file.
+fn at_field(field: &str) -> String {
+    if field.is_empty() {
+        String::new()
+    } else {
+        format!("at `{field}`: ")
     }
 }

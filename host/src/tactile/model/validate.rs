@@ -9,6 +9,7 @@ use super::light::LightModel;
 use super::lut::Lut;
 use super::mlp::Mlp;
 use super::photometric::PhotometricModel;
+use crate::tactile::contact::MAX_THRESHOLD;
 
 /// Largest frame side a model may declare (px): no sensor camera we support gives more,
 /// and it bounds what a model file can make us allocate.
@@ -49,20 +50,35 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         );
     }
     let f = &m.filter;
-    for (field, v) in [
-        ("filter.min_led", f.min_led),
-        ("filter.max_white_ratio", f.max_white_ratio),
-        ("filter.max_green_rise", f.max_green_rise),
+    // Bounds wide of every sensible setting, so a filter that would reject (or accept)
+    // every pixel is named here rather than blamed on the frames.
+    for (field, v, lo, hi) in [
+        ("filter.min_led", f.min_led, 0.0, 254.0),
+        ("filter.max_white_ratio", f.max_white_ratio, 0.01, 100.0),
+        ("filter.max_green_rise", f.max_green_rise, 0.0, 100.0),
     ] {
-        if !(v.is_finite() && v >= 0.0) {
-            return fail(field, format!("{v} must be finite and not negative"));
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return fail(field, format!("{v} is outside {lo}..={hi}"));
         }
     }
+    if f.saturation < MIN_SATURATION {
+        return fail(
+            "filter.saturation",
+            format!(
+                "{} is below {MIN_SATURATION}: most LED light would read as saturated",
+                f.saturation
+            ),
+        );
+    }
     let c = &m.contact;
-    if !(c.threshold.is_finite() && c.threshold > 0.0) {
+    if !(c.threshold.is_finite() && c.threshold > 0.0 && c.threshold <= MAX_THRESHOLD) {
         return fail(
             "contact.threshold",
-            format!("{} must be finite and positive", c.threshold),
+            format!(
+                "{} must be finite, positive and at most {MAX_THRESHOLD} (a block gone black \
+                 in both phases departs by 4: above that nothing pressed is seen)",
+                c.threshold
+            ),
         );
     }
     for (field, v, range) in [
@@ -99,8 +115,19 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
                 format!("{} blocks, {} declared", planes.len(), blocks.0 * blocks.1),
             );
         }
-        if planes.iter().flatten().any(|v| !v.is_finite()) {
-            return fail(field, "holds a value that is not finite".into());
+        // Each block is `[red − green, blue − green, green]` of 8-bit colours.
+        let colour = |&[rg, bg, g]: &[f32; 3]| {
+            (-255.0..=255.0).contains(&rg)
+                && (-255.0..=255.0).contains(&bg)
+                && (0.0..=255.0).contains(&g)
+        };
+        if !planes.iter().all(colour) {
+            return fail(
+                field,
+                "holds a block that is not an 8-bit colour's [red − green, blue − green, \
+                 green] (finite, ±255, green 0..=255)"
+                    .into(),
+            );
         }
     }
     if let Some(a) = &m.ambient {
@@ -179,10 +206,14 @@ fn check_lut(l: &Lut) -> Result<(), (String, String)> {
     if !(2..=MAX_TABLE).contains(&l.bins) {
         return fail("bins", format!("{} is outside 2..={MAX_TABLE}", l.bins));
     }
-    if !(l.max_value.is_finite() && l.max_value > 0.0) {
+    if !(l.max_value.is_finite() && l.max_value > 0.0 && l.max_value <= MAX_LUT_COLOUR) {
         return fail(
             "max_value",
-            format!("{} must be finite and positive", l.max_value),
+            format!(
+                "{} must be finite, positive and at most {MAX_LUT_COLOUR} (a colour relative \
+                 to flat skin's)",
+                l.max_value
+            ),
         );
     }
     for (field, v) in [("cells_x", l.cells_x), ("cells_y", l.cells_y)] {
@@ -208,9 +239,25 @@ fn check_lut(l: &Lut) -> Result<(), (String, String)> {
         if values.iter().any(|v| !v.is_finite()) {
             return fail(field, "holds a value that is not finite".into());
         }
+        // A gain scales a reading: one that is not positive turns slopes around or off.
+        if field != "table" && values.iter().any(|&v| !(v > 0.0 && v <= MAX_LUT_GAIN)) {
+            return fail(
+                field,
+                format!(
+                    "holds a gain outside (0, {MAX_LUT_GAIN}]: it would turn slopes around, off or up"
+                ),
+            );
+        }
     }
     Ok(())
 }
+
+/// Largest colour (relative to flat skin's) a table's axis may reach.
+const MAX_LUT_COLOUR: f32 = 100.0;
+/// Largest gain of a table's cell (calibration's are near 1, stretched at most 2×).
+const MAX_LUT_GAIN: f32 = 100.0;
+/// Smallest saturation level a filter may declare (DN).
+const MIN_SATURATION: u8 = 64;
 
 fn check_mlp(m: &Mlp) -> Result<(), (String, String)> {
     let fail = |field: String, why: String| Err((field, why));

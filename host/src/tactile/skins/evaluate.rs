@@ -18,7 +18,7 @@ use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate}
 use crate::tactile::contact::dilate;
 use crate::tactile::model::ModelKind;
 use crate::tactile::poisson::SolverKind;
-use crate::tactile::reconstruct::Reconstructor;
+use crate::tactile::reconstruct::{Reconstruction, Reconstructor};
 use crate::tactile::render::{Scene, Shape};
 use crate::timing::median;
 
@@ -158,6 +158,11 @@ pub struct FamilyReport {
     pub roi_ratio: Option<f64>,
     /// Median time of a contact pair (gentle disk) and of a pair at rest (ms).
     pub pair_ms: Option<[f64; 2]>,
+    /// Frames the reconstruction refused (an error, or a frame flagged as showing no
+    /// usable LED light): every frame here is a lit pair, so any is a failure.
+    pub refused_frames: usize,
+    /// The first refusal's reason.
+    pub first_refusal: Option<String>,
 }
 
 /// Slopes of the gentle and steep disk walls in the goal table.
@@ -211,6 +216,8 @@ pub fn evaluate_skin(
         beside_max_mm: None,
         roi_ratio: None,
         pair_ms: None,
+        refused_frames: 0,
+        first_refusal: None,
     };
     progress("rendering references and presses");
     let refs = skin.references(8);
@@ -259,12 +266,20 @@ pub fn evaluate_skin(
             return report;
         }
     };
+    let (mut refused, mut first_refusal) = (0, None);
     let mut read = |frames: &SkinFrames| {
-        rec.reconstruct_frames(PhaseFrames {
-            dx: &frames.dx,
-            dy: &frames.dy,
-            dark: config.dark.then_some(&frames.dark),
-        })
+        let read = rec
+            .reconstruct_frames(PhaseFrames {
+                dx: &frames.dx,
+                dy: &frames.dy,
+                dark: config.dark.then_some(&frames.dark),
+            })
+            .and_then(Reconstruction::require_lit);
+        if let Err(e) = &read {
+            refused += 1;
+            first_refusal.get_or_insert_with(|| e.to_string());
+        }
+        read
     };
     let render_all =
         |scenes: &[Scene], first_frame: u64| render_all(skin, scenes, first_frame, config.ambient);
@@ -373,6 +388,7 @@ pub fn evaluate_skin(
     }
     report.rest_contacts = Some(contacts);
     report.rest_max_mm = Some(max_abs);
+    (report.refused_frames, report.first_refusal) = (refused, first_refusal);
     if !contact_ms.is_empty() && !rest_ms.is_empty() {
         report.pair_ms = Some([median(contact_ms), median(rest_ms)]);
     }
@@ -524,6 +540,15 @@ pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)
         "≤ 3× the imprint".to_string(),
         r.roi_ratio.map_or("-".to_string(), |v| format!("{v:.2}×")),
         r.roi_ratio.map(|v| v <= 3.0),
+    ));
+    rows.push((
+        "frames refused".to_string(),
+        "none (every frame is a lit pair)".to_string(),
+        match &r.first_refusal {
+            Some(why) => format!("{}, first: {why}", r.refused_frames),
+            None => r.refused_frames.to_string(),
+        },
+        Some(r.refused_frames == 0),
     ));
     rows.push((
         "time per pair".to_string(),

@@ -16,6 +16,7 @@ use stereotac::tactile::calibrate::{
     Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
     overlay,
 };
+use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::images::{load_pairs, load_references, load_rgb};
 
 use crate::progress::bar;
@@ -114,8 +115,9 @@ pub fn run(a: Args) -> Result<()> {
     };
     if let Some(t) = a.contact_threshold {
         anyhow::ensure!(
-            t.is_finite() && t > 0.0,
-            "--contact-threshold must be a finite positive number, got {t}"
+            t.is_finite() && t > 0.0 && t <= MAX_THRESHOLD,
+            "--contact-threshold must be a finite positive number of at most {MAX_THRESHOLD} \
+             (a block gone black in both phases departs by 4), got {t}"
         );
         settings.contact.threshold = t;
         settings.fixed_threshold = true;
@@ -179,17 +181,32 @@ pub fn run(a: Args) -> Result<()> {
         println!("{:<16} set aside: {}", r.name, r.reason);
     }
     let f = cal.model.fit;
+    // Without held-out pairs there is no held-out figure (the model stores 0 there).
+    let held_out = |v: f32| {
+        if f.validation_pairs > 0 {
+            format!("{v:.4}")
+        } else {
+            "n/a".to_string()
+        }
+    };
     println!(
-        "slope RMS: lut {:.4} (held-out {:.4}), mlp {:.4} (held-out {:.4}), light {:.4} (held-out {:.4}), photometric {:.4} (held-out {:.4} over the {:.0}% it reads); {} training / {} held-out pairs, {} samples per axis",
+        "slope RMS: lut {:.4} (held-out {}), mlp {:.4} (held-out {}), light {:.4} (held-out {}), photometric {:.4} (held-out {}{}); {} training / {} held-out pairs, {} samples per axis",
         f.lut_train_rms,
-        f.lut_validation_rms,
+        held_out(f.lut_validation_rms),
         f.mlp_train_rms,
-        f.mlp_validation_rms,
+        held_out(f.mlp_validation_rms),
         f.light_train_rms,
-        f.light_validation_rms,
+        held_out(f.light_validation_rms),
         f.photometric_train_rms,
-        f.photometric_validation_rms,
-        100.0 * f.photometric_validation_read,
+        held_out(f.photometric_validation_rms),
+        if f.validation_pairs > 0 {
+            format!(
+                " over the {:.0}% it reads",
+                100.0 * f.photometric_validation_read
+            )
+        } else {
+            String::new()
+        },
         f.training_pairs,
         f.validation_pairs,
         f.samples_per_axis
@@ -210,7 +227,11 @@ pub fn run(a: Args) -> Result<()> {
             .chunks(3)
             .map(|row| row
                 .iter()
-                .map(|r| format!("{:.3}", r.lut_rms))
+                .map(|r| if r.samples > 0 {
+                    format!("{:.3}", r.lut_rms)
+                } else {
+                    "–".to_string()
+                })
                 .collect::<Vec<_>>()
                 .join(" "))
             .collect::<Vec<_>>()

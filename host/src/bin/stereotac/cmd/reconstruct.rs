@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use stereotac::out_dir::{OutDir, Replace};
 use stereotac::picture::RangeChoice;
-use stereotac::tactile::ambient::PhaseFrames;
+use stereotac::tactile::ambient::{AmbientSource, PhaseFrames};
 use stereotac::tactile::images::{load_references, load_rgb};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::output;
@@ -73,11 +73,13 @@ pub fn run(a: Args) -> Result<()> {
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let (dx, dy) = (load_rgb(&a.dx)?, load_rgb(&a.dy)?);
     let dark = a.dark.as_deref().map(load_rgb).transpose()?;
-    if let (Some(path), None) = (&a.dark, &model.ambient) {
-        eprintln!(
-            "warning: {} not used: the model was calibrated without LEDs-off frames (calibrate with NAME_dark.png files to use them)",
-            path.display()
-        );
+    for path in [&a.dark, &a.ref_dark].into_iter().flatten() {
+        if model.ambient.is_none() {
+            eprintln!(
+                "warning: {} not used: the model was calibrated without LEDs-off frames (calibrate with NAME_dark.png files to use them)",
+                path.display()
+            );
+        }
     }
     let mut rec = Reconstructor::new(
         model,
@@ -97,11 +99,25 @@ pub fn run(a: Args) -> Result<()> {
         })
         .and_then(|r| r.require_lit())
         .with_context(|| format!("{} / {}: nothing written", a.dx.display(), a.dy.display()))?;
+    if let (Some(path), AmbientSource::CalibrationDarkRefused) = (&a.dark, r.ambient) {
+        eprintln!(
+            "warning: {} not used: it is brighter than the lit frames in more than 5 % of its \
+             values, so it is not their LEDs-off frame (another exposure, gain or camera); \
+             the calibration's ambient light was removed instead",
+            path.display()
+        );
+    }
     // `auto` is the tactile default (percentiles of a mostly flat map would show nothing).
     let range = a.colour_range.filter(|c| *c != RangeChoice::AUTO);
     let summary = output::write_all(out.path(), &r, px_per_mm, range)?;
+    let mesh = out.path().join("depth_mesh.ply");
     if a.mesh {
-        output::write_mesh(&out.path().join("depth_mesh.ply"), &r.depth_mm, px_per_mm)?;
+        output::write_mesh(&mesh, &r.depth_mm, px_per_mm)?;
+    } else if mesh.exists() {
+        // Replaced outputs (--force) form one set: an earlier run's mesh of another pair
+        // would sit beside this pair's depth as if it were its own.
+        std::fs::remove_file(&mesh)
+            .with_context(|| format!("removing the earlier run's {}", mesh.display()))?;
     }
     out.keep();
     if a.json {

@@ -122,6 +122,15 @@ pub fn run(a: Args) -> Result<()> {
     let options = OutputOptions {
         colour_range: a.colour_range,
         mesh: a.mesh,
+        written_before: if a.synthetic.is_some() {
+            &[
+                "input_left.png",
+                "input_right.png",
+                "input_calibration.yaml",
+            ]
+        } else {
+            &[]
+        },
     };
     let summary = write_outputs(out.path(), &pipeline, &frame, &config, options)?;
     out.keep();

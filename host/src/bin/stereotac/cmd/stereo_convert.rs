@@ -83,6 +83,11 @@ pub fn run(a: Args) -> Result<()> {
         written.push((right.clone(), r));
     }
     for (path, text) in &written {
+        // The folder made when missing, as `stereo --out-dir` makes its own.
+        if let Some(folder) = path.parent().filter(|f| !f.as_os_str().is_empty()) {
+            std::fs::create_dir_all(folder)
+                .with_context(|| format!("making the folder {}", folder.display()))?;
+        }
         write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
