@@ -60,20 +60,36 @@ pub(crate) fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> Outp
 /// reached another way (`./a` and `a`), or the same existing file (links): two outputs of
 /// one command must not, or the second would replace the first.
 pub fn same_file(a: &Path, b: &Path) -> bool {
-    // The folder resolved (it exists when the file is to be written), the name as given.
-    let resolved = |p: &Path| {
+    // The folder resolved where it exists, else the path made absolute and its `.` and
+    // `..` taken out by hand (a folder about to be made); the name as given.
+    let resolved = |p: &Path| -> Option<PathBuf> {
         let folder = p.parent().filter(|f| !f.as_os_str().is_empty());
-        Some(
-            folder
-                .unwrap_or(Path::new("."))
-                .canonicalize()
-                .ok()?
-                .join(p.file_name()?),
-        )
+        let folder = folder.unwrap_or(Path::new("."));
+        let folder = folder.canonicalize().ok().or_else(|| lexical(folder))?;
+        Some(folder.join(p.file_name()?))
     };
     a == b
         || matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
         || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
+}
+
+/// `p` made absolute with `.` and `..` taken out, without asking the file system.
+fn lexical(p: &Path) -> Option<PathBuf> {
+    use std::path::Component;
+    let mut out = std::env::current_dir().ok()?;
+    for c in p.components() {
+        match c {
+            Component::Prefix(_) => out = PathBuf::from(c.as_os_str()),
+            // Pushing the root replaces all but a prefix.
+            Component::RootDir => out.push(c.as_os_str()),
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::Normal(n) => out.push(n),
+        }
+    }
+    Some(out)
 }
 
 /// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, synced,
@@ -375,6 +391,13 @@ mod tests {
         assert!(same_file(&a, &a));
         assert!(!same_file(&a, &dir.join("b.json")));
         assert!(!same_file(&a, &dir.join("sub").join("a.json")));
+        // In a folder not made yet.
+        let later = dir.join("later");
+        assert!(same_file(
+            &later.join("x.yaml"),
+            &later.join(".").join("x.yaml")
+        ));
+        assert!(!same_file(&later.join("x.yaml"), &later.join("y.yaml")));
         // There: a link to it too (where the platform makes them).
         std::fs::write(&a, b"x").unwrap();
         #[cfg(unix)]

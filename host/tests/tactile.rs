@@ -593,6 +593,27 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         );
         assert!(err.refuses_this_pair_only());
     }
+    // Bumps pressed over the whole skin (a texture, a mesh) depart from the references
+    // over most of the frame too, but as slopes do: read, not refused.
+    let mut shapes = Vec::new();
+    for i in 0..5 {
+        for j in 0..4 {
+            shapes.extend(ball(2.5 + 4.0 * i as f64, 2.0 + 4.0 * j as f64, 0.6).shapes);
+        }
+    }
+    let bumps = render(&optics, &Scene { shapes }, 4);
+    let r = rec
+        .reconstruct(&bumps.dx, &bumps.dy)
+        .expect("a press, read");
+    let touched = r.contact_mask.as_slice().iter().filter(|t| **t).count();
+    assert!(
+        touched * 2 > r.contact_mask.as_slice().len(),
+        "the bumps cover most of the frame: {touched}"
+    );
+    assert!(
+        r.depth_mm.as_slice().iter().any(|&d| d > 0.3),
+        "read as depth"
+    );
 }
 
 #[test]

@@ -121,7 +121,9 @@ impl RecordingReader {
             file,
             reader: LinearReader::new_with_options(
                 LinearReaderOptions::default()
-                    .with_validate_chunk_crcs(true)
+                    // Checked before any of a chunk's records is handed out: a damaged
+                    // chunk gives none (checked after, its records would pass as sound).
+                    .with_prevalidate_chunk_crcs(true)
                     .with_record_length_limit(RECORD_LIMIT),
             ),
             channels: HashMap::new(),
@@ -212,10 +214,13 @@ impl RecordingReader {
                 // A chunk whose bytes are not the ones written (a damaged disk or copy):
                 // what came before it is sound and is kept, as with a cut file; nothing
                 // after it is read (its records cannot be told from damage).
-                Err(mcap::McapError::BadChunkCrc { .. }) => {
+                Err(
+                    e @ (mcap::McapError::BadChunkCrc { .. }
+                    | mcap::McapError::DecompressionError(_)),
+                ) => {
                     self.truncated = Some(format!(
-                        "a chunk ending by byte {} of {} fails its checksum (the file is \
-                         damaged there); everything before that chunk was read, nothing after",
+                        "a chunk ending by byte {} of {} is damaged ({e}); everything before \
+                         that chunk was read, nothing of it or after",
                         self.read_bytes, self.len
                     ));
                     return None;
@@ -594,38 +599,15 @@ mod tests {
 
     /// A recording of `n` JSON messages on the LED phase topic, log times 0..n.
     fn json_recording(name: &str, n: u64) -> PathBuf {
-        let path =
-            std::env::temp_dir().join(format!("stereotac-{name}-{}.mcap", std::process::id()));
-        let file = std::io::BufWriter::new(File::create(&path).unwrap());
-        let mut w = mcap::WriteOptions::new().create(file).unwrap();
-        let channel = w
-            .add_channel(0, topics::LED_PHASE, "json", &BTreeMap::new())
-            .unwrap();
-        for i in 0..n {
-            let header = mcap::records::MessageHeader {
-                channel_id: channel,
-                sequence: i as u32,
-                log_time: i,
-                publish_time: i,
-            };
-            w.write_to_known_channel(&header, format!("{{\"i\": {i}}}").as_bytes())
-                .unwrap();
-        }
-        w.finish().unwrap();
-        path
+        json_recording_with(name, n, mcap::WriteOptions::new())
     }
 
-    /// [`json_recording`] uncompressed, in chunks of 4 kB (a flipped byte fails a chunk's
-    /// checksum rather than its decompression).
-    fn json_recording_uncompressed(name: &str, n: u64) -> PathBuf {
+    /// [`json_recording`] written with `options`.
+    fn json_recording_with(name: &str, n: u64, options: mcap::WriteOptions) -> PathBuf {
         let path =
             std::env::temp_dir().join(format!("stereotac-{name}-{}.mcap", std::process::id()));
         let file = std::io::BufWriter::new(File::create(&path).unwrap());
-        let mut w = mcap::WriteOptions::new()
-            .compression(None)
-            .chunk_size(Some(4096))
-            .create(file)
-            .unwrap();
+        let mut w = options.create(file).unwrap();
         let channel = w
             .add_channel(0, topics::LED_PHASE, "json", &BTreeMap::new())
             .unwrap();
@@ -660,13 +642,20 @@ mod tests {
         let mut s = stream(&path, 1);
         assert!(s.next().unwrap().is_ok());
         drop(s);
-        let bytes = std::fs::read(&path).unwrap();
+        // Uncompressed, in chunks of 4 kB (a chunk is read whole, its checksum checked,
+        // before any of its messages is handed out; a flipped byte fails the checksum
+        // rather than the decompression).
+        let options = || {
+            mcap::WriteOptions::new()
+                .compression(None)
+                .chunk_size(Some(4096))
+        };
+        let chunked = json_recording_with("chunked", 2000, options());
+        let bytes = std::fs::read(&chunked).unwrap();
         let cut = path.with_extension("cut.mcap");
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
         let mut s = stream(&cut, 4);
-        for item in s.by_ref() {
-            item.unwrap();
-        }
+        assert!(s.by_ref().map(Result::unwrap).count() > 0);
         assert!(s.truncated().is_some(), "a cut file is reported");
         // Cut before any message, or empty: an error, not a warning.
         for end in [0, 8, 40] {
@@ -674,19 +663,40 @@ mod tests {
             let e = stream(&cut, 4).find_map(Result::err).expect("refused");
             assert!(e.to_string().contains("holds no message"), "{end}: {e}");
         }
+        let _ = std::fs::remove_file(chunked);
         // A damaged chunk: what came before it is read, and the damage said.
-        let damaged = json_recording_uncompressed("damaged", 2000);
+        let damaged = json_recording_with("damaged", 2000, options());
         let mut bytes = std::fs::read(&damaged).unwrap();
         let middle = bytes.len() / 2;
         bytes[middle] ^= 0x10;
         std::fs::write(&damaged, &bytes).unwrap();
         let mut s = stream(&damaged, 4);
-        let read = s.by_ref().map(Result::unwrap).count();
+        let times: Vec<u64> = s
+            .by_ref()
+            .map(|c| match c.unwrap() {
+                Content::Other(Record::Message { log_time_ns, .. }) => log_time_ns,
+                other => panic!("unexpected {other:?}"),
+            })
+            .collect();
+        let read = times.len() as u64;
         assert!(read > 0 && read < 2000, "{read}");
+        assert_eq!(times, (0..read).collect::<Vec<_>>());
         assert!(
-            s.truncated().unwrap().contains("fails its checksum"),
+            s.truncated().unwrap().contains("Chunk CRC"),
             "{:?}",
             s.truncated()
+        );
+        // The damaged chunk gave none of its messages: the first one not read lies before
+        // the damage (checked after its records, the chunk would have handed them all out,
+        // and the first unread one would be the next chunk's, past the damage).
+        let first_unread = format!("{{\"i\": {read}}}");
+        let at = bytes
+            .windows(first_unread.len())
+            .position(|w| w == first_unread.as_bytes())
+            .expect("in the file");
+        assert!(
+            at < middle,
+            "message {read} at byte {at}, the damage at {middle}"
         );
         let _ = std::fs::remove_file(damaged);
         let e = stream(&path.with_extension("missing.mcap"), 4)

@@ -10,7 +10,7 @@
 //! in metres as everywhere in ROS. A rig that is not plausible for this sensor (a
 //! baseline under 1 mm or over 1 m, a focal length outside 0.1–10× the image width, the
 //! cameras turned more than 60° apart) is refused with the number and its likely cause. A
-//! rotation written with few digits (up to 1e-4 off) is read as the nearest rotation.
+//! rotation written with few digits (up to 1e-3 off) is read as the nearest rotation.
 
 use std::collections::BTreeMap;
 
@@ -478,9 +478,20 @@ fn read_bounded(path: &std::path::Path) -> Result<String, String> {
 }
 
 /// How far `RᵀR` may be from the identity, and `det R` from 1, for `R` to be read as a
-/// rotation written with fewer digits (five decimals are about 1e-5 off); it is then
-/// taken as the nearest rotation.
-const ROTATION_ROUNDING: f64 = 1e-4;
+/// rotation written with fewer digits (four decimals are up to about 1e-4 off); it is then
+/// taken as the nearest rotation (within about 0.03° of what was written).
+const ROTATION_ROUNDING: f64 = 1e-3;
+
+/// The angle (degrees) rotation `r` turns by, from its trace, the cosine clamped: for a
+/// rotation within round-off of the identity the trace can exceed 3 by an ulp, and an
+/// unclamped arc cosine would be NaN. NaN only for a matrix that is not finite.
+fn turn_deg(r: &Matrix3<f64>) -> f64 {
+    let cos = (r.trace() - 1.0) / 2.0;
+    if cos.is_nan() {
+        return f64::NAN;
+    }
+    cos.clamp(-1.0, 1.0).acos().to_degrees()
+}
 
 /// `r`'s distance from a rotation: the largest entry of `RᵀR − I` and `|det R − 1|`.
 fn rotation_error(r: &Matrix3<f64>) -> f64 {
@@ -592,8 +603,8 @@ impl StereoCalibration {
         (centre.x < 0.0).then(|| {
             format!(
                 "the calibration puts the right camera {:.1} mm to the left of the left one \
-                 (`T` x is {:+.3}; a right camera to the right has it negative): if depth comes \
-                 out empty, the images (or the files) are given the wrong way round",
+                 (`T` x is {:+.3} mm as read; a right camera to the right has it negative): if \
+                 depth comes out empty, the images (or the files) are given the wrong way round",
                 -centre.x, self.t.x
             )
         })
@@ -658,9 +669,7 @@ impl StereoCalibration {
                 let r1 = rotation(&f, "R1", f.matrix3("R1")?)?;
                 let r2 = rotation(&f, "R2", f.matrix3("R2")?)?;
                 let (r_rect, t_rect) = extrinsics_from_rectification(&r1, &r2, &f.matrix3x4("P2")?);
-                let turn = Rotation3::from_matrix_unchecked(r.transpose() * r_rect)
-                    .angle()
-                    .to_degrees();
+                let turn = turn_deg(&(r.transpose() * r_rect));
                 let (b, b_rect) = (t.norm(), t_rect.norm());
                 if turn.is_nan()
                     || turn > 0.1
@@ -770,7 +779,7 @@ impl StereoCalibration {
         }
         // A rotation far from the identity is no stereo pair (and half of a half turn, which
         // rectification takes, has no one answer).
-        let turn = Rotation3::from_matrix_unchecked(r).angle().to_degrees();
+        let turn = turn_deg(&r);
         if turn.is_nan() || turn > MAX_RIG_TURN_DEG {
             return Err(CalibError::Inconsistent(format!(
                 "`R` turns the right camera {turn:.1}° from the left: a stereo pair's cameras \
@@ -838,7 +847,6 @@ pub(crate) mod tests {
 
     use super::*;
 
-    /// A pair like the sensor's: 14 mm baseline, slightly rotated and offset.
     /// A calibration whose right camera sits to the left says so (the images are likely
     /// given the wrong way round); the usual one says nothing.
     #[test]
@@ -869,11 +877,22 @@ pub(crate) mod tests {
         let mut c = sensor_pair(Distortion::NONE);
         c.r = *Rotation3::from_euler_angles(0.01, 0.087, -0.02).matrix();
         let exact = c.r;
-        c.r = c.r.map(|v| (v * 1e5).round() / 1e5);
-        assert!(rotation_error(&c.r) > 1e-7, "the rounding changed it");
-        let read = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap();
-        assert!(rotation_error(&read.r) < 1e-9);
-        assert!((read.r - exact).abs().max() < 2e-5, "{}", read.r - exact);
+        for decimals in [1e5, 1e4] {
+            c.r = exact.map(|v| (v * decimals).round() / decimals);
+            assert!(rotation_error(&c.r) > 1e-7, "the rounding changed it");
+            let read = StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap();
+            assert!(rotation_error(&read.r) < 1e-9);
+            assert!(
+                (read.r - exact).abs().max() < 2.0 / decimals,
+                "{}",
+                read.r - exact
+            );
+        }
+        // Within round-off of no turn, the trace can pass 3: the angle is 0, not NaN.
+        let mut over = Matrix3::identity();
+        over[(0, 0)] = 1.0 + f64::EPSILON;
+        assert_eq!(turn_deg(&over), 0.0);
+        assert!(turn_deg(&Matrix3::from_element(f64::NAN)).is_nan());
         for (axis, angle, says) in [
             (Vector3::x_axis(), 180.0f64, "180.0°"),
             (Vector3::y_axis(), 180.0, "180.0°"),
@@ -892,6 +911,7 @@ pub(crate) mod tests {
         assert!(StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).is_ok());
     }
 
+    /// A pair like the sensor's: 14 mm baseline, slightly rotated and offset.
     pub(crate) fn sensor_pair(distortion: Distortion) -> StereoCalibration {
         let k = Matrix3::new(420.0, 0.0, 322.5, 0.0, 421.0, 238.0, 0.0, 0.0, 1.0);
         let k2 = Matrix3::new(425.0, 0.0, 318.0, 0.0, 424.0, 243.5, 0.0, 0.0, 1.0);

@@ -37,9 +37,10 @@ pub struct ContactParams {
     pub dilate_px: usize,
 }
 
-/// The largest contact threshold that means something: a block gone black in both phases
-/// departs from flat skin by 4 (each phase's weights sum to 2), so a threshold above that
-/// would see only light more than doubled, never a press.
+/// The largest contact threshold that means something: a block whose LED light falls to
+/// almost nothing in both phases (just above the filter's floor: darker, it is rejected)
+/// departs from flat skin by about 4 (each phase's weights sum to 2), so a threshold above
+/// that would see only light more than doubled, never a press.
 pub const MAX_THRESHOLD: f32 = 4.0;
 
 impl Default for ContactParams {
@@ -372,6 +373,57 @@ pub fn find_regions(
     merge_overlapping(&mut regions);
     detection.regions = regions;
     detection
+}
+
+/// Above this share of a touched block's departure in common (red and blue of a phase
+/// moved the same way) to the departure between its two strips, and above
+/// [`MIN_COMMON_DEPARTURE`], the touched blocks read as light that changed (see
+/// [`departs_as_light_change`]).
+const COMMON_TO_DIFFERENTIAL: f32 = 3.0;
+/// The least common departure (normalised colour) that reads as light that changed: an
+/// exposure 5 % off the references'.
+const MIN_COMMON_DEPARTURE: f32 = 0.05;
+
+/// Whether the touched blocks of `detection` depart from flat skin as a change of light
+/// does rather than as slopes do. A phase's two strips face each other, so a slope makes
+/// one brighter and the other darker (a differential departure, `|r − b| / 2`), and even
+/// the steepest makes both darker by much less than it moves them apart; an exposure,
+/// gain or LED brightness change moves both the same way (a common departure,
+/// `|(r + b) / 2 − 1|`). Light changed when, over the touched blocks, the median common
+/// departure is above [`MIN_COMMON_DEPARTURE`] and [`COMMON_TO_DIFFERENTIAL`] times the
+/// median differential one. For frames where most of the skin reads as contact (rare: one
+/// extra pass over both frames).
+pub fn departs_as_light_change(
+    dx: &RgbImage,
+    dy: &RgbImage,
+    block_refs: &References,
+    filter: &ColourFilter,
+    detection: &Detection,
+) -> bool {
+    let (mx, my) = (
+        BlockMeans::of(dx, detection.step),
+        BlockMeans::of(dy, detection.step),
+    );
+    let (mut common, mut differential) = (Vec::new(), Vec::new());
+    let touched = detection.touched.iter().enumerate().filter(|(_, t)| **t);
+    for (i, _) in touched.filter(|(i, _)| *i < mx.len().min(my.len())) {
+        let (c, _) = colours_of(block_refs, filter, i, mx.mean(i), my.mean(i));
+        for (r, b) in [(c[0], c[1]), (c[2], c[3])] {
+            if r.is_finite() && b.is_finite() {
+                common.push(((r + b) / 2.0 - 1.0).abs());
+                differential.push(((r - b) / 2.0).abs());
+            }
+        }
+    }
+    if common.is_empty() {
+        return false;
+    }
+    let median = |v: &mut Vec<f32>| {
+        let k = v.len() / 2;
+        *v.select_nth_unstable_by(k, f32::total_cmp).1
+    };
+    let (common, differential) = (median(&mut common), median(&mut differential));
+    common > MIN_COMMON_DEPARTURE && common > COMMON_TO_DIFFERENTIAL * differential
 }
 
 /// How far (blocks) a contact takes in clipped blocks: 3 blocks of the default 4 px are about the

@@ -123,13 +123,13 @@ pub enum ReconstructError {
         /// Share of that frame without usable LED light (%).
         percent: f32,
     },
-    /// Most of the frame departs from the reference frames although the pair is lit and
-    /// its phases are the right way round: the light changed since they were taken.
+    /// Most of the frame departs from the reference frames, and as a change of light does
+    /// (both strips of a phase brighter or darker alike), not as slopes do.
     #[error(
-        "{percent:.0}% of the frame departs from the reference frames (flat skin): nothing \
-         presses most of the skin at once, so the light changed since they were taken \
-         (exposure, gain, LED brightness, room light); give reference frames taken now \
-         (--ref-dx/--ref-dy) or recalibrate"
+        "{percent:.0}% of the frame departs from the reference frames (flat skin), and both \
+         strips of a phase alike, as a change of light does, not a press: the light changed \
+         since they were taken (exposure, gain, LED brightness); give reference frames taken \
+         now (--ref-dx/--ref-dy) or recalibrate"
     )]
     LightChanged {
         /// Share of the frame read as contact (%).
@@ -497,12 +497,14 @@ impl Reconstructor {
         if touched as f32 > LARGE_CONTACT_FRACTION * detection.touched.len() as f32 {
             phase_check::check_pair(dx, dy, &filter, "frame pair")
                 .map_err(ReconstructError::FramePair)?;
-            // Lit phases the right way round, yet most of the skin departs from its
-            // reference: nothing presses most of the skin at once (a flat plate shows only
-            // its edges), so the light changed since the references were taken.
-            return Err(ReconstructError::LightChanged {
-                percent: 100.0 * touched as f32 / detection.touched.len().max(1) as f32,
-            });
+            // Lit phases the right way round, and most of the skin departs from its
+            // reference as a change of light does (both strips of a phase the same way),
+            // not as slopes do (a texture pressed over the whole skin is read).
+            if contact::departs_as_light_change(dx, dy, &self.block_refs, &filter, &detection) {
+                return Err(ReconstructError::LightChanged {
+                    percent: 100.0 * touched as f32 / detection.touched.len().max(1) as f32,
+                });
+            }
         }
         let mut out = Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),

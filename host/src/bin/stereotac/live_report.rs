@@ -113,10 +113,11 @@ impl Report {
                 self.skipped.1,
                 fmt(self.stereo_latency)
             );
-            if s.frames() == 0 {
+            if s.frames() == 0 && self.skipped.1 == 0 {
                 eprintln!(
                     "warning: no stereo frame pair was made: stereo depth needs LEDs-off \
-                     frames of two cameras taken at one phase (vision or interleaved mode)"
+                     frames of two cameras taken at one phase (vision or interleaved mode, \
+                     two cameras, a run long enough for one such phase)"
                 );
             }
         }

@@ -75,8 +75,9 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         return fail(
             "contact.threshold",
             format!(
-                "{} must be finite, positive and at most {MAX_THRESHOLD} (a block gone black \
-                 in both phases departs by 4: above that nothing pressed is seen)",
+                "{} must be finite, positive and at most {MAX_THRESHOLD} (a block whose LED \
+                 light falls to almost nothing in both phases departs by about 4: above that \
+                 nothing pressed is seen)",
                 c.threshold
             ),
         );

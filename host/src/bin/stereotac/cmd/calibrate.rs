@@ -117,7 +117,8 @@ pub fn run(a: Args) -> Result<()> {
         anyhow::ensure!(
             t.is_finite() && t > 0.0 && t <= MAX_THRESHOLD,
             "--contact-threshold must be a finite positive number of at most {MAX_THRESHOLD} \
-             (a block gone black in both phases departs by 4), got {t}"
+             (a block whose LED light falls to almost nothing in both phases departs by about \
+             4), got {t}"
         );
         settings.contact.threshold = t;
         settings.fixed_threshold = true;
