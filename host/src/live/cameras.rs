@@ -98,6 +98,28 @@ impl CameraSetup {
         }
     }
 
+    /// Refuses an exposure that cannot fit in one LED phase of `period_ms`: every frame
+    /// would straddle two phases and none could be labelled. Known here for simulated
+    /// cameras only (a V4L2 camera reports its own exposure); the trigger latency counts
+    /// for triggered cameras.
+    pub fn check_fits_phase(&self, period_ms: u32) -> Result<(), CameraSetupError> {
+        let latency = if self.free_running {
+            0.0
+        } else {
+            self.trigger_latency_us
+        };
+        let all_sim = self.cameras.iter().all(|c| c == SIM_CAMERA);
+        if all_sim && self.exposure_us + latency >= f64::from(period_ms) * 1000.0 {
+            return Err(CameraSetupError::Setting(format!(
+                "--exposure-us {} plus --trigger-latency-us {latency} does not fit in one \
+                 phase of --period-ms {period_ms}: every frame would straddle two LED phases \
+                 and none could be labelled; shorten the exposure or lengthen the period",
+                self.exposure_us
+            )));
+        }
+        Ok(())
+    }
+
     /// How the matcher should expect the cameras to be clocked.
     pub fn sync(&self) -> CameraSync {
         if self.free_running {

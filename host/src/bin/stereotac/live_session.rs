@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use stereotac::frames::FrameSource;
-use stereotac::live::cameras::SIM_CAMERA;
 use stereotac::live::session::Session;
 use stereotac::matcher::MatcherConfig;
 use stereotac::recording::metadata::{self, RunInfo};
@@ -47,27 +46,9 @@ pub fn start(
     outputs: Outputs<'_>,
     check: impl FnOnce(&[Box<dyn FrameSource>]) -> Result<()>,
 ) -> Result<Live> {
-    // Before connecting: an exposure that cannot fit in one phase gives no frame at all
-    // (each straddles two phases), which a run would find out only at its end. Known
-    // here for simulated cameras only (a V4L2 camera reports its own exposure).
-    let (exposure, latency) = (
-        cameras.exposure_us,
-        if cameras.free_running {
-            0.0
-        } else {
-            cameras.trigger_latency_us
-        },
-    );
-    let phase_us = f64::from(sequence.period_ms) * 1000.0;
-    let all_sim = cameras.cameras.iter().all(|c| c == SIM_CAMERA);
-    if all_sim && exposure + latency >= phase_us {
-        bail!(
-            "--exposure-us {exposure} plus --trigger-latency-us {latency} does not fit in \
-             one phase of --period-ms {}: every frame would straddle two LED phases and none \
-             could be labelled; shorten the exposure or lengthen the period",
-            sequence.period_ms
-        );
-    }
+    // Before connecting: an exposure that cannot fit in one phase gives no frame at all,
+    // which a run would find out only at its end.
+    cameras.setup().check_fits_phase(sequence.period_ms)?;
     let opened = open(device)?;
     let sources = cameras.open_all(&opened)?;
     check(&sources)?;
