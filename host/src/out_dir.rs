@@ -6,8 +6,9 @@
 //! `--force` ([`Replace::Force`]), or an earlier run of the same command made it
 //! ([`Replace::OwnEarlierRun`], for the demo's scratch folder: a marker file, [`MARKER`],
 //! names the command; its files are replaced, others left alone). When the value is dropped without [`OutDir::keep`]
-//! (the run failed), a directory this run created is removed again with what it wrote;
-//! one that existed before is left as it is.
+//! (the run failed), a directory this run created is removed again with what it wrote,
+//! and so are the parent folders it made for it (when still empty); one that existed
+//! before is left as it is.
 
 use std::path::{Path, PathBuf};
 
@@ -74,6 +75,8 @@ pub enum OutDirError {
 pub struct OutDir {
     path: PathBuf,
     created: bool,
+    /// Parent folders this run made for the directory, nearest first.
+    created_parents: Vec<PathBuf>,
     kept: bool,
 }
 
@@ -85,12 +88,20 @@ impl OutDir {
             source,
         };
         if !path.exists() {
-            std::fs::create_dir_all(path).map_err(io)?;
+            let created_parents = path
+                .ancestors()
+                .skip(1)
+                .take_while(|p| !p.as_os_str().is_empty() && !p.exists())
+                .map(Path::to_path_buf)
+                .collect();
             let dir = Self {
                 path: path.to_path_buf(),
                 created: true,
+                created_parents,
                 kept: false,
             };
+            // Made after `dir` exists, so a failure half-way removes what was made.
+            std::fs::create_dir_all(path).map_err(io)?;
             dir.mark(replace)?;
             return Ok(dir);
         }
@@ -119,6 +130,7 @@ impl OutDir {
         let dir = Self {
             path: path.to_path_buf(),
             created: false,
+            created_parents: Vec::new(),
             kept: false,
         };
         dir.mark(replace)?;
@@ -151,6 +163,12 @@ impl Drop for OutDir {
     fn drop(&mut self) {
         if self.created && !self.kept {
             let _ = std::fs::remove_dir_all(&self.path);
+            // Only while empty: something else may have been put there meanwhile.
+            for parent in &self.created_parents {
+                if std::fs::remove_dir(parent).is_err() {
+                    break;
+                }
+            }
         }
     }
 }
@@ -172,7 +190,13 @@ mod tests {
         let dir = OutDir::prepare(&d.join("a/b"), Replace::Never).unwrap();
         std::fs::write(dir.path().join("partial.npy"), b"x").unwrap();
         drop(dir);
-        assert!(!d.join("a/b").exists());
+        // The parents it made for it go too (they were `reconstruct`'s empty leftovers).
+        assert!(!d.join("a").exists() && !d.exists());
+        // A parent something else wrote into meanwhile stays, with that file.
+        let dir = OutDir::prepare(&d.join("a/b"), Replace::Never).unwrap();
+        std::fs::write(d.join("a/other.txt"), b"x").unwrap();
+        drop(dir);
+        assert!(!d.join("a/b").exists() && d.join("a/other.txt").exists());
         let dir = OutDir::prepare(&d.join("c"), Replace::Never).unwrap();
         std::fs::write(dir.path().join("depth.npy"), b"x").unwrap();
         assert_eq!(dir.keep(), d.join("c"));

@@ -100,17 +100,28 @@ pub struct ColourRange {
     pub from: String,
 }
 
-/// Width of the legend beside the picture (px).
+/// Least width of the legend beside the picture (px); wider when its labels need it.
 const LEGEND_WIDTH: u32 = 96;
 /// Glyph scale of the legend's text (font pixels per image pixel).
 const TEXT_SCALE: u32 = 2;
+/// Advance of one character of the legend's text (px).
+const CHAR_WIDTH: u32 = 6 * TEXT_SCALE;
+/// The labels start this far right of the legend's left edge (past the bar).
+const LABEL_X: u32 = 22;
 
 /// `grid` in false colour over `range`, with the legend on the right: a colour bar from
 /// `lo` (bottom) to `hi` (top) and five labelled ticks, the unit on top.
 pub fn with_legend(grid: &Grid<f32>, range: &ColourRange) -> RgbImage {
     let (w, h) = (grid.width() as u32, grid.height() as u32);
-    let mut img = RgbImage::from_pixel(w + LEGEND_WIDTH, h.max(1), Rgb([24, 24, 28]));
     let span = range.hi - range.lo;
+    let labels = tick_labels(range);
+    // As wide as the longest label (a range like -1234.5 to 20000 has seven characters
+    // and more), so none is cut.
+    let longest = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0) as u32;
+    let legend = LEGEND_WIDTH
+        .max(LABEL_X + longest * CHAR_WIDTH + 4)
+        .max(6 + range.unit.chars().count() as u32 * CHAR_WIDTH + 4);
+    let mut img = RgbImage::from_pixel(w + legend, h.max(1), Rgb([24, 24, 28]));
     for (i, v) in grid.as_slice().iter().enumerate() {
         let (x, y) = ((i % grid.width()) as u32, (i / grid.width()) as u32);
         let c = if v.is_finite() {
@@ -134,25 +145,34 @@ pub fn with_legend(grid: &Grid<f32>, range: &ColourRange) -> RgbImage {
         }
     }
     draw_text(&mut img, bar_x, 3, range.unit);
-    let decimals = decimals_for(span);
-    for k in 0..5 {
+    for (k, label) in labels.iter().enumerate() {
         let t = k as f32 / 4.0;
         let y = bottom - ((bottom - top) as f32 * t).round() as u32;
         // The tick left of the bar, so it never reads as a minus sign.
         for x in bar_x - 5..bar_x - 1 {
             img.put_pixel(x, y, Rgb([230, 230, 230]));
         }
-        let value = range.lo + span * t;
-        // No "-0.00": a value that rounds to zero is written as zero.
-        let value = if value.abs() < 0.5 * 10f32.powi(-(decimals as i32)) {
-            0.0
-        } else {
-            value
-        };
-        let label = format!("{value:.decimals$}");
-        draw_text(&mut img, bar_x + 16, y.saturating_sub(glyph_h / 2), &label);
+        draw_text(&mut img, w + LABEL_X, y.saturating_sub(glyph_h / 2), label);
     }
     img
+}
+
+/// The five tick labels of `range`, bottom to top.
+fn tick_labels(range: &ColourRange) -> Vec<String> {
+    let span = range.hi - range.lo;
+    let decimals = decimals_for(span);
+    (0..5)
+        .map(|k| {
+            let value = range.lo + span * k as f32 / 4.0;
+            // No "-0.00": a value that rounds to zero is written as zero.
+            let value = if value.abs() < 0.5 * 10f32.powi(-(decimals as i32)) {
+                0.0
+            } else {
+                value
+            };
+            format!("{value:.decimals$}")
+        })
+        .collect()
 }
 
 /// Writes [`with_legend`] as a PNG.
@@ -195,7 +215,7 @@ fn draw_text(img: &mut RgbImage, x: u32, y: u32, text: &str) {
                 }
             }
         }
-        cx += 6 * TEXT_SCALE;
+        cx += CHAR_WIDTH;
     }
 }
 
@@ -283,6 +303,28 @@ mod tests {
         assert_eq!(with_legend(&tiny, &r).dimensions(), (3 + LEGEND_WIDTH, 3));
         let empty = Grid::filled(0, 0, 1.0f32);
         assert_eq!(with_legend(&empty, &r).width(), LEGEND_WIDTH);
+    }
+
+    #[test]
+    fn long_labels_widen_the_legend_instead_of_being_cut() {
+        // Ticks -1000.00 to -999.00: eight characters, past the least width's six.
+        let g = Grid::filled(64, 96, -999.5f32);
+        let r = RangeChoice::Fixed {
+            lo: -1000.0,
+            hi: -999.0,
+        }
+        .resolve(&g, 0.1, "mm");
+        assert_eq!(tick_labels(&r)[0], "-1000.00");
+        let img = with_legend(&g, &r);
+        let right = 64 + LABEL_X + 8 * CHAR_WIDTH;
+        assert!(img.width() >= right, "{} < {right}", img.width());
+        // The last label's last character ('0') is drawn in its column.
+        let last_char = (right - CHAR_WIDTH..right)
+            .any(|x| (0..img.height()).any(|y| img.get_pixel(x, y).0 == [235, 235, 235]));
+        assert!(last_char, "the labels' last characters are missing");
+        // Short labels keep the least width.
+        let r = RangeChoice::Fixed { lo: 0.0, hi: 1.0 }.resolve(&g, 0.1, "mm");
+        assert_eq!(with_legend(&g, &r).width(), 64 + LEGEND_WIDTH);
     }
 
     #[test]

@@ -238,6 +238,20 @@ fn arguments() {
         &["px wide", "--near-mm to about"],
     );
     assert!(!scaled.exists(), "a refused run leaves no folder");
+    // A negative number is read as the flag's value and refused by its own check (it
+    // was "unexpected argument '-10'", which suggested writing `--near-mm=-10`).
+    refused(
+        &[
+            "stereo",
+            "--synthetic",
+            "150",
+            "--near-mm",
+            "-10",
+            "--out-dir",
+            s(&scaled),
+        ],
+        &["-10", "all positive"],
+    );
     // Refused before the (empty) directory is even read.
     for (flag, value, says) in [
         ("--px-per-mm", "1e9", "px/mm"),

@@ -411,6 +411,62 @@ fn hostile_images_give_finite_output_or_typed_errors() {
     }
 }
 
+#[test]
+fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_warned() {
+    let optics = optics();
+    let s = settings(&optics);
+    let refs = reference_frames(&optics);
+    let refs = || Some((&refs.0, &refs.1).into());
+    let good = ball_presses(&optics, 6, 6.0, 11);
+    let cal = calibrate(&good, refs(), &s, |_| {}).unwrap();
+    // A press with a black dy, and one with its phases swapped, among them: set aside
+    // before the flat skin's noise is measured, so the threshold is the good presses'.
+    let mut mixed = good.clone();
+    let black = RgbImage::new(optics.width as u32, optics.height as u32);
+    mixed.insert(
+        1,
+        CalibrationPair {
+            name: "black".into(),
+            dx: good[0].dx.clone(),
+            dy: black,
+            dark: None,
+        },
+    );
+    mixed.push(CalibrationPair {
+        name: "swapped".into(),
+        dx: good[1].dy.clone(),
+        dy: good[1].dx.clone(),
+        dark: None,
+    });
+    let with_bad = calibrate(&mixed, refs(), &s, |_| {}).unwrap();
+    assert_eq!(
+        with_bad.model.contact.threshold,
+        cal.model.contact.threshold
+    );
+    assert_eq!(with_bad.presses.len(), good.len());
+    let names: Vec<&str> = with_bad.rejected.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(names, ["black", "swapped"], "in the presses' order");
+    // A threshold given below the flat skin's noise is used, with a warning that names
+    // the measured one; the measured threshold itself gets none.
+    let says = "contact threshold given";
+    assert!(!cal.report.warnings.iter().any(|w| w.contains(says)));
+    let mut fixed = s.clone();
+    fixed.fixed_threshold = true;
+    fixed.contact.threshold = 0.001;
+    let low = calibrate(&good, refs(), &fixed, |_| {}).unwrap();
+    assert_eq!(low.model.contact.threshold, 0.001);
+    let warning = low.report.warnings.iter().find(|w| w.contains(says));
+    let measured = format!("{:.3}", cal.model.contact.threshold);
+    assert!(
+        warning.is_some_and(|w| w.contains("at rest") && w.contains(&measured)),
+        "{:?}",
+        low.report.warnings
+    );
+    fixed.contact.threshold = 3.0 * cal.model.contact.threshold;
+    let high = calibrate(&good, refs(), &fixed, |_| {}).unwrap();
+    assert!(!high.report.warnings.iter().any(|w| w.contains(says)));
+}
+
 /// Noise of `img`'s size over the whole frame.
 fn noise_like(img: &RgbImage) -> RgbImage {
     RgbImage::from_fn(img.width(), img.height(), |x, y| {
@@ -1010,6 +1066,14 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
         (Some(0.0), Some(2.0))
     );
     assert_eq!(s["colour_range"]["from"], "given");
+    // A range from below zero is a value, not a flag (it said "unexpected argument").
+    let (_, below, _) = run(
+        &ball(10.0, 8.0, 1.0),
+        "below",
+        &["--colour-range", "-0.1,1"],
+    );
+    let lo = below["colour_range"]["lo"].as_f64().unwrap();
+    assert!((lo + 0.1).abs() < 1e-6, "{below}");
     let mesh = std::fs::read(out.join("depth_mesh.ply")).unwrap();
     let header = String::from_utf8_lossy(&mesh[..400]);
     let (w, h) = (optics.width, optics.height);

@@ -694,7 +694,14 @@ impl StereoCalibration {
             LengthUnit::Mm => "pass --units m if the file is in metres",
             LengthUnit::M => "pass --units mm if the file is in millimetres",
         };
-        Self::checked(left, right, r, t * unit.mm(), &format!("{file}: {hint}"))
+        Self::checked(
+            left,
+            right,
+            r,
+            t * unit.mm(),
+            [file, file],
+            &format!("{file}: {hint}"),
+        )
     }
 
     /// Read a left and a right ROS `camera_info` YAML.
@@ -745,35 +752,47 @@ impl StereoCalibration {
             right,
             r,
             t * LengthUnit::M.mm(),
+            [left_file, right_file],
             &format!(
                 "{right_file}: ROS camera_info is in metres (projection_matrix[0][3] = -fx·baseline)"
             ),
         )
     }
 
-    /// The calibration if it is a plausible rig; `hint` says where the numbers came from
-    /// and how to read them otherwise.
+    /// The calibration if it is a plausible rig; `files` are where the left and the
+    /// right camera were read from (one file twice for OpenCV's), `hint` says where the
+    /// numbers came from and how to read them otherwise.
     fn checked(
         left: Camera,
         right: Camera,
         r: Matrix3<f64>,
         t: Vector3<f64>,
+        files: [&str; 2],
         hint: &str,
     ) -> Result<Self, CalibError> {
+        let both = if files[0] == files[1] {
+            files[0].to_string()
+        } else {
+            format!("{} and {}", files[0], files[1])
+        };
         if (left.width, left.height) != (right.width, right.height) {
             return Err(CalibError::Inconsistent(format!(
-                "image sizes differ: {}×{} and {}×{}",
+                "{both}: the cameras' image sizes differ ({}×{} left, {}×{} right): calibrate \
+                 both at the size of the frames they will match",
                 left.width, left.height, right.width, right.height
             )));
         }
         if std::mem::discriminant(&left.distortion) != std::mem::discriminant(&right.distortion) {
-            return Err(CalibError::Inconsistent(
-                "the two cameras use different lens models".into(),
-            ));
+            return Err(CalibError::Inconsistent(format!(
+                "{both}: the cameras use different lens models (left {}, right {}): calibrate \
+                 both with one model",
+                left.distortion.model_name(),
+                right.distortion.model_name()
+            )));
         }
         if !t.iter().all(|v| v.is_finite()) || t.norm() == 0.0 {
             return Err(CalibError::Inconsistent(format!(
-                "the baseline must be finite and non-zero, found T = {:?}",
+                "{both}: the baseline must be finite and non-zero, found T = {:?}",
                 t.as_slice()
             )));
         }
@@ -782,7 +801,7 @@ impl StereoCalibration {
         let turn = turn_deg(&r);
         if turn.is_nan() || turn > MAX_RIG_TURN_DEG {
             return Err(CalibError::Inconsistent(format!(
-                "`R` turns the right camera {turn:.1}° from the left: a stereo pair's cameras \
+                "{both}: `R` turns the right camera {turn:.1}° from the left: a stereo pair's cameras \
                  look the same way (within {MAX_RIG_TURN_DEG}°); R may be in another \
                  convention (a camera's pose in the world) or belong to another rig"
             )));
@@ -800,12 +819,12 @@ impl StereoCalibration {
             )));
         }
         let (flo, fhi) = FOCAL_RANGE_OF_WIDTH;
-        for (side, cam) in [("left", &left), ("right", &right)] {
+        for (side, cam, file) in [("left", &left, files[0]), ("right", &right, files[1])] {
             let w = f64::from(cam.width);
             for (axis, f) in [("fx", cam.k[(0, 0)]), ("fy", cam.k[(1, 1)])] {
                 if !(f >= flo * w && f <= fhi * w) {
                     return Err(CalibError::Inconsistent(format!(
-                        "implausible {side} focal length {axis} = {f} px for an image {w} px wide \
+                        "{file}: implausible {side} focal length {axis} = {f} px for an image {w} px wide \
                          (expected {}–{} px): the camera matrix may belong to another image size \
                          or be scaled",
                         flo * w,
@@ -821,10 +840,7 @@ impl StereoCalibration {
     pub fn to_opencv_yaml(&self) -> String {
         let matrix = yaml::opencv_matrix;
         let row_major = |m: &Matrix3<f64>| -> Vec<f64> { m.transpose().as_slice().to_vec() };
-        let model = match self.left.distortion {
-            Distortion::BrownConrady(_) => "plumb_bob",
-            Distortion::KannalaBrandt(_) => "fisheye",
-        };
+        let model = self.left.distortion.model_name();
         let d1 = self.left.distortion.coefficients();
         let d2 = self.right.distortion.coefficients();
         let mut out = format!(
@@ -1038,6 +1054,35 @@ pub(crate) mod tests {
             .to_string();
         assert!(
             e.contains("implausible baseline") && e.contains("metres"),
+            "{e}"
+        );
+        // Cameras that disagree on the image size or the lens model: both files named,
+        // with what each says.
+        let mut small = c.right;
+        (small.width, small.height) = (320, 240);
+        let e = StereoCalibration::from_ros_pair(
+            ("l.yaml", &left),
+            ("r.yaml", &info(&small, &rect.r2, &p2_m)),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("l.yaml and r.yaml: ") && e.contains("320×240 right"),
+            "{e}"
+        );
+        let mut matte = c.right;
+        matte.distortion = Distortion::NONE;
+        let plumb = info(&matte, &rect.r2, &p2_m)
+            .replace("equidistant", "plumb_bob")
+            .replace(
+                "coefficients:\n  rows: 1\n  cols: 4",
+                "coefficients:\n  rows: 1\n  cols: 5",
+            );
+        let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &plumb))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("l.yaml and r.yaml: ") && e.contains("left fisheye, right plumb_bob"),
             "{e}"
         );
         // Swapped files are refused.

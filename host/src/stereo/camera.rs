@@ -25,6 +25,14 @@ impl Distortion {
     /// No distortion (a pinhole).
     pub const NONE: Distortion = Distortion::BrownConrady([0.0; 8]);
 
+    /// The model's name as ROS writes it (`distortion_model`).
+    pub fn model_name(&self) -> &'static str {
+        match self {
+            Distortion::BrownConrady(_) => "plumb_bob",
+            Distortion::KannalaBrandt(_) => "fisheye",
+        }
+    }
+
     /// The coefficients as a file lists them (Brown–Conrady: 5, or 8 when the rational
     /// terms are used).
     pub fn coefficients(&self) -> Vec<f64> {

@@ -22,7 +22,7 @@ const MIN_BALANCE_DN: f32 = 8.0;
 pub enum PhaseImageError {
     /// Too little of the frame shows LED light (black, white, saturated or unlit).
     #[error(
-        "{what} {phase}: only {:.0}% of the frame shows LED light (red or blue above green, unsaturated; at least {:.0}% expected): is it black, white, overexposed, or taken with the LEDs off?",
+        "{what} {phase}: only {:.0}% of the frame shows LED light (red or blue above green, unsaturated, not mostly white light; at least {:.0}% expected): is it black, white, overexposed, taken with the LEDs off, or is other light stronger than the LEDs'?",
         lit * 100.0,
         MIN_LIT_FRACTION * 100.0
     )]
@@ -47,7 +47,7 @@ pub enum PhaseImageError {
 /// Summary of one phase image: lit fraction and how red minus blue changes across it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhaseLook {
-    /// Fraction of 8×8 blocks with LED light.
+    /// Fraction of 8×8 blocks with LED light the colour filter accepts.
     pub lit: f32,
     /// Mean red minus blue of the right third minus the left third (DN).
     pub across: f32,
@@ -63,7 +63,13 @@ pub fn look(image: &RgbImage, filter: &ColourFilter) -> PhaseLook {
     let (mut thirds_x, mut thirds_y) = ([(0.0f32, 0usize); 3], [(0.0f32, 0usize); 3]);
     for (i, [r, g, bl]) in (0..b.len()).map(|i| (i, b.mean(i))) {
         let (x, y) = (i % b.width, i / b.width);
-        if (r - g).max(bl - g) >= filter.min_led && r.max(g).max(bl) < sat {
+        // The colour filter's rules that need no reference (the green rise is measured
+        // against these frames): the same as make a pair's frame unlit in
+        // reconstruction, so references that pass here are not refused there.
+        if (r - g).max(bl - g) >= filter.min_led
+            && r.max(g).max(bl) < sat
+            && g <= filter.max_white_ratio * r.max(bl)
+        {
             lit += 1;
         }
         let tx = (x * 3 / b.width.max(1)).min(2);
@@ -132,7 +138,14 @@ mod tests {
         let black = RgbImage::new(160, 120);
         let white = RgbImage::from_pixel(160, 120, image::Rgb([255, 255, 255]));
         let grey = RgbImage::from_pixel(160, 120, image::Rgb([90, 90, 90]));
-        for bad in [&black, &white, &grey] {
+        // LED light above green, but green as bright as it: white light the colour
+        // filter rejects (reconstruction would call every pair unlit).
+        let whitish = RgbImage::from_pixel(160, 120, image::Rgb([200, 125, 100]));
+        assert!(
+            200.0 - 125.0 >= f.min_led && 125.0 > f.max_white_ratio * 200.0,
+            "the test's colour must pass the LED rule and fail the white one"
+        );
+        for bad in [&black, &white, &grey, &whitish] {
             let e = check_pair(&p.dx, bad, &f, "refs").unwrap_err();
             assert!(
                 matches!(e, PhaseImageError::Unlit { phase: "dy", .. }),

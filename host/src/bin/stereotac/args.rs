@@ -46,7 +46,7 @@ pub struct SequenceArgs {
     #[arg(long, default_value_t = 250)]
     pub period_ms: u32,
     /// Stop after this many seconds (default: until Ctrl-C).
-    #[arg(long, value_parser = parse_duration_s)]
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_duration_s)]
     pub duration_s: Option<f64>,
 }
 
@@ -114,14 +114,14 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 #[derive(Debug, Clone, clap::Args)]
 pub struct PipelineArgs {
     /// Nearest depth searched, mm.
-    #[arg(long, default_value_t = StereoConfig::default().near_mm)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = StereoConfig::default().near_mm)]
     pub near_mm: f64,
     /// Farthest depth searched, mm.
-    #[arg(long, default_value_t = StereoConfig::default().far_mm)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = StereoConfig::default().far_mm)]
     pub far_mm: f64,
     /// Rectified focal length as a share of the cameras' (below 1 keeps more of a wide
     /// lens's field of view).
-    #[arg(long, default_value_t = StereoConfig::default().rectify_scale)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = StereoConfig::default().rectify_scale)]
     pub scale: f64,
     /// Matching window side (odd): block matching's blocks; semi-global matching's
     /// sub-pixel refinement window (3..=31; larger: less noise on smooth surfaces, small

@@ -21,13 +21,13 @@ pub struct CameraArgs {
     pub cameras: Vec<String>,
     /// Exposure time, µs: the simulated camera's, and the one assumed for a V4L2 camera
     /// that does not report its own.
-    #[arg(long, default_value_t = 8000.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 8000.0)]
     pub exposure_us: f64,
     /// The cameras run on their own clock instead of the sensor's trigger output.
     #[arg(long)]
     pub free_running: bool,
     /// Delay from the trigger edge to the start of the exposure, µs (triggered cameras).
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 40.0)]
     pub trigger_latency_us: f64,
     /// Frame size, WxH: the simulated camera's (default 640x480, the sensor's), and the
     /// one to ask V4L2 cameras for (default: the camera's current size).

@@ -37,6 +37,15 @@ pub fn spinner(what: &str) -> ProgressBar {
 pub fn builtin_calibration(optics: &Optics) -> Result<(Calibration, (RgbImage, RgbImage))> {
     let epochs = CalibrationSettings::default().mlp.epochs;
     let progress = bar((BUILTIN_PRESSES + 2 * epochs) as u64, "calibrating");
+    // Without a terminal the bar is not drawn: say what the wait is (it was ~10 s of
+    // silence before the first line).
+    let started = std::time::Instant::now();
+    if progress.is_hidden() {
+        eprintln!(
+            "calibrating the simulated sensor's built-in tactile model from {BUILTIN_PRESSES} \
+             rendered ball presses (give --model FILE to use your own)..."
+        );
+    }
     let calibration = synthetic::builtin_calibration(optics, BUILTIN_PRESSES, |p| match p {
         CalibrationProgress::Circles { done, .. } => progress.set_position(done as u64),
         CalibrationProgress::Mlp {
@@ -47,5 +56,11 @@ pub fn builtin_calibration(optics: &Optics) -> Result<(Calibration, (RgbImage, R
         } => progress.set_position((BUILTIN_PRESSES + axis * epochs + epoch) as u64),
     });
     progress.finish_and_clear();
+    if progress.is_hidden() {
+        eprintln!(
+            "built-in tactile model calibrated in {:.1} s",
+            started.elapsed().as_secs_f64()
+        );
+    }
     Ok(calibration?)
 }

@@ -431,11 +431,27 @@ pub fn calibrate(
     let max_contact_px =
         ball_px * (1.0 - (1.0 - MAX_DEPTH_OF_RADIUS) * (1.0 - MAX_DEPTH_OF_RADIUS)).sqrt();
 
+    // A press with a frame without LED light, or its phases swapped, is set aside first,
+    // saying so: its colours would otherwise count in the flat skin's noise below, and
+    // it would be rejected as "no contact found" or "larger than the ball".
+    let mut rejected = Vec::new();
+    let mut candidates = Vec::with_capacity(pairs.len());
+    for (i, pair) in pairs.iter().enumerate() {
+        match phase_check::check_pair(&pair.dx, &pair.dy, &settings.filter, "press") {
+            Ok(()) => candidates.push(i),
+            Err(e) => rejected.push(RejectedPress {
+                name: pair.name.clone(),
+                circle: None,
+                reason: Rejection::NotPhasePair { why: e.to_string() },
+            }),
+        }
+    }
+
     // Press outlines, on box means around each pixel, with a threshold measured on the
     // frames' flat skin.
-    let maps: Vec<Vec<f32>> = pairs
+    let maps: Vec<Vec<f32>> = candidates
         .iter()
-        .map(|p| threshold::outline_map(p, &refs, &settings.filter))
+        .map(|&i| threshold::outline_map(&pairs[i], &refs, &settings.filter))
         .collect();
     let fit_all = |t: f32| -> Vec<Option<OutlineFit>> {
         maps.iter()
@@ -461,50 +477,53 @@ pub fn calibrate(
     let fits = fit_all(outline_threshold);
     drop(maps);
 
-    // The detection threshold, on block means, unless fixed.
+    // The detection threshold, on block means; measured also when it is fixed, to warn
+    // when the one given is within the flat skin's noise.
     let mut contact_params = settings.contact;
     let step = contact_params.coarse_step.max(1);
+    let block_refs = contact::block_references(&ref_dx, &ref_dy, step);
+    let blocks: Vec<Vec<f32>> = candidates
+        .iter()
+        .map(|&i| threshold::block_map(&pairs[i], &block_refs, &settings.filter, step))
+        .collect();
+    let circles: Vec<Option<Circle>> = circles_of(&fits)
+        .iter()
+        .map(|c| c.map(|c| threshold::in_blocks(&c, step)))
+        .collect();
+    let measured = threshold::from_flat_skin(
+        &blocks,
+        &circles,
+        w.div_ceil(step),
+        h.div_ceil(step),
+        threshold::FLAT_CLEARANCE_PX / step as f64,
+    );
+    drop(blocks);
     let mut noise = None;
-    if !settings.fixed_threshold {
-        let block_refs = contact::block_references(&ref_dx, &ref_dy, step);
-        let blocks: Vec<Vec<f32>> = pairs
-            .iter()
-            .map(|p| threshold::block_map(p, &block_refs, &settings.filter, step))
-            .collect();
-        let circles: Vec<Option<Circle>> = circles_of(&fits)
-            .iter()
-            .map(|c| c.map(|c| threshold::in_blocks(&c, step)))
-            .collect();
-        noise = threshold::from_flat_skin(
-            &blocks,
-            &circles,
-            w.div_ceil(step),
-            h.div_ceil(step),
-            threshold::FLAT_CLEARANCE_PX / step as f64,
-        );
-        if let Some(n) = noise {
+    let mut fixed_warning = None;
+    match measured {
+        Some(n) if !settings.fixed_threshold => {
             contact_params.threshold = n.threshold;
+            noise = measured;
         }
+        Some(n) if contact_params.threshold < n.p9999 => {
+            fixed_warning = Some(format!(
+                "the contact threshold given ({:.3}) is below how far flat skin departs from \
+                 the references in these frames ({:.3}, 99.99th percentile): a skin at rest \
+                 will read as contact in places; the threshold measured here is {:.3}",
+                contact_params.threshold, n.p9999, n.threshold
+            ));
+        }
+        _ => {}
     }
 
     let mut presses = Vec::with_capacity(pairs.len());
-    let mut rejected = Vec::new();
     let mut used = Vec::with_capacity(pairs.len());
-    for (done, (pair, fit)) in pairs.iter().zip(&fits).enumerate() {
+    for (&index, fit) in candidates.iter().zip(&fits) {
+        let pair = &pairs[index];
         progress(CalibrationProgress::Circles {
-            done: done + 1,
+            done: index + 1,
             total: pairs.len(),
         });
-        // A frame without LED light, or the phases swapped, would be set aside as "no
-        // contact" or "larger than the ball": say what it is (a pass over the pair).
-        if let Err(e) = phase_check::check_pair(&pair.dx, &pair.dy, &settings.filter, "press") {
-            rejected.push(RejectedPress {
-                name: pair.name.clone(),
-                circle: None,
-                reason: Rejection::NotPhasePair { why: e.to_string() },
-            });
-            continue;
-        }
         let (circle, overridden, fit_rms_px) = match (settings.overrides.get(&pair.name), fit) {
             (Some(c), _) => (*c, true, 0.0),
             (None, Some(f)) => {
@@ -596,10 +615,13 @@ pub fn calibrate(
             depth_mm,
             overridden,
             fit_rms_px,
-            saturated: saturated_in_contact(&raw_pairs[done], &circle, settings.filter.saturation),
+            saturated: saturated_in_contact(&raw_pairs[index], &circle, settings.filter.saturation),
         });
         used.push(pair);
     }
+    // In the presses' order (those without LED light were set aside first).
+    let order = |name: &str| pairs.iter().position(|p| p.name == name);
+    rejected.sort_by_cached_key(|r| order(&r.name));
     if presses.len() < settings.min_presses.max(1) {
         return Err(CalibrationError::TooFewPresses {
             good: presses.len(),
@@ -732,6 +754,7 @@ pub fn calibrate(
         &all_samples,
     );
     report.warnings.extend(ambient_warning);
+    report.warnings.extend(fixed_warning);
     Ok(Calibration {
         model,
         presses,

@@ -65,7 +65,7 @@ pub struct SkinsArgs {
     pub placements: usize,
     /// Calibrate with a ball of this diameter (mm, 2–20) instead of the family's own
     /// (`--list` gives it).
-    #[arg(long, value_parser = parse_ball_mm)]
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_ball_mm)]
     pub ball_diameter_mm: Option<f64>,
     /// Frame size.
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
@@ -80,7 +80,7 @@ pub struct SkinsArgs {
     /// Ambient light of the measured frames relative to the calibration's, in the dx,
     /// dy and LEDs-off exposures: e.g. 2,2,2 (the room twice as bright), 1.3,0.8,1
     /// (light flickering between exposures).
-    #[arg(long, value_parser = parse_ambient, default_value = "1,1,1")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_ambient, default_value = "1,1,1")]
     pub ambient: AmbientScale,
     /// Print JSON instead of the tables.
     #[arg(long)]
@@ -94,10 +94,10 @@ pub struct SkinsArgs {
 #[derive(Debug, clap::Args)]
 pub struct LiveArgs {
     /// Length of the live loop, s (10 minutes shows whether memory stays flat).
-    #[arg(long, default_value_t = 600.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 600.0)]
     pub duration_s: f64,
     /// Camera frame rate (free-running).
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 60.0)]
     pub fps: f64,
     /// LED phase period, ms.
     #[arg(long, default_value_t = 250)]
@@ -106,7 +106,7 @@ pub struct LiveArgs {
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
     pub size: (u32, u32),
     /// Seconds per stage-alone measurement.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3.0)]
     pub stage_s: f64,
     /// Also record to this MCAP file (the recorder's cost included).
     #[arg(long)]

@@ -29,14 +29,14 @@ pub struct Args {
     /// and, in interleaved mode, the LEDs-off frame before each.
     pub dir: PathBuf,
     /// Diameter of the calibration ball.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub ball_diameter_mm: f64,
     /// Image scale.
-    #[arg(long, default_value_t = 15.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 15.0)]
     pub px_per_mm: f64,
     /// Thickness of the sensor's skin, kept in the model: no press goes deeper, so
     /// reconstructions deeper than this are refused (0.1–50).
-    #[arg(long, default_value_t = stereotac::tactile::model::DEFAULT_SKIN_THICKNESS_MM)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = stereotac::tactile::model::DEFAULT_SKIN_THICKNESS_MM)]
     pub skin_thickness_mm: f64,
     /// No-contact dx frame (otherwise the per-pixel median of the pairs).
     #[arg(long, requires = "ref_dy")]
@@ -57,7 +57,7 @@ pub struct Args {
     pub min_presses: usize,
     /// Use this contact threshold instead of measuring it on the frames' flat skin
     /// (normalised-colour units; flat skin reads 0).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub contact_threshold: Option<f32>,
     /// Write each press's dx image with its fitted circle here (green: used, magenta:
     /// set aside), to check the fits by eye.

@@ -54,7 +54,7 @@ pub struct Args {
     /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:
     /// flat skin to the deepest point, at least 0.5 mm). The range is in the picture's
     /// legend and summary.json.
-    #[arg(long, value_name = "auto|LO,HI", value_parser = RangeChoice::parse)]
+    #[arg(long, allow_hyphen_values = true, value_name = "auto|LO,HI", value_parser = RangeChoice::parse)]
     pub colour_range: Option<RangeChoice>,
     /// Also write the depth map as a mesh (depth_mesh.ply: triangles between
     /// neighbouring pixels).

@@ -40,7 +40,7 @@ pub struct Args {
     /// Use a built-in capture instead: a textured plane this many mm away, tilted, seen
     /// through the skin (its inputs and calibration are written to the output directory
     /// too).
-    #[arg(long, conflicts_with_all = ["left", "right", "calib"])]
+    #[arg(long, allow_negative_numbers = true, conflicts_with_all = ["left", "right", "calib"])]
     pub synthetic: Option<f64>,
     /// Output directory (created; one with files in it is refused unless --force).
     #[arg(long)]
@@ -64,7 +64,7 @@ pub struct Args {
     /// Range of depth_colour.png and disparity_colour.png: `auto` (the data's 2nd to 98th
     /// percentiles), `searched` (--near-mm to --far-mm, and the disparities searched) or
     /// `LO,HI` in mm (depth; disparity automatic). Stated in each legend and summary.json.
-    #[arg(long, value_name = "auto|searched|LO,HI", default_value = "auto", value_parser = parse_picture_range)]
+    #[arg(long, allow_hyphen_values = true, value_name = "auto|searched|LO,HI", default_value = "auto", value_parser = parse_picture_range)]
     pub colour_range: PictureRange,
     /// Also write the point cloud as a mesh (mesh.ply: neighbouring pixels joined in
     /// triangles, not across depth steps over 5 %).

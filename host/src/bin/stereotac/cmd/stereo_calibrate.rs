@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, default_value = "8x6")]
     pub board: String,
     /// Side of one square, mm.
-    #[arg(long, default_value_t = 17.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 17.0)]
     pub square_mm: f64,
     /// Lens model of both cameras.
     #[arg(long, value_enum, default_value_t = ModelArg::Fisheye)]

@@ -22,13 +22,13 @@ pub struct Args {
     #[arg(long, default_value_t = 10)]
     pub frames: usize,
     /// Region of interest: this share of each side, centred.
-    #[arg(long, default_value_t = 0.4)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.4)]
     pub roi: f64,
     /// Share of light from the skin (0..1).
-    #[arg(long, default_value_t = Membrane::sensor().haze)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = Membrane::sensor().haze)]
     pub haze: f64,
     /// Sensor noise, grey levels.
-    #[arg(long, default_value_t = Membrane::sensor().noise)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = Membrane::sensor().noise)]
     pub noise: f64,
     /// Cameras: an ideal rectified rig, or the sensor's 160° fisheye pair (raw frames
     /// through the lens model, rectified by the pipeline).
