@@ -87,21 +87,21 @@ impl OutDir {
             path: path.to_path_buf(),
             source,
         };
-        if !path.exists() {
-            let created_parents = path
-                .ancestors()
-                .skip(1)
-                .take_while(|p| !p.as_os_str().is_empty() && !p.exists())
-                .map(Path::to_path_buf)
-                .collect();
+        // `symlink_metadata`: a symlink whose target is missing is there (and is refused
+        // below as unreadable), never made or removed.
+        if std::fs::symlink_metadata(path).is_err() {
+            let mut made = make_dirs(path).map_err(io)?;
+            let created = made.last().is_some_and(|d| d == path);
+            if created {
+                made.pop();
+            }
+            made.reverse();
             let dir = Self {
                 path: path.to_path_buf(),
-                created: true,
-                created_parents,
+                created,
+                created_parents: made,
                 kept: false,
             };
-            // Made after `dir` exists, so a failure half-way removes what was made.
-            std::fs::create_dir_all(path).map_err(io)?;
             dir.mark(replace)?;
             return Ok(dir);
         }
@@ -159,6 +159,32 @@ impl OutDir {
     }
 }
 
+/// Makes `path` and the folders above it that are missing, one level at a time; returns
+/// the folders this call made, outermost first (only those: a path through `..` or a
+/// folder made meanwhile by someone else never counts another's folder as ours). On an
+/// error the folders made are removed again.
+fn make_dirs(path: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut made = Vec::new();
+    let mut prefix = PathBuf::new();
+    for component in path.components() {
+        prefix.push(component);
+        if std::fs::symlink_metadata(&prefix).is_ok() {
+            continue;
+        }
+        match std::fs::create_dir(&prefix) {
+            Ok(()) => made.push(prefix.clone()),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => {
+                for d in made.iter().rev() {
+                    let _ = std::fs::remove_dir(d);
+                }
+                return Err(e);
+            }
+        }
+    }
+    Ok(made)
+}
+
 impl Drop for OutDir {
     fn drop(&mut self) {
         if self.created && !self.kept {
@@ -197,6 +223,35 @@ mod tests {
         std::fs::write(d.join("a/other.txt"), b"x").unwrap();
         drop(dir);
         assert!(!d.join("a/b").exists() && d.join("a/other.txt").exists());
+        // An empty parent that was there before stays; so does a user's folder reached
+        // through `..` (it was there: not made by the run).
+        std::fs::create_dir_all(d.join("empty")).unwrap();
+        drop(OutDir::prepare(&d.join("empty/x/y"), Replace::Never).unwrap());
+        assert!(d.join("empty").is_dir() && !d.join("empty/x").exists());
+        std::fs::create_dir_all(d.join("users")).unwrap();
+        drop(OutDir::prepare(&d.join("new/../users/run"), Replace::Never).unwrap());
+        assert!(d.join("users").is_dir() && !d.join("users/run").exists());
+        assert!(
+            !d.join("new").exists(),
+            "the folder made on the way goes too"
+        );
+        // A symlink whose target is missing is refused, and left in place.
+        #[cfg(unix)]
+        {
+            let link = d.join("dangling");
+            std::os::unix::fs::symlink(d.join("unmounted/out"), &link).unwrap();
+            assert!(OutDir::prepare(&link, Replace::Never).is_err());
+            assert!(
+                std::fs::symlink_metadata(&link).is_ok(),
+                "the link was removed"
+            );
+            let inside = link.join("run");
+            assert!(OutDir::prepare(&inside, Replace::Never).is_err());
+            assert!(
+                std::fs::symlink_metadata(&link).is_ok(),
+                "the link was removed"
+            );
+        }
         let dir = OutDir::prepare(&d.join("c"), Replace::Never).unwrap();
         std::fs::write(dir.path().join("depth.npy"), b"x").unwrap();
         assert_eq!(dir.keep(), d.join("c"));

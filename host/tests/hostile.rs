@@ -252,6 +252,24 @@ fn arguments() {
         ],
         &["-10", "all positive"],
     );
+    // Options whose values may start with '-' do not take the next flag as their value
+    // without saying so.
+    refused(
+        &[
+            "stereo",
+            "--synthetic",
+            "150",
+            "--colour-range",
+            "--mesh",
+            "--out-dir",
+            s(&scaled),
+        ],
+        &["--mesh", "another flag"],
+    );
+    refused(
+        &["bench", "live", "--stage-s", "-1"],
+        &["--stage-s must be"],
+    );
     // Refused before the (empty) directory is even read.
     for (flag, value, says) in [
         ("--px-per-mm", "1e9", "px/mm"),

@@ -226,6 +226,12 @@ pub fn run(
             "--duration-s must be positive".into(),
         ));
     }
+    if !(options.stage_s.is_finite() && (0.1..=3600.0).contains(&options.stage_s)) {
+        return Err(LiveBenchError::Options(format!(
+            "--stage-s must be 0.1 to 3600 seconds, got {}",
+            options.stage_s
+        )));
+    }
     progress(LiveBenchProgress::Calibrating);
     let optics = Optics::resolution(w as usize, h as usize);
     let (calibration, refs) = builtin_calibration(&optics, BUILTIN_PRESSES, |_| {})?;
@@ -245,7 +251,7 @@ pub fn run(
     let views = stereo_rig.dark_views();
 
     progress(LiveBenchProgress::Stages);
-    let stage_time = Duration::from_secs_f64(options.stage_s.max(0.1));
+    let stage_time = Duration::from_secs_f64(options.stage_s);
     let mut tactile = TactileStage::new(reconstructor.fresh(), px_per_mm, StampRef::ExposureStart);
     let pair = GradientPair {
         dx: labelled(scenes[0].of(stereotac_protocol::Phase::Dx).clone()),

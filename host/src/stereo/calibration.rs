@@ -786,8 +786,8 @@ impl StereoCalibration {
             return Err(CalibError::Inconsistent(format!(
                 "{both}: the cameras use different lens models (left {}, right {}): calibrate \
                  both with one model",
-                left.distortion.model_name(),
-                right.distortion.model_name()
+                left.distortion.model_label(),
+                right.distortion.model_label()
             )));
         }
         if !t.iter().all(|v| v.is_finite()) || t.norm() == 0.0 {
@@ -1082,7 +1082,8 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.starts_with("l.yaml and r.yaml: ") && e.contains("left fisheye, right plumb_bob"),
+            e.starts_with("l.yaml and r.yaml: ")
+                && e.contains("left Kannala–Brandt (fisheye, equidistant), right Brown–Conrady"),
             "{e}"
         );
         // Swapped files are refused.

@@ -25,11 +25,20 @@ impl Distortion {
     /// No distortion (a pinhole).
     pub const NONE: Distortion = Distortion::BrownConrady([0.0; 8]);
 
-    /// The model's name as ROS writes it (`distortion_model`).
+    /// The model's name as this crate's OpenCV YAML writes it (`plumb_bob` or
+    /// `fisheye`; ROS files call the fisheye model `equidistant`).
     pub fn model_name(&self) -> &'static str {
         match self {
             Distortion::BrownConrady(_) => "plumb_bob",
             Distortion::KannalaBrandt(_) => "fisheye",
+        }
+    }
+
+    /// The model for messages, with the names files give it.
+    pub fn model_label(&self) -> &'static str {
+        match self {
+            Distortion::BrownConrady(_) => "Brown–Conrady (plumb_bob, rational_polynomial)",
+            Distortion::KannalaBrandt(_) => "Kannala–Brandt (fisheye, equidistant)",
         }
     }
 

@@ -95,6 +95,18 @@ pub fn parse_duration_s(s: &str) -> Result<f64, String> {
     }
 }
 
+/// Refuses a value that is another flag: options whose values may start with `-` (a
+/// range from below zero) would otherwise take `--mesh` in `--colour-range --mesh` as
+/// their value, and say only that it is not a range.
+pub fn not_a_flag(text: &str, wanted: &str) -> Result<(), String> {
+    if text.starts_with("--") {
+        return Err(format!(
+            "that is another flag, not a value: give this option its value first ({wanted})"
+        ));
+    }
+    Ok(())
+}
+
 /// Parses a frame size `WxH` (64 to 8192 pixels a side).
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s

@@ -33,17 +33,22 @@ pub fn spinner(what: &str) -> ProgressBar {
 }
 
 /// The simulated sensor's built-in calibration (the demo's, and `run --sim`'s model when
-/// none is given), with a progress bar.
-pub fn builtin_calibration(optics: &Optics) -> Result<(Calibration, (RgbImage, RgbImage))> {
+/// none is given), with a progress bar; `instead` says how to skip it (the command's own
+/// flag), when the command has one.
+pub fn builtin_calibration(
+    optics: &Optics,
+    instead: Option<&str>,
+) -> Result<(Calibration, (RgbImage, RgbImage))> {
     let epochs = CalibrationSettings::default().mlp.epochs;
     let progress = bar((BUILTIN_PRESSES + 2 * epochs) as u64, "calibrating");
     // Without a terminal the bar is not drawn: say what the wait is (it was ~10 s of
     // silence before the first line).
     let started = std::time::Instant::now();
     if progress.is_hidden() {
+        let instead = instead.map(|i| format!(" ({i})")).unwrap_or_default();
         eprintln!(
             "calibrating the simulated sensor's built-in tactile model from {BUILTIN_PRESSES} \
-             rendered ball presses (give --model FILE to use your own)..."
+             rendered ball presses{instead}..."
         );
     }
     let calibration = synthetic::builtin_calibration(optics, BUILTIN_PRESSES, |p| match p {

@@ -434,16 +434,21 @@ pub fn calibrate(
     // A press with a frame without LED light, or its phases swapped, is set aside first,
     // saying so: its colours would otherwise count in the flat skin's noise below, and
     // it would be rejected as "no contact found" or "larger than the ball".
-    let mut rejected = Vec::new();
+    // Each set-aside press with its index, to list them in the presses' order (names
+    // may repeat).
+    let mut set_aside: Vec<(usize, RejectedPress)> = Vec::new();
     let mut candidates = Vec::with_capacity(pairs.len());
     for (i, pair) in pairs.iter().enumerate() {
         match phase_check::check_pair(&pair.dx, &pair.dy, &settings.filter, "press") {
             Ok(()) => candidates.push(i),
-            Err(e) => rejected.push(RejectedPress {
-                name: pair.name.clone(),
-                circle: None,
-                reason: Rejection::NotPhasePair { why: e.to_string() },
-            }),
+            Err(e) => set_aside.push((
+                i,
+                RejectedPress {
+                    name: pair.name.clone(),
+                    circle: None,
+                    reason: Rejection::NotPhasePair { why: e.to_string() },
+                },
+            )),
         }
     }
 
@@ -506,11 +511,23 @@ pub fn calibrate(
             noise = measured;
         }
         Some(n) if contact_params.threshold < n.p9999 => {
+            let fix = if n.threshold > n.p9999 {
+                format!(
+                    "give at least {:.3} (the threshold measured here), or leave it to be \
+                     measured",
+                    n.threshold
+                )
+            } else {
+                // The measured one is held at the bound, itself within the noise.
+                "this skin is noisier than any threshold up to the bound: check the \
+                 reference frames and the light"
+                    .to_string()
+            };
             fixed_warning = Some(format!(
                 "the contact threshold given ({:.3}) is below how far flat skin departs from \
                  the references in these frames ({:.3}, 99.99th percentile): a skin at rest \
-                 will read as contact in places; the threshold measured here is {:.3}",
-                contact_params.threshold, n.p9999, n.threshold
+                 will read as contact in places; {fix}",
+                contact_params.threshold, n.p9999
             ));
         }
         _ => {}
@@ -557,13 +574,16 @@ pub fn calibrate(
                 (circle, false, f.rms_px)
             }
             (None, None) => {
-                rejected.push(RejectedPress {
-                    name: pair.name.clone(),
-                    circle: None,
-                    reason: Rejection::NoContact {
-                        threshold: outline_threshold,
+                set_aside.push((
+                    index,
+                    RejectedPress {
+                        name: pair.name.clone(),
+                        circle: None,
+                        reason: Rejection::NoContact {
+                            threshold: outline_threshold,
+                        },
                     },
-                });
+                ));
                 continue;
             }
         };
@@ -602,11 +622,14 @@ pub fn calibrate(
             })
         });
         if let Some(reason) = reason {
-            rejected.push(RejectedPress {
-                name: pair.name.clone(),
-                circle: Some(circle),
-                reason,
-            });
+            set_aside.push((
+                index,
+                RejectedPress {
+                    name: pair.name.clone(),
+                    circle: Some(circle),
+                    reason,
+                },
+            ));
             continue;
         }
         presses.push(PressFit {
@@ -620,8 +643,8 @@ pub fn calibrate(
         used.push(pair);
     }
     // In the presses' order (those without LED light were set aside first).
-    let order = |name: &str| pairs.iter().position(|p| p.name == name);
-    rejected.sort_by_cached_key(|r| order(&r.name));
+    set_aside.sort_by_key(|(index, _)| *index);
+    let rejected: Vec<RejectedPress> = set_aside.into_iter().map(|(_, r)| r).collect();
     if presses.len() < settings.min_presses.max(1) {
         return Err(CalibrationError::TooFewPresses {
             good: presses.len(),

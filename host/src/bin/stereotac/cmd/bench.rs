@@ -240,6 +240,7 @@ fn parse_ball_mm(s: &str) -> Result<f64, String> {
 
 /// `DX,DY,DARK` ambient scales, each finite and non-negative.
 fn parse_ambient(s: &str) -> Result<AmbientScale, String> {
+    crate::args::not_a_flag(s, "DX,DY,DARK")?;
     let v: Vec<f64> = s
         .split(',')
         .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))

@@ -289,7 +289,7 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
         fit.map_or(f64::NAN, |f| f.drift_ppm()),
     );
 
-    let (calibration, refs) = builtin_calibration(&optics)?;
+    let (calibration, refs) = builtin_calibration(&optics, None)?;
     let fit = calibration.model.fit;
     println!(
         "calibrated on {BUILTIN_PRESSES} simulated {CALIBRATION_BALL_MM} mm ball presses: slope RMS lut {:.3} (held-out {:.3}), mlp {:.3} (held-out {:.3}), light {:.3} (held-out {:.3})",

@@ -54,7 +54,7 @@ pub struct Args {
     /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:
     /// flat skin to the deepest point, at least 0.5 mm). The range is in the picture's
     /// legend and summary.json.
-    #[arg(long, allow_hyphen_values = true, value_name = "auto|LO,HI", value_parser = RangeChoice::parse)]
+    #[arg(long, allow_hyphen_values = true, value_name = "auto|LO,HI", value_parser = parse_colour_range)]
     pub colour_range: Option<RangeChoice>,
     /// Also write the depth map as a mesh (depth_mesh.ply: triangles between
     /// neighbouring pixels).
@@ -141,4 +141,10 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--colour-range`: `auto` or `LO,HI` ([`RangeChoice::parse`]), never another flag.
+fn parse_colour_range(text: &str) -> Result<RangeChoice, String> {
+    crate::args::not_a_flag(text, "auto or LO,HI")?;
+    RangeChoice::parse(text)
 }

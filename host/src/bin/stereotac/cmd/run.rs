@@ -65,7 +65,10 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 static_ambient: a.stages.static_ambient,
             },
             None if all_sim => {
-                let (calibration, references) = builtin_calibration(&a.cameras.sim_optics())?;
+                let (calibration, references) = builtin_calibration(
+                    &a.cameras.sim_optics(),
+                    Some("give --model FILE to use your own"),
+                )?;
                 TactileSetup {
                     model: calibration.model,
                     references: Some(references),

@@ -192,6 +192,7 @@ fn print_summary(dir: &Path, s: &StereoSummary) {
 
 /// `--colour-range`: `auto`, `searched` or `LO,HI` (mm).
 fn parse_picture_range(text: &str) -> Result<PictureRange, String> {
+    crate::args::not_a_flag(text, "auto, searched or LO,HI")?;
     if text.trim().eq_ignore_ascii_case("searched") {
         return Ok(PictureRange::Searched);
     }
