@@ -73,6 +73,31 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
         || matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
 }
 
+/// What `path` holds when it is data a written file must never replace, even with
+/// `--force` (a recording, a camera frame, a point cloud): the kind, read from the
+/// file's first bytes. `None` for anything else, or no file.
+pub fn holds_data(path: &Path) -> Option<&'static str> {
+    use std::io::Read;
+    if path.is_dir() {
+        return Some("a folder");
+    }
+    let mut head = [0u8; 8];
+    let mut file = std::fs::File::open(path).ok()?;
+    let n = file.read(&mut head).ok()?;
+    let head = &head[..n];
+    if head.starts_with(b"\x89MCAP") {
+        Some("an MCAP recording")
+    } else if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Some("a PNG image")
+    } else if head.starts_with(b"\x93NUMPY") {
+        Some("a NumPy array")
+    } else if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
+        Some("a PLY point cloud")
+    } else {
+        None
+    }
+}
+
 /// `p` made absolute with `.` and `..` taken out, without asking the file system.
 fn lexical(p: &Path) -> Option<PathBuf> {
     use std::path::Component;
@@ -380,6 +405,37 @@ pub fn write_points_ply(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn data_files_are_told_by_their_first_bytes() {
+        let dir = std::env::temp_dir().join(format!("stereotac-holds-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = |name: &str, bytes: &[u8]| {
+            let p = dir.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        // Named by what they hold, whatever their names say.
+        let mcap = file("model.json", b"\x89MCAP0\r\n...");
+        assert_eq!(holds_data(&mcap), Some("an MCAP recording"));
+        let png = file("a.json", b"\x89PNG\r\n\x1a\n....");
+        assert_eq!(holds_data(&png), Some("a PNG image"));
+        assert_eq!(
+            holds_data(&file("d.npy", b"\x93NUMPY\x01\x00")),
+            Some("a NumPy array")
+        );
+        assert_eq!(
+            holds_data(&file("c.ply", b"ply\nformat")),
+            Some("a PLY point cloud")
+        );
+        assert_eq!(holds_data(&dir), Some("a folder"));
+        // A model, a short file, an empty one and no file are not data.
+        assert_eq!(holds_data(&file("m.json", b"{\"format\": 1}")), None);
+        assert_eq!(holds_data(&file("short", b"\x89")), None);
+        assert_eq!(holds_data(&file("empty", b"")), None);
+        assert_eq!(holds_data(&dir.join("absent")), None);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn same_file_sees_one_file_named_two_ways() {

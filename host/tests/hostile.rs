@@ -270,6 +270,54 @@ fn arguments() {
         &["bench", "live", "--stage-s", "-1"],
         &["--stage-s must be"],
     );
+    // A model or report is never written over a recording or an image, even with
+    // --force (the input recording, given as --out by a slip, became a model file).
+    let recording = dir.join("presses.mcap");
+    let frame = dir.join("p_dx.png");
+    std::fs::write(&recording, b"\x89MCAP0\r\nrecorded frames").unwrap();
+    RgbImage::new(4, 4).save(&frame).unwrap();
+    for (flag, target) in [("--out", &recording), ("--report", &frame)] {
+        let mut args = vec!["calibrate", s(&dir), "--ball-diameter-mm", "8", "--force"];
+        if flag == "--report" {
+            args.extend(["--out", "unused-model.json"]);
+        }
+        args.extend([flag, s(target)]);
+        refused(&args, &["never written over it, even with --force"]);
+    }
+    assert_eq!(
+        std::fs::read(&recording).unwrap(),
+        b"\x89MCAP0\r\nrecorded frames"
+    );
+    assert!(image::open(&frame).is_ok());
+    // A sequence the sensor refuses leaves no recording behind (a header-only file was
+    // left, and refused as existing on the next try).
+    let refused_rec = dir.join("refused.mcap");
+    refused(
+        &[
+            "--sim",
+            "record",
+            "--out",
+            s(&refused_rec),
+            "--period-ms",
+            "4294967295",
+        ],
+        &["--period-ms 4294967295", "1 to 60000"],
+    );
+    assert!(!refused_rec.exists(), "a refused start left its recording");
+    // `run` refuses a recording that exists before it calibrates a built-in model.
+    refused(
+        &[
+            "--sim",
+            "run",
+            "--camera",
+            "sim",
+            "--duration-s",
+            "1",
+            "--mcap",
+            s(&recording),
+        ],
+        &["exists already"],
+    );
     // Refused before the (empty) directory is even read.
     for (flag, value, says) in [
         ("--px-per-mm", "1e9", "px/mm"),

@@ -234,7 +234,11 @@ fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
         .unwrap()
         .to_rgb8();
     assert_eq!(dx.dimensions(), (320, 240));
+    // A folder with files in it is refused before anything is written; with --force
+    // it is written into, but no file is ever replaced.
     let (ok, _, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs)]);
+    assert!(!ok && err.contains("--force"), "{err}");
+    let (ok, _, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs), "--force"]);
     assert!(!ok && err.contains("never overwritten"), "{err}");
 
     // calibrate takes the recording itself (its objects are not ball presses: the

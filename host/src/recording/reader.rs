@@ -182,7 +182,21 @@ impl RecordingReader {
 
     fn advance(&mut self) -> Option<Result<Record, RecordingError>> {
         loop {
-            let event = match self.reader.next_event()? {
+            let Some(event) = self.reader.next_event() else {
+                // The end. Bytes left after the closing magic are another file appended
+                // to this one (`cat a.mcap b.mcap`): said, as nothing of them is read.
+                if self.read_bytes < self.len && self.truncated.is_none() {
+                    self.truncated = Some(format!(
+                        "the recording ends at byte {} of {}: the {} bytes after its closing \
+                         magic (another file appended to it?) were not read",
+                        self.read_bytes,
+                        self.len,
+                        self.len - self.read_bytes
+                    ));
+                }
+                return None;
+            };
+            let event = match event {
                 Ok(e) => e,
                 Err(mcap::McapError::UnexpectedEof) => {
                     self.truncated = Some(format!(
@@ -330,6 +344,9 @@ pub struct RecordingHeader {
     pub metadata: BTreeMap<String, BTreeMap<String, String>>,
     /// Attachments.
     pub attachments: BTreeMap<String, Vec<u8>>,
+    /// Why the file ended early, when [`header`] found it so (its tactile model or
+    /// stereo calibration may be in the part that is missing).
+    pub truncated: Option<String>,
 }
 
 /// Everything in a recording by kind, in order: frames (image joined with its label),
@@ -464,6 +481,7 @@ pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
             Record::Message { .. } => {}
         }
     }
+    header.truncated = reader.truncated().map(str::to_string);
     Ok(header)
 }
 
@@ -699,6 +717,19 @@ mod tests {
             "message {read} at byte {at}, the damage at {middle}"
         );
         let _ = std::fs::remove_file(damaged);
+        // Two recordings one after the other: the first is read whole, and the bytes
+        // after it are said (`cat` of two files was read as the first with no word).
+        let whole = std::fs::read(&path).unwrap();
+        let twice = path.with_extension("twice.mcap");
+        std::fs::write(&twice, [whole.as_slice(), whole.as_slice()].concat()).unwrap();
+        let mut s = stream(&twice, 4);
+        assert_eq!(s.by_ref().map(Result::unwrap).count(), 50);
+        let note = s.truncated().expect("the appended file is said");
+        assert!(note.contains("were not read"), "{note}");
+        let mut s = stream(&path, 4);
+        assert_eq!(s.by_ref().count(), 50);
+        assert_eq!(s.truncated(), None, "a whole file has no note");
+        let _ = std::fs::remove_file(twice);
         let e = stream(&path.with_extension("missing.mcap"), 4)
             .next()
             .unwrap()

@@ -58,7 +58,13 @@ impl SequenceArgs {
         }
         sensor
             .start_sequence(self.mode.into(), self.period_ms.saturating_mul(1000))
-            .context("starting the sequence")
+            .with_context(|| {
+                format!(
+                    "starting the sequence with --period-ms {} (stereotac's firmware takes \
+                     1 to 60000)",
+                    self.period_ms
+                )
+            })
     }
 
     /// When to stop, on the sensor's host clock (`None`: until Ctrl-C).

@@ -30,6 +30,30 @@ pub fn interrupt_flag() -> Result<Arc<AtomicBool>> {
     Ok(flag)
 }
 
+/// A file grown past the process's size limit (`ulimit -f`) makes the write fail with
+/// an error each command reports (naming the file, finishing what it can) instead of
+/// SIGXFSZ killing the process without a word.
+pub fn write_errors_not_signals() {
+    #[cfg(target_os = "linux")]
+    #[allow(unsafe_code)]
+    // SAFETY: setting a signal's disposition to "ignore" before any thread starts;
+    // SIGXFSZ has no handler of ours to race with.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}
+
+/// `e`, said to be about `path` (`doing` it) unless it names the file already: the
+/// library's errors about a file mostly do, and "reading X: X: …" reads badly.
+pub fn naming_file(e: impl Into<anyhow::Error>, doing: &str, path: &Path) -> anyhow::Error {
+    let e = e.into();
+    if format!("{e:#}").contains(&path.display().to_string()) {
+        e
+    } else {
+        e.context(format!("{doing} {}", path.display()))
+    }
+}
+
 /// `report` as pretty JSON, also written to `out` when given.
 pub fn json_report<T: Serialize + ?Sized>(report: &T, out: Option<&Path>) -> Result<String> {
     let json = serde_json::to_string_pretty(report)?;

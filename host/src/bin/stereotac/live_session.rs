@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
+use stereotac::clock::HostMicros;
 use stereotac::frames::FrameSource;
 use stereotac::live::session::Session;
 use stereotac::matcher::MatcherConfig;
@@ -87,6 +88,29 @@ pub fn start(
 }
 
 impl Live {
+    /// Starts the LED sequence and gives the run's deadline. When the sensor refuses the
+    /// sequence (a phase period it cannot do, say) nothing has been recorded: the
+    /// recording's file, holding only its header, is removed again, so the name stays
+    /// free for the next try (it was left behind, and refused as existing).
+    pub fn start_sequence(mut self, sequence: &SequenceArgs) -> Result<(Self, Option<HostMicros>)> {
+        let sensor = &mut self.opened.sensor;
+        match sequence
+            .start(sensor)
+            .and_then(|()| sequence.deadline(sensor))
+        {
+            Ok(end) => Ok((self, end)),
+            Err(e) => {
+                if let Ok(RecordingSummary {
+                    path: Some(path), ..
+                }) = self.recorder.finish()
+                {
+                    let _ = std::fs::remove_file(path);
+                }
+                Err(e)
+            }
+        }
+    }
+
     /// The recording's metadata: what ran, on which sensor, with which cameras.
     fn header(
         &self,

@@ -170,6 +170,7 @@ fn parser() -> clap::Command {
 
 fn main() -> ExitCode {
     allocator::keep_frame_buffers();
+    console::write_errors_not_signals();
     let matches = parser().get_matches();
     let name = matches.subcommand_name().unwrap_or_default().to_string();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stereotac::out_dir::{OutDir, Replace};
-use stereotac::output::{same_file, write_atomic};
+use stereotac::output::{holds_data, same_file, write_atomic};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
@@ -19,6 +19,7 @@ use stereotac::tactile::calibrate::{
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::images::{load_pairs, load_references, load_rgb};
 
+use crate::console::naming_file;
 use crate::progress::bar;
 
 /// `stereotac calibrate`.
@@ -80,6 +81,15 @@ pub fn run(a: Args) -> Result<()> {
     for (path, flag) in
         std::iter::once((&a.out, "--out")).chain(a.report.iter().map(|r| (r, "--report")))
     {
+        // Not even with --force: a JSON file written over a recording or a frame (the
+        // input itself, given as --out by a slip) loses the data.
+        if let Some(kind) = holds_data(path) {
+            anyhow::bail!(
+                "{flag} {} is {kind}: a model or report is never written over it, even with \
+                 --force; choose another {flag} (e.g. model.json)",
+                path.display()
+            );
+        }
         anyhow::ensure!(
             a.force || !path.exists(),
             "{} exists: pass --force to replace it, or choose another {flag}",
@@ -132,7 +142,20 @@ pub fn run(a: Args) -> Result<()> {
     let pairs = if a.dir.is_file() {
         recorded_pairs(&a.dir)?
     } else {
-        load_pairs(&a.dir)?
+        load_pairs(&a.dir).map_err(|e| {
+            let e = anyhow::Error::from(e);
+            // A `record --png` folder: frames with an index, not named pairs.
+            if a.dir.join("index.jsonl").is_file() {
+                e.context(format!(
+                    "{} is a `record --png` folder: calibrate takes NAME_dx.png / NAME_dy.png \
+                     pairs or an MCAP recording; record the presses to MCAP (`record --out \
+                     presses.mcap`) and give that file, or `export` it to pairs",
+                    a.dir.display()
+                ))
+            } else {
+                e
+            }
+        })?
     };
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
@@ -281,7 +304,7 @@ fn recorded_pairs(path: &std::path::Path) -> Result<Vec<CalibrationPair>> {
         }
         Ok(())
     })
-    .with_context(|| format!("reading {}", path.display()))?;
+    .map_err(|e| naming_file(e, "reading", path))?;
     if let Some(why) = truncated {
         eprintln!("warning: {}: {why}", path.display());
     }

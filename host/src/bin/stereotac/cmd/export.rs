@@ -17,16 +17,23 @@ use crate::progress::spinner;
 pub struct Args {
     /// The recording (MCAP).
     pub recording: PathBuf,
-    /// Directory to write the pairs into (created; existing files are never
-    /// overwritten).
+    /// Directory to write the pairs into (created; one with files in it only with
+    /// --force; existing files are never overwritten).
     #[arg(long, value_name = "DIR")]
     pub pairs: PathBuf,
+    /// Write into a directory that already has files (existing files are still never
+    /// overwritten: pairs of two recordings in one folder are read as one set by
+    /// `calibrate` and `reconstruct`).
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    // Existing files are never replaced (each is created new), so a folder with files in
-    // it is fine; one this run made goes again if the export fails.
-    let out = OutDir::prepare(&a.pairs, Replace::Force)?;
+    // A folder with files in it only with --force: another recording's pairs beside
+    // these would be read as one set of presses or frames (and the export would stop at
+    // the first name both share, half written). Existing files are never replaced (each
+    // is created new); a folder this run made goes again if the export fails.
+    let out = OutDir::prepare(&a.pairs, Replace::force_if(a.force))?;
     let progress = spinner("exporting");
     let (mut gradient, mut stereo) = (0u64, 0u64);
     let truncated = pairs(&a.recording, |pair| -> Result<()> {

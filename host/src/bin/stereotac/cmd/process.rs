@@ -7,6 +7,7 @@
 use std::collections::BTreeMap;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
+use std::sync::atomic::Ordering;
 
 use anyhow::{Context, Result, bail};
 use foxglove::Decode;
@@ -19,6 +20,7 @@ use stereotac::recording::writer::{Item, Recorder, RecorderOptions};
 use stereotac::stereo::StereoCalibration;
 use stereotac::tactile::model::TactileModel;
 
+use crate::console::{interrupt_flag, naming_file};
 use crate::live_report::Report;
 use crate::progress::bar;
 use crate::stages::{
@@ -49,8 +51,21 @@ pub struct Args {
 const BATCH: usize = 16;
 
 pub fn run(a: Args) -> Result<()> {
-    let header = reader::header(&a.recording)
-        .with_context(|| format!("reading {}", a.recording.display()))?;
+    // Ctrl-C or SIGTERM stops the reading; what was read is processed and the output
+    // file finished, then the run says where it stopped (a killed run left a cut output
+    // and no word).
+    let stop = interrupt_flag()?;
+    let mut interrupted_at = None;
+    if a.recording.is_dir() {
+        bail!(
+            "{} is a folder: `process` reads an MCAP recording (`record --out FILE.mcap`, \
+             `run --mcap`); a `record --png` folder's frames are PNG files with an \
+             index.jsonl, not pairs process can take",
+            a.recording.display()
+        );
+    }
+    let header =
+        reader::header(&a.recording).map_err(|e| naming_file(e, "reading", &a.recording))?;
     let (tactile, stereo) = setups(&a, &header)?;
     let run_meta = header.metadata.get(topics::META_RECORDING);
     let mode = run_meta.and_then(|m| describe::mode_named(m.get("mode")?));
@@ -65,8 +80,14 @@ pub fn run(a: Args) -> Result<()> {
         })?;
     }
     if tactile.is_none() && stereo.is_none() {
+        // A file cut short may have lost them with the rest: said first.
+        let cut = header
+            .truncated
+            .as_ref()
+            .map(|why| format!(" (the file is cut short: {why})"))
+            .unwrap_or_default();
         bail!(
-            "{}: nothing to process: it holds no tactile model and no stereo calibration; \
+            "{}: nothing to process: it holds no tactile model and no stereo calibration{cut}; \
              give --model FILE (dx/dy pairs → tactile depth) or --calib FILE (two cameras' \
              dark frames → stereo depth)",
             a.recording.display()
@@ -153,6 +174,10 @@ pub fn run(a: Args) -> Result<()> {
         |content, (done, len)| -> Result<ControlFlow<()>> {
             progress.set_length(len.max(1));
             progress.set_position(done);
+            if stop.load(Ordering::SeqCst) {
+                interrupted_at = Some((done, len));
+                return Ok(ControlFlow::Break(()));
+            }
             let frame = match content {
                 Content::Frame(f) => f,
                 Content::Other(Record::Message {
@@ -199,7 +224,7 @@ pub fn run(a: Args) -> Result<()> {
             Ok(ControlFlow::Continue(()))
         },
     );
-    let (_, truncated) = read.with_context(|| format!("processing {}", a.recording.display()))?;
+    let (_, truncated) = read.map_err(|e| naming_file(e, "processing", &a.recording))?;
     if stdout_open {
         flush(&mut jobs, &mut pipeline, dropped)?;
     }
@@ -231,6 +256,14 @@ pub fn run(a: Args) -> Result<()> {
             path.display(),
             summary.bytes as f64 / (1 << 20) as f64,
             summary.messages.values().sum::<u64>()
+        );
+    }
+    if let Some((done, len)) = interrupted_at {
+        bail!(
+            "interrupted after {:.0}% of {} ({done} of {len} bytes read): the output holds \
+             the pairs read until then, and is a complete file",
+            100.0 * done as f64 / len.max(1) as f64,
+            a.recording.display()
         );
     }
     Ok(())

@@ -165,7 +165,7 @@ pub fn run(a: Args) -> Result<()> {
 /// The default: one MCAP file, through the live loop with no stage on (the same clean
 /// stop as `run` on a signal or a failed camera).
 fn record_mcap(a: Args, stop: &AtomicBool) -> Result<()> {
-    let mut live = live_session::start(
+    let live = live_session::start(
         "record",
         &a.device,
         &a.cameras,
@@ -176,12 +176,9 @@ fn record_mcap(a: Args, stop: &AtomicBool) -> Result<()> {
         },
         |_| Ok(()),
     )?;
+    let (mut live, end_us) = live.start_sequence(&a.sequence)?;
     let sensor = &mut live.opened.sensor;
-    a.sequence.start(sensor)?;
-    let until = Until {
-        flag: stop,
-        end_us: a.sequence.deadline(sensor)?,
-    };
+    let until = Until { flag: stop, end_us };
     let mut hooks = Progress {
         bar: spinner("recording"),
         frames: 0,

@@ -145,8 +145,17 @@ pub fn run(a: Args) -> Result<()> {
     if a.cameras.cameras.len() > 4 {
         bail!("at most 4 cameras ({} given)", a.cameras.cameras.len());
     }
+    // Said before a built-in model calibrates (~10 s), not after: the recorder would
+    // refuse the file then anyway.
+    if let Some(path) = a
+        .mcap
+        .as_ref()
+        .filter(|p| std::fs::symlink_metadata(p).is_ok())
+    {
+        return Err(stereotac::recording::RecordingError::Exists(path.clone()).into());
+    }
     let (tactile, stereo) = setups(&a)?;
-    let mut live = live_session::start(
+    let live = live_session::start(
         "run",
         &a.device,
         &a.cameras,
@@ -187,11 +196,11 @@ pub fn run(a: Args) -> Result<()> {
         tactile: tactile.as_ref(),
         stereo: stereo.as_ref(),
     };
+    let (mut live, end_us) = live.start_sequence(&a.sequence)?;
     let sensor = &mut live.opened.sensor;
-    a.sequence.start(sensor)?;
     let until = Until {
         flag: &stop,
-        end_us: a.sequence.deadline(sensor)?,
+        end_us,
     };
     let stopped = runner::run(
         &mut live.session,
