@@ -89,21 +89,28 @@ impl OutDir {
         };
         // `symlink_metadata`: a symlink whose target is missing is there (and is refused
         // below as unreadable), never made or removed.
+        let mut dir = Self {
+            path: path.to_path_buf(),
+            created: false,
+            created_parents: Vec::new(),
+            kept: false,
+        };
         if std::fs::symlink_metadata(path).is_err() {
             let mut made = make_dirs(path).map_err(io)?;
-            let created = made.last().is_some_and(|d| d == path);
-            if created {
+            dir.created = made.last().is_some_and(|d| d == path);
+            if dir.created {
                 made.pop();
             }
             made.reverse();
-            let dir = Self {
-                path: path.to_path_buf(),
-                created,
-                created_parents: made,
-                kept: false,
-            };
-            dir.mark(replace)?;
-            return Ok(dir);
+            // Dropped on a refusal below, `dir` removes what was made.
+            dir.created_parents = made;
+            if dir.created {
+                dir.mark(replace)?;
+                return Ok(dir);
+            }
+            // Not made by this run although it was not there as written (`new/../old`
+            // reaches a folder that was, or one appeared meanwhile): checked as any
+            // folder that was there.
         }
         let entries: Vec<String> = std::fs::read_dir(path)
             .map_err(io)?
@@ -127,12 +134,6 @@ impl OutDir {
                 forcible: replace != Replace::Never,
             });
         }
-        let dir = Self {
-            path: path.to_path_buf(),
-            created: false,
-            created_parents: Vec::new(),
-            kept: false,
-        };
         dir.mark(replace)?;
         Ok(dir)
     }
@@ -187,13 +188,16 @@ fn make_dirs(path: &Path) -> std::io::Result<Vec<PathBuf>> {
 
 impl Drop for OutDir {
     fn drop(&mut self) {
-        if self.created && !self.kept {
+        if self.kept {
+            return;
+        }
+        if self.created {
             let _ = std::fs::remove_dir_all(&self.path);
-            // Only while empty: something else may have been put there meanwhile.
-            for parent in &self.created_parents {
-                if std::fs::remove_dir(parent).is_err() {
-                    break;
-                }
+        }
+        // Only while empty: something else may have been put there meanwhile.
+        for parent in &self.created_parents {
+            if std::fs::remove_dir(parent).is_err() {
+                break;
             }
         }
     }
@@ -235,6 +239,12 @@ mod tests {
             !d.join("new").exists(),
             "the folder made on the way goes too"
         );
+        // Reached that way, a folder with files in it is refused as any other (the first
+        // version wrote into it without --force), and the folder made on the way goes.
+        std::fs::write(d.join("users/keep.txt"), b"x").unwrap();
+        let e = OutDir::prepare(&d.join("new2/../users"), Replace::NotForced).unwrap_err();
+        assert!(e.to_string().contains("--force"), "{e}");
+        assert!(!d.join("new2").exists() && d.join("users/keep.txt").exists());
         // A symlink whose target is missing is refused, and left in place.
         #[cfg(unix)]
         {

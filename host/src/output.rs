@@ -78,8 +78,13 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 /// file's first bytes. `None` for anything else, or no file.
 pub fn holds_data(path: &Path) -> Option<&'static str> {
     use std::io::Read;
-    if path.is_dir() {
+    let meta = std::fs::metadata(path).ok()?;
+    if meta.is_dir() {
         return Some("a folder");
+    }
+    // A FIFO or a terminal would wait for input: only regular files are read.
+    if !meta.is_file() {
+        return None;
     }
     let mut head = [0u8; 8];
     let mut file = std::fs::File::open(path).ok()?;

@@ -47,7 +47,7 @@ pub fn write_errors_not_signals() {
 /// library's errors about a file mostly do, and "reading X: X: …" reads badly.
 pub fn naming_file(e: impl Into<anyhow::Error>, doing: &str, path: &Path) -> anyhow::Error {
     let e = e.into();
-    if format!("{e:#}").contains(&path.display().to_string()) {
+    if format!("{e:#}").contains(&format!("{}:", path.display())) {
         e
     } else {
         e.context(format!("{doing} {}", path.display()))

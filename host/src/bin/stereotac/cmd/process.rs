@@ -103,6 +103,13 @@ pub fn run(a: Args) -> Result<()> {
         })
         .transpose()?
         .unwrap_or(0);
+    // Stopped while the header was read: nothing is written.
+    if stop.load(Ordering::SeqCst) {
+        bail!(
+            "interrupted before processing began: nothing was written ({})",
+            a.recording.display()
+        );
+    }
     let recorder = Recorder::start(RecorderOptions {
         mcap: a.mcap.clone(),
         live_view: None,
@@ -259,9 +266,13 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     if let Some((done, len)) = interrupted_at {
+        let output = if a.mcap.is_some() {
+            ": the output holds the pairs read until then, and is a complete file"
+        } else {
+            ""
+        };
         bail!(
-            "interrupted after {:.0}% of {} ({done} of {len} bytes read): the output holds \
-             the pairs read until then, and is a complete file",
+            "interrupted after {:.0}% of {} ({done} of {len} bytes read){output}",
             100.0 * done as f64 / len.max(1) as f64,
             a.recording.display()
         );

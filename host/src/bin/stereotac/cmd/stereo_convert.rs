@@ -47,6 +47,14 @@ pub fn run(a: Args) -> Result<()> {
         bail!("nothing to write: give --opencv FILE and/or --ros-left FILE --ros-right FILE");
     }
     for (i, path) in outputs.iter().enumerate() {
+        // Not even with --force: a slip naming an image or a recording loses it.
+        if let Some(kind) = stereotac::output::holds_data(path) {
+            bail!(
+                "{} is {kind}: a calibration is never written over it, even with --force; \
+                 choose another file",
+                path.display()
+            );
+        }
         ensure!(
             a.force || !path.exists(),
             "{} exists: pass --force to replace it",
