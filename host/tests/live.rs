@@ -167,6 +167,33 @@ fn run_records_two_cameras_and_process_reproduces_every_depth_map_bit_for_bit() 
         assert_eq!(a["max_depth_mm"], b["max_depth_mm"]);
         assert!(a["latency_ms"].is_null(), "offline: no latency");
     }
+
+    // A damaged chunk in the middle: skipped with a warning, and every pair after it is
+    // processed as in the live run (same LED phase, same depth).
+    let damaged = dir.join("damaged.mcap");
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 0x10;
+    std::fs::write(&damaged, &flipped).unwrap();
+    let (ok, out4, err) = stereotac(&["process", path(&damaged), "--jsonl"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("1 damaged chunk skipped"), "{err}");
+    let by_phase = |text: &str| -> Vec<(u64, serde_json::Value)> {
+        text.lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                (v["phase"].as_u64().unwrap(), v["max_depth_mm"].clone())
+            })
+            .collect()
+    };
+    let (live_pairs, read_pairs) = (by_phase(&out), by_phase(&out4));
+    assert!(
+        read_pairs.len() <= live_pairs.len() && read_pairs.len() + 3 >= live_pairs.len(),
+        "{} of {} pairs",
+        read_pairs.len(),
+        live_pairs.len()
+    );
+    assert!(read_pairs.iter().all(|p| live_pairs.contains(p)), "{out4}");
+    assert_eq!(read_pairs.last(), live_pairs.last(), "read past the damage");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -145,7 +145,7 @@ impl PyRecordingItems {
                 None => {
                     if let Some(why) = truncated {
                         let message = format!(
-                            "{}: the recording ends early ({why}); read up to there",
+                            "{}: the recording was not read whole: {why}",
                             self.path.display()
                         );
                         crate::errors::warn(py, &message)?;

@@ -18,6 +18,7 @@
 //! messages carry the host µs themselves, so nothing is lost to the conversion.
 
 pub mod decoded;
+mod layout;
 pub mod messages;
 pub mod metadata;
 pub mod reader;

@@ -7,7 +7,12 @@
 //! finished (the one it was writing still has its placeholder length), or the last whole
 //! record. The reader then reports
 //! [`RecordingReader::truncated`] instead of failing, so `process` works on what there
-//! is and says so. Damage anywhere else is an error naming the file.
+//! is and says so. A damaged chunk (its checksum or decompression fails) is skipped
+//! and reading goes on after it, where its length field says it ends ([`layout`]); the
+//! note names it. Damage in the summary section, after every message, is a note too.
+//! Damage anywhere else is an error naming the file.
+//!
+//! [`layout`]: super::layout
 //!
 //! [`frames`] joins each camera's images with their labels, for `process`, `export` and
 //! `calibrate`.
@@ -23,6 +28,7 @@ use foxglove::messages::RawImage;
 use image::RgbImage;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
+use super::layout;
 use super::messages::{FrameInfo, rgb_from_raw};
 use super::{RecordingError, topics};
 use crate::frames::Frame;
@@ -67,15 +73,32 @@ pub struct RecordingReader {
     file: File,
     reader: LinearReader,
     channels: HashMap<u16, (String, String)>,
+    /// Why the reading stopped before the end, if it did.
     truncated: Option<String>,
+    /// What the caller is told once the reading is over: `truncated` and the damaged
+    /// chunks skipped.
+    note: Option<String>,
     /// The file ends with the closing magic: its writer finished it.
     finished: bool,
     done: bool,
-    /// Bytes read so far (for progress).
+    /// Bytes read so far (for progress); the reader's position in the file.
     read_bytes: u64,
     len: u64,
     /// Records handed out so far: a file that ends before the first holds nothing.
     handed_out: u64,
+    /// The start of a top-level record at or before the reader's position (where a walk
+    /// over the records' lengths may begin).
+    boundary: u64,
+    /// The first damaged chunks skipped (at most [`NAMED_SKIPS`]): their bounds and why.
+    skipped: Vec<(u64, u64, String)>,
+    /// How many damaged chunks were skipped.
+    skipped_total: usize,
+    /// Messages after a skipped chunk on a channel neither read nor in the summary.
+    lost_messages: u64,
+    /// The summary's channels were looked up (after a skip).
+    summary_read: bool,
+    /// The data section's end was read: what follows is the summary.
+    data_ended: bool,
 }
 
 impl std::fmt::Debug for RecordingReader {
@@ -90,6 +113,25 @@ impl std::fmt::Debug for RecordingReader {
 /// Largest record the reader accepts (a hostile length field cannot make it allocate
 /// more): 256 MiB, far above a 4K RGB frame.
 const RECORD_LIMIT: usize = 256 << 20;
+
+/// How records are read: a chunk's checksum is checked before any of its records is
+/// handed out (checked after, a damaged chunk's records would pass as sound).
+fn reader_options() -> LinearReaderOptions {
+    LinearReaderOptions::default()
+        .with_prevalidate_chunk_crcs(true)
+        .with_record_length_limit(RECORD_LIMIT)
+}
+
+/// Damaged chunks the note names by their bytes (the others are counted).
+const NAMED_SKIPS: usize = 5;
+
+/// The note for damage found in the summary section (after every message).
+fn summary_damaged(error: &impl std::fmt::Display) -> String {
+    format!(
+        "the file's summary section after its data is damaged ({error}); every message \
+         before it was read"
+    )
+}
 
 /// `true` when `file` ends with the closing magic (its writer finished it).
 fn ends_with_magic(file: &mut File, len: u64) -> std::io::Result<bool> {
@@ -119,19 +161,20 @@ impl RecordingReader {
             finished,
             path: path.to_path_buf(),
             file,
-            reader: LinearReader::new_with_options(
-                LinearReaderOptions::default()
-                    // Checked before any of a chunk's records is handed out: a damaged
-                    // chunk gives none (checked after, its records would pass as sound).
-                    .with_prevalidate_chunk_crcs(true)
-                    .with_record_length_limit(RECORD_LIMIT),
-            ),
+            reader: LinearReader::new_with_options(reader_options()),
             channels: HashMap::new(),
             truncated: None,
+            note: None,
             done: false,
             read_bytes: 0,
             len,
             handed_out: 0,
+            boundary: mcap::MAGIC.len() as u64,
+            skipped: Vec::new(),
+            skipped_total: 0,
+            lost_messages: 0,
+            summary_read: false,
+            data_ended: false,
         })
     }
 
@@ -145,9 +188,96 @@ impl RecordingReader {
         (self.read_bytes, self.len)
     }
 
-    /// Why the file ended early, if it did (after the last record was read).
+    /// Why the file ended early, or which damaged chunks were skipped, if any (after the
+    /// last record was read).
     pub fn truncated(&self) -> Option<&str> {
-        self.truncated.as_deref()
+        self.note.as_deref()
+    }
+
+    /// How many damaged chunks were skipped so far (their messages are lost).
+    pub fn skipped_chunks(&self) -> usize {
+        self.skipped_total
+    }
+
+    /// The note for the caller: why the reading stopped and what was skipped.
+    fn compose_note(&self) -> Option<String> {
+        let mut parts: Vec<String> = Vec::new();
+        if self.skipped_total > 0 {
+            let places: Vec<String> = self
+                .skipped
+                .iter()
+                .map(|(start, end, why)| format!("bytes {start}–{end} ({why})"))
+                .collect();
+            let more = self.skipped_total - places.len();
+            let one = self.skipped_total == 1;
+            parts.push(format!(
+                "{} damaged chunk{} skipped, {}{}: {} messages are lost, the rest of the \
+                 file was read",
+                self.skipped_total,
+                if one { "" } else { "s" },
+                places.join(", "),
+                if more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                },
+                if one { "its" } else { "their" },
+            ));
+        }
+        if self.lost_messages > 0 {
+            parts.push(format!(
+                "{} later messages were on channels declared only in a damaged chunk (and \
+                 not in the file's summary) and were skipped",
+                self.lost_messages
+            ));
+        }
+        parts.extend(self.truncated.clone());
+        (!parts.is_empty()).then(|| parts.join("; "))
+    }
+
+    /// After `error` while reading: when the damage lies in a chunk whose length field
+    /// is sound, goes on reading after that chunk (`true`). The chunk is the top-level
+    /// record holding the last byte read.
+    fn skip_damaged_chunk(&mut self, error: &impl std::fmt::Display) -> bool {
+        use std::io::{Seek, SeekFrom};
+        let Some(at) = self.read_bytes.checked_sub(1) else {
+            return false;
+        };
+        let Ok(Some(span)) = layout::record_holding(&mut self.file, self.len, self.boundary, at)
+        else {
+            return false;
+        };
+        if span.opcode != mcap::records::op::CHUNK
+            || self.file.seek(SeekFrom::Start(span.end)).is_err()
+        {
+            return false;
+        }
+        if self.skipped.len() < NAMED_SKIPS {
+            self.skipped.push((span.start, span.end, error.to_string()));
+        }
+        self.skipped_total += 1;
+        self.reader = LinearReader::new_with_options(reader_options().with_skip_start_magic(true));
+        self.read_bytes = span.end;
+        self.boundary = span.end;
+        true
+    }
+
+    /// The channel of a message read after a skipped chunk that declared it: from the
+    /// file's summary.
+    fn channel_from_summary(&mut self, id: u16) -> Option<(String, String)> {
+        use std::io::{Seek, SeekFrom};
+        if !self.summary_read {
+            self.summary_read = true;
+            let found = layout::summary_channels(&mut self.file, self.len, RECORD_LIMIT);
+            // Back where the reader is, whatever the lookup did.
+            if self.file.seek(SeekFrom::Start(self.read_bytes)).is_err() {
+                return None;
+            }
+            for (k, v) in found.unwrap_or_default() {
+                self.channels.entry(k).or_insert(v);
+            }
+        }
+        self.channels.get(&id).cloned()
     }
 
     fn format(&self, message: impl Into<String>) -> RecordingError {
@@ -167,10 +297,11 @@ impl RecordingReader {
             self.handed_out += 1;
         } else {
             self.done = true;
+            self.note = self.compose_note();
         }
-        if r.is_none() && self.handed_out == 0 && self.truncated.is_some() {
+        if r.is_none() && self.handed_out == 0 && self.note.is_some() {
             // Cut before anything was read: nothing to go on, so not a warning.
-            let why = self.truncated.take().unwrap_or_default();
+            let why = self.note.take().unwrap_or_default();
             return Some(Err(self.format(format!(
                 "holds no message, metadata or attachment ({} bytes): an empty or cut file, \
                  or not an MCAP recording ({why})",
@@ -225,21 +356,32 @@ impl RecordingReader {
                     ));
                     return None;
                 }
-                // A chunk whose bytes are not the ones written (a damaged disk or copy):
-                // what came before it is sound and is kept, as with a cut file; nothing
-                // after it is read (its records cannot be told from damage).
-                Err(
-                    e @ (mcap::McapError::BadChunkCrc { .. }
-                    | mcap::McapError::DecompressionError(_)),
-                ) => {
-                    self.truncated = Some(format!(
-                        "a chunk ending by byte {} of {} is damaged ({e}); everything before \
-                         that chunk was read, nothing of it or after",
-                        self.read_bytes, self.len
-                    ));
-                    return None;
+                Err(e) => {
+                    // A chunk whose bytes are not the ones written (a damaged disk or
+                    // copy): skipped whole (none of its records is handed out: its
+                    // checksum is checked first), and the reading goes on after it.
+                    if self.skip_damaged_chunk(&e) {
+                        continue;
+                    }
+                    // Damage in the summary, after every message was read: said, not
+                    // fatal.
+                    if self.data_ended {
+                        self.truncated = Some(summary_damaged(&e));
+                        return None;
+                    }
+                    if let mcap::McapError::BadChunkCrc { .. }
+                    | mcap::McapError::DecompressionError(_) = e
+                    {
+                        self.truncated = Some(format!(
+                            "a chunk ending by byte {} of {} is damaged ({e}) and where it \
+                             ends cannot be told; everything before that chunk was read, \
+                             nothing of it or after",
+                            self.read_bytes, self.len
+                        ));
+                        return None;
+                    }
+                    return Some(Err(self.format(e.to_string())));
                 }
-                Err(e) => return Some(Err(self.format(e.to_string()))),
             };
             let (opcode, data) = match event {
                 LinearReadEvent::ReadRequest(n) => {
@@ -262,7 +404,17 @@ impl RecordingReader {
             };
             let record = match mcap::parse_record(opcode, data) {
                 Ok(r) => r,
-                Err(e) => return Some(Err(self.format(e.to_string()))),
+                Err(e) => {
+                    let e = e.to_string();
+                    if self.skip_damaged_chunk(&e) {
+                        continue;
+                    }
+                    if self.data_ended {
+                        self.truncated = Some(summary_damaged(&e));
+                        return None;
+                    }
+                    return Some(Err(self.format(e)));
+                }
             };
             use mcap::records::Record as R;
             match record {
@@ -270,18 +422,30 @@ impl RecordingReader {
                     self.channels
                         .insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
                 }
+                R::DataEnd(_) => self.data_ended = true,
                 R::Message { header, data } => {
-                    let Some((topic, encoding)) = self.channels.get(&header.channel_id) else {
+                    let data = data.into_owned();
+                    let known = self.channels.get(&header.channel_id).cloned();
+                    let Some((topic, encoding)) = known.or_else(|| {
+                        // Declared in a chunk that was skipped: the summary repeats it.
+                        (self.skipped_total > 0)
+                            .then(|| self.channel_from_summary(header.channel_id))
+                            .flatten()
+                    }) else {
+                        if self.skipped_total > 0 {
+                            self.lost_messages += 1;
+                            continue;
+                        }
                         return Some(Err(self.format(format!(
                             "message on channel {} before that channel was declared",
                             header.channel_id
                         ))));
                     };
                     return Some(Ok(Record::Message {
-                        topic: topic.clone(),
-                        encoding: encoding.clone(),
+                        topic,
+                        encoding,
                         log_time_ns: header.log_time,
-                        data: data.into_owned(),
+                        data,
                     }));
                 }
                 R::Metadata(m) => {
@@ -376,6 +540,7 @@ pub fn frames<E: From<RecordingError>>(
     let mut reader = RecordingReader::open(path)?;
     let mut header = RecordingHeader::default();
     let mut labels: HashMap<(usize, u64), (FrameInfo, Label)> = HashMap::new();
+    let mut unlabelled = 0u64;
     let bad = |topic: &str, log_time_ns, message: String| RecordingError::Message {
         path: path.to_path_buf(),
         topic: topic.to_string(),
@@ -413,17 +578,23 @@ pub fn frames<E: From<RecordingError>>(
                     let raw = RawImage::decode(data.as_slice())
                         .map_err(|e| bad(topic, *log_time_ns, e.to_string()))?;
                     let image = rgb_from_raw(&raw).map_err(|e| bad(topic, *log_time_ns, e))?;
-                    let (info, label) =
-                        labels.remove(&(camera, *log_time_ns)).ok_or_else(|| {
-                            bad(
-                                topic,
-                                *log_time_ns,
-                                format!(
-                                    "no label on {} for this image (same log time)",
-                                    topics::camera_frame(camera)
-                                ),
-                            )
-                        })?;
+                    let Some((info, label)) = labels.remove(&(camera, *log_time_ns)) else {
+                        // Its label may have been in a damaged chunk that was skipped:
+                        // the image is skipped too, and counted.
+                        if reader.skipped_chunks() > 0 {
+                            unlabelled += 1;
+                            continue;
+                        }
+                        return Err(bad(
+                            topic,
+                            *log_time_ns,
+                            format!(
+                                "no label on {} for this image (same log time)",
+                                topics::camera_frame(camera)
+                            ),
+                        )
+                        .into());
+                    };
                     if each(
                         Content::Frame(RecordedFrame {
                             camera,
@@ -458,7 +629,16 @@ pub fn frames<E: From<RecordingError>>(
             }
         }
     }
-    Ok((header, reader.truncated().map(str::to_string)))
+    let mut note = reader.truncated().map(str::to_string);
+    if unlabelled > 0 {
+        let lost = if unlabelled == 1 {
+            "1 image whose label was in a damaged chunk was skipped".to_string()
+        } else {
+            format!("{unlabelled} images whose labels were in a damaged chunk were skipped")
+        };
+        note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
+    }
+    Ok((header, note))
 }
 
 /// The header alone: a pass over the file that skips the chunks undecompressed.
@@ -615,6 +795,81 @@ mod tests {
         let _ = std::fs::remove_file(&path);
     }
 
+    /// Frames whose labels were in a skipped chunk: their images are skipped and
+    /// counted, every other frame is read; without a skipped chunk, an image with no
+    /// label is an error.
+    #[test]
+    fn images_whose_labels_were_lost_are_skipped_and_counted() {
+        use foxglove::Encode;
+        let path = std::env::temp_dir().join(format!("stereotac-lost-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new()
+            .compression(None)
+            .chunk_size(Some(2048))
+            .create(file)
+            .unwrap();
+        let meta = BTreeMap::new();
+        let labels = w
+            .add_channel(0, &topics::camera_frame(0), "json", &meta)
+            .unwrap();
+        let images = w
+            .add_channel(0, &topics::camera_image(0), "protobuf", &meta)
+            .unwrap();
+        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
+        let image = RgbImage::from_pixel(16, 16, image::Rgb([10, 20, 30]));
+        let mut label_at = Vec::new();
+        for i in 0..40u64 {
+            let header = |channel_id| mcap::records::MessageHeader {
+                channel_id,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header(labels), label).unwrap();
+            label_at.push(i);
+            let mut raw = Vec::new();
+            super::super::messages::rgb_image(&image, i, "cam0")
+                .encode(&mut raw)
+                .unwrap();
+            // One chunk ends between each label and its image.
+            w.flush().unwrap();
+            w.write_to_known_channel(&header(images), &raw).unwrap();
+        }
+        w.finish().unwrap();
+        drop(w);
+        let read = |p: &Path| {
+            let mut n = 0;
+            let r = frames::<RecordingError>(p, |c, _| {
+                n += usize::from(matches!(c, Content::Frame(_)));
+                Ok(ControlFlow::Continue(()))
+            });
+            (n, r)
+        };
+        let (n, r) = read(&path);
+        assert_eq!((n, r.unwrap().1), (40, None));
+        // A byte of the label chunk of frame 20 (the label is its only message).
+        let mut bytes = std::fs::read(&path).unwrap();
+        let labels_at: Vec<usize> = bytes
+            .windows(label.len())
+            .enumerate()
+            .filter(|(_, w)| *w == label)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(labels_at.len(), 40);
+        bytes[labels_at[20] + 10] ^= 0x10;
+        std::fs::write(&path, &bytes).unwrap();
+        let (n, r) = read(&path);
+        let note = r.unwrap().1.expect("said");
+        // That chunk held frame 19's image and frame 20's label: both frames lost.
+        assert_eq!(n, 38, "{note}");
+        assert!(note.contains("1 damaged chunk skipped"), "{note}");
+        assert!(
+            note.contains("1 image whose label was in a damaged chunk"),
+            "{note}"
+        );
+        let _ = std::fs::remove_file(&path);
+    }
+
     /// A recording of `n` JSON messages on the LED phase topic, log times 0..n.
     fn json_recording(name: &str, n: u64) -> PathBuf {
         json_recording_with(name, n, mcap::WriteOptions::new())
@@ -682,40 +937,72 @@ mod tests {
             assert!(e.to_string().contains("holds no message"), "{end}: {e}");
         }
         let _ = std::fs::remove_file(chunked);
-        // A damaged chunk: what came before it is read, and the damage said.
+        // A damaged chunk: skipped whole, the damage said, and the chunks after it read.
         let damaged = json_recording_with("damaged", 2000, options());
         let mut bytes = std::fs::read(&damaged).unwrap();
         let middle = bytes.len() / 2;
         bytes[middle] ^= 0x10;
         std::fs::write(&damaged, &bytes).unwrap();
-        let mut s = stream(&damaged, 4);
-        let times: Vec<u64> = s
-            .by_ref()
-            .map(|c| match c.unwrap() {
-                Content::Other(Record::Message { log_time_ns, .. }) => log_time_ns,
-                other => panic!("unexpected {other:?}"),
-            })
-            .collect();
-        let read = times.len() as u64;
-        assert!(read > 0 && read < 2000, "{read}");
-        assert_eq!(times, (0..read).collect::<Vec<_>>());
+        let read_times = |path: &Path| {
+            let mut s = stream(path, 4);
+            let times: Vec<u64> = s
+                .by_ref()
+                .map(|c| match c.unwrap() {
+                    Content::Other(Record::Message { log_time_ns, .. }) => log_time_ns,
+                    other => panic!("unexpected {other:?}"),
+                })
+                .collect();
+            (times, s.truncated().map(str::to_string))
+        };
+        let (times, note) = read_times(&damaged);
+        let note = note.expect("the damage is said");
         assert!(
-            s.truncated().unwrap().contains("Chunk CRC"),
-            "{:?}",
-            s.truncated()
+            note.contains("Chunk CRC") && note.contains("1 damaged chunk skipped"),
+            "{note}"
         );
-        // The damaged chunk gave none of its messages: the first one not read lies before
-        // the damage (checked after its records, the chunk would have handed them all out,
-        // and the first unread one would be the next chunk's, past the damage).
-        let first_unread = format!("{{\"i\": {read}}}");
-        let at = bytes
-            .windows(first_unread.len())
-            .position(|w| w == first_unread.as_bytes())
-            .expect("in the file");
-        assert!(
-            at < middle,
-            "message {read} at byte {at}, the damage at {middle}"
-        );
+        // In order, one gap: the damaged chunk's messages, none of them handed out (the
+        // first one missing lies before the damage; checked after its records, the chunk
+        // would have handed them all out), and every message after the chunk read.
+        assert!(times.windows(2).all(|w| w[0] < w[1]));
+        let gap = times
+            .windows(2)
+            .position(|w| w[1] != w[0] + 1)
+            .expect("a gap");
+        let (first_lost, first_after) = (times[gap] + 1, times[gap + 1]);
+        assert_eq!(times[0], 0);
+        assert_eq!(*times.last().unwrap(), 1999);
+        assert!(first_after - first_lost < 200, "one 4 kB chunk lost");
+        let place = |i: u64| {
+            let text = format!("{{\"i\": {i}}}");
+            bytes
+                .windows(text.len())
+                .position(|w| w == text.as_bytes())
+                .expect("in the file")
+        };
+        assert!(place(first_lost) < middle && middle < place(first_after));
+        // The first chunk damaged (it declares the channel): the summary names it, and
+        // the rest is read; the summary itself damaged: every message read, and said.
+        let mut first = std::fs::read(&damaged).unwrap();
+        first[middle] ^= 0x10;
+        first[200] ^= 0x10;
+        std::fs::write(&damaged, &first).unwrap();
+        let (times, note) = read_times(&damaged);
+        assert!(times.len() > 1500 && times[0] > 0, "{}", times.len());
+        assert!(note.unwrap().contains("1 damaged chunk skipped"));
+        let mut summary = std::fs::read(&damaged).unwrap();
+        summary[200] ^= 0x10;
+        // The topic's length field in the summary's channel record, beyond the record.
+        let topic = topics::LED_PHASE.as_bytes();
+        let last = summary
+            .windows(topic.len())
+            .rposition(|w| w == topic)
+            .expect("the summary repeats the channel");
+        summary[last - 4..last].copy_from_slice(&u32::MAX.to_le_bytes());
+        std::fs::write(&damaged, &summary).unwrap();
+        let (times, note) = read_times(&damaged);
+        assert_eq!(times, (0..2000).collect::<Vec<_>>());
+        let note = note.unwrap_or_default();
+        assert!(note.contains("summary section"), "{note}");
         let _ = std::fs::remove_file(damaged);
         // Two recordings one after the other: the first is read whole, and the bytes
         // after it are said (`cat` of two files was read as the first with no word).

@@ -84,7 +84,7 @@ pub fn run(a: Args) -> Result<()> {
         let cut = header
             .truncated
             .as_ref()
-            .map(|why| format!(" (the file is cut short: {why})"))
+            .map(|why| format!(" (the file is cut short or damaged: {why})"))
             .unwrap_or_default();
         bail!(
             "{}: nothing to process: it holds no tactile model and no stereo calibration{cut}; \

@@ -1,0 +1,199 @@
+//! Where a recording's top-level records lie, read from their opcode and length fields
+//! alone (nothing decompressed), for the reader to go on past a damaged chunk and to
+//! find the channels the file's summary repeats.
+//!
+//! An MCAP file is its magic, then records of `opcode (u8) · length (u64 LE) · body`.
+//! A chunk's body can be damaged (a flipped bit fails its checksum or its
+//! decompression) while its length field, and so every record after it, is sound:
+//! walking the lengths from a known boundary tells where the chunk ends. A walk that
+//! meets an unknown opcode or a length past the end of the file is not trusted.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+
+use mcap::records::op;
+
+/// Bytes of a record's opcode and length.
+const RECORD_HEAD: u64 = 9;
+/// A footer record: head, summary start, summary offset start, summary CRC.
+const FOOTER_LEN: u64 = RECORD_HEAD + 8 + 8 + 4;
+
+/// One top-level record's place in the file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Span {
+    /// Its opcode.
+    pub opcode: u8,
+    /// Offset of its opcode.
+    pub start: u64,
+    /// Offset just past its body.
+    pub end: u64,
+}
+
+/// Reads `N` bytes at `offset`.
+fn read_at<const N: usize>(file: &mut File, offset: u64) -> std::io::Result<[u8; N]> {
+    let mut buf = [0u8; N];
+    file.seek(SeekFrom::Start(offset))?;
+    file.read_exact(&mut buf)?;
+    Ok(buf)
+}
+
+/// The top-level record starting at `start` in a file of `len` bytes, or `None` when its
+/// fields cannot be a record (an unknown opcode, a body running past the end).
+fn span_at(file: &mut File, len: u64, start: u64) -> std::io::Result<Option<Span>> {
+    if len.saturating_sub(start) < RECORD_HEAD {
+        return Ok(None);
+    }
+    let head: [u8; 9] = read_at(file, start)?;
+    let opcode = head[0];
+    let body = u64::from_le_bytes(head[1..].try_into().expect("8 bytes"));
+    if !(op::HEADER..=op::DATA_END).contains(&opcode) {
+        return Ok(None);
+    }
+    Ok(start
+        .checked_add(RECORD_HEAD)
+        .and_then(|s| s.checked_add(body))
+        .filter(|&end| end <= len)
+        .map(|end| Span { opcode, start, end }))
+}
+
+/// The top-level record that holds byte `at`, walking from `from` (the start of a
+/// record) in a file of `len` bytes; `None` when the walk meets something that is not a
+/// record before reaching it, or `at` lies before `from`.
+pub fn record_holding(
+    file: &mut File,
+    len: u64,
+    from: u64,
+    at: u64,
+) -> std::io::Result<Option<Span>> {
+    let mut start = from;
+    while start <= at {
+        let Some(span) = span_at(file, len, start)? else {
+            return Ok(None);
+        };
+        if at < span.end {
+            return Ok(Some(span));
+        }
+        start = span.end;
+    }
+    Ok(None)
+}
+
+/// The channels (id → topic, message encoding) the summary section of a finished file
+/// repeats, or none when the file has no summary, or its footer or records are not sound.
+/// Bodies longer than `limit` are not read.
+pub fn summary_channels(
+    file: &mut File,
+    len: u64,
+    limit: usize,
+) -> std::io::Result<HashMap<u16, (String, String)>> {
+    let mut channels = HashMap::new();
+    let magic = mcap::MAGIC.len() as u64;
+    let Some(footer_at) = len.checked_sub(magic + FOOTER_LEN) else {
+        return Ok(channels);
+    };
+    let footer: [u8; FOOTER_LEN as usize] = read_at(file, footer_at)?;
+    let body = u64::from_le_bytes(footer[1..9].try_into().expect("8 bytes"));
+    let summary_start = u64::from_le_bytes(footer[9..17].try_into().expect("8 bytes"));
+    if footer[0] != op::FOOTER || body != FOOTER_LEN - RECORD_HEAD || summary_start < magic {
+        return Ok(channels);
+    }
+    let mut start = summary_start;
+    while start < footer_at {
+        let Some(span) = span_at(file, footer_at, start)? else {
+            break;
+        };
+        let body_len = span.end - span.start - RECORD_HEAD;
+        if span.opcode == op::CHANNEL && body_len <= limit as u64 {
+            let mut body = vec![0u8; body_len as usize];
+            file.seek(SeekFrom::Start(span.start + RECORD_HEAD))?;
+            file.read_exact(&mut body)?;
+            if let Ok(mcap::records::Record::Channel(c)) = mcap::parse_record(op::CHANNEL, &body) {
+                channels.insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
+            }
+        }
+        start = span.end;
+    }
+    Ok(channels)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    /// A chunked file: the walk finds each chunk's bounds from the start, and every
+    /// record it names begins where the previous one ended; the summary gives the
+    /// channel; a length field past the end stops the walk.
+    #[test]
+    fn walks_records_and_reads_the_summary_channels() {
+        let path =
+            std::env::temp_dir().join(format!("stereotac-layout-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new()
+            .compression(None)
+            .chunk_size(Some(1024))
+            .create(file)
+            .unwrap();
+        let channel = w
+            .add_channel(0, "/a/topic", "json", &BTreeMap::new())
+            .unwrap();
+        for i in 0..500u64 {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, b"{\"i\": 12345}")
+                .unwrap();
+        }
+        w.finish().unwrap();
+        drop(w);
+        let bytes = std::fs::read(&path).unwrap();
+        let len = bytes.len() as u64;
+        let mut file = File::open(&path).unwrap();
+        let mut at = 8u64;
+        let mut chunks = 0;
+        while let Some(span) = record_holding(&mut file, len, 8, at).unwrap() {
+            assert_eq!(span.start, at);
+            assert_eq!(
+                span.end - span.start - 9,
+                u64::from_le_bytes(bytes[at as usize + 1..at as usize + 9].try_into().unwrap())
+            );
+            chunks += usize::from(span.opcode == op::CHUNK);
+            if span.opcode == op::FOOTER {
+                break;
+            }
+            at = span.end;
+        }
+        assert!(chunks > 5, "{chunks} chunks");
+        // Byte 10 lies in the first record (the header).
+        let first = record_holding(&mut file, len, 8, 10).unwrap().unwrap();
+        assert_eq!((first.opcode, first.start), (op::HEADER, 8));
+        assert!(first.end > 10);
+        assert_eq!(record_holding(&mut file, len, 108, 50).unwrap(), None);
+        let channels = summary_channels(&mut file, len, 1 << 20).unwrap();
+        assert_eq!(
+            channels.get(&channel),
+            Some(&("/a/topic".to_string(), "json".to_string()))
+        );
+        // A length field that runs past the end: not a record.
+        let mut broken = bytes.clone();
+        broken[9..17].copy_from_slice(&u64::MAX.to_le_bytes());
+        std::fs::write(&path, &broken).unwrap();
+        let mut file = File::open(&path).unwrap();
+        assert_eq!(record_holding(&mut file, len, 8, 2000).unwrap(), None);
+        // No footer: no summary channels.
+        std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+        let mut file = File::open(&path).unwrap();
+        let half = len / 2;
+        assert!(
+            summary_channels(&mut file, half, 1 << 20)
+                .unwrap()
+                .is_empty()
+        );
+        let _ = std::fs::remove_file(&path);
+    }
+}
