@@ -122,6 +122,75 @@ fn lexical(p: &Path) -> Option<PathBuf> {
     Some(out)
 }
 
+/// A small file a command writes (a model, report or calibration), for
+/// [`check_replace`]'s messages.
+#[derive(Debug, Clone, Copy)]
+pub struct Written<'a> {
+    /// What the file is ("a calibration").
+    pub what: &'a str,
+    /// The flag that names it ("--out").
+    pub flag: &'a str,
+    /// A name to suggest instead ("stereo.yaml").
+    pub example: &'a str,
+}
+
+/// Why a small file may not be written where it was asked.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplaceRefused {
+    /// The path holds data ([`holds_data`]): never replaced, even with `--force`.
+    #[error(
+        "{flag} {path} is {kind}: {what} is never written over it, even with --force; \
+         choose another {flag} (e.g. {example})",
+        flag = .written_flag, path = .path.display(), what = .written_what,
+        example = .written_example
+    )]
+    HoldsData {
+        /// The file.
+        path: PathBuf,
+        /// What it holds.
+        kind: &'static str,
+        /// What would have been written.
+        written_what: String,
+        /// The flag naming it.
+        written_flag: String,
+        /// A name to suggest instead.
+        written_example: String,
+    },
+    /// The file exists and `--force` was not given.
+    #[error(
+        "{flag} {path} exists: pass --force to replace it, or choose another {flag}",
+        flag = .flag, path = .path.display()
+    )]
+    Exists {
+        /// The file.
+        path: PathBuf,
+        /// The flag naming it.
+        flag: String,
+    },
+}
+
+/// Whether `written` may go to `path`, before the work that makes it: never over data
+/// ([`holds_data`]: a slip naming the input loses it), over another existing file only
+/// with `force`.
+pub fn check_replace(path: &Path, force: bool, written: Written<'_>) -> Result<(), ReplaceRefused> {
+    if let Some(kind) = holds_data(path) {
+        return Err(ReplaceRefused::HoldsData {
+            path: path.to_path_buf(),
+            kind,
+            written_what: written.what.to_string(),
+            written_flag: written.flag.to_string(),
+            written_example: written.example.to_string(),
+        });
+    }
+    if !force && path.exists() {
+        return Err(ReplaceRefused::Exists {
+            path: path.to_path_buf(),
+            flag: written.flag.to_string(),
+        });
+    }
+    Ok(())
+}
+
 /// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, synced,
 /// then renamed over `path`. A crash or a full disk leaves the old file (or none), never
 /// a truncated one. For files users keep: models, calibrations, firmware images.
@@ -439,6 +508,25 @@ mod tests {
         assert_eq!(holds_data(&file("short", b"\x89")), None);
         assert_eq!(holds_data(&file("empty", b"")), None);
         assert_eq!(holds_data(&dir.join("absent")), None);
+        // Data is refused even with force, naming the flag and a name to use; another
+        // file needs force; no file is fine.
+        let written = Written {
+            what: "a model",
+            flag: "--out",
+            example: "model.json",
+        };
+        let e = check_replace(&png, true, written).unwrap_err().to_string();
+        assert!(
+            e.contains("--out") && e.contains("a PNG image") && e.contains("(e.g. model.json)"),
+            "{e}"
+        );
+        let model = file("old.json", b"{}");
+        let e = check_replace(&model, false, written)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("exists: pass --force"), "{e}");
+        check_replace(&model, true, written).unwrap();
+        check_replace(&dir.join("absent"), false, written).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -10,7 +10,8 @@
 //! - [`metadata`]: the header records (what ran, which sensor).
 //! - [`decoded`]: messages decoded by topic (depth, points in mm; JSON; log lines).
 //! - [`reader`]: reads a recording back, streaming, and recovers what a killed writer
-//!   left (everything up to the last complete chunk).
+//!   left (everything up to the last complete chunk); a damaged chunk is skipped and the
+//!   rest read (`layout` walks the records' lengths to find where it ends).
 //!
 //! Time: every message's log time is the host clock (`HostClock`, µs since the run
 //! began) placed on the Unix epoch by the wall-clock time of the host clock's origin,

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stereotac::out_dir::{OutDir, Replace};
-use stereotac::output::{holds_data, same_file, write_atomic};
+use stereotac::output::{Written, check_replace, same_file, write_atomic};
 
 use anyhow::{Context, Result};
 use stereotac::live::replay;
@@ -83,18 +83,17 @@ pub fn run(a: Args) -> Result<()> {
     {
         // Not even with --force: a JSON file written over a recording or a frame (the
         // input itself, given as --out by a slip) loses the data.
-        if let Some(kind) = holds_data(path) {
-            anyhow::bail!(
-                "{flag} {} is {kind}: a model or report is never written over it, even with \
-                 --force; choose another {flag} (e.g. model.json)",
-                path.display()
-            );
-        }
-        anyhow::ensure!(
-            a.force || !path.exists(),
-            "{} exists: pass --force to replace it, or choose another {flag}",
-            path.display()
-        );
+        let example = if flag == "--out" {
+            "model.json"
+        } else {
+            "report.json"
+        };
+        let written = Written {
+            what: "a model or report",
+            flag,
+            example,
+        };
+        check_replace(path, a.force, written)?;
     }
     if let Some(report) = &a.report {
         anyhow::ensure!(

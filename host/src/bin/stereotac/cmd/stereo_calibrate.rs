@@ -185,18 +185,12 @@ mod with_solver {
     pub fn run(a: Args) -> Result<()> {
         // Before the work, not after: a calibration is never replaced by accident, and
         // never written over an image or a recording (the board images are PNGs).
-        if let Some(kind) = stereotac::output::holds_data(&a.out) {
-            anyhow::bail!(
-                "--out {} is {kind}: a calibration is never written over it, even with \
-                 --force; choose another --out (e.g. stereo.yaml)",
-                a.out.display()
-            );
-        }
-        anyhow::ensure!(
-            a.force || !a.out.exists(),
-            "{} exists: pass --force to replace it, or choose another --out",
-            a.out.display()
-        );
+        let written = stereotac::output::Written {
+            what: "a calibration",
+            flag: "--out",
+            example: "stereo.yaml",
+        };
+        stereotac::output::check_replace(&a.out, a.force, written)?;
         let board = Checkerboard::parse(&a.board, a.square_mm)?;
         let Inputs { left, right, truth } = inputs(&a, &board)?;
         let options = CalibrateOptions {

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail, ensure};
-use stereotac::output::{same_file, write_atomic};
+use stereotac::output::{Written, check_replace, same_file, write_atomic};
 use stereotac::stereo::ros_info::camera_info_pair;
 use stereotac::stereo::{LengthUnit, StereoCalibration};
 
@@ -39,28 +39,26 @@ pub struct Args {
 const ROUND_TRIP: f64 = 1e-6;
 
 pub fn run(a: Args) -> Result<()> {
-    let outputs: Vec<&PathBuf> = [&a.opencv, &a.ros_left, &a.ros_right]
-        .into_iter()
-        .flatten()
-        .collect();
+    let outputs: Vec<(&PathBuf, &str, &str)> = [
+        (&a.opencv, "--opencv", "stereo.yaml"),
+        (&a.ros_left, "--ros-left", "left.yaml"),
+        (&a.ros_right, "--ros-right", "right.yaml"),
+    ]
+    .into_iter()
+    .filter_map(|(path, flag, example)| path.as_ref().map(|p| (p, flag, example)))
+    .collect();
     if outputs.is_empty() {
         bail!("nothing to write: give --opencv FILE and/or --ros-left FILE --ros-right FILE");
     }
-    for (i, path) in outputs.iter().enumerate() {
+    for (i, &(path, flag, example)) in outputs.iter().enumerate() {
         // Not even with --force: a slip naming an image or a recording loses it.
-        if let Some(kind) = stereotac::output::holds_data(path) {
-            bail!(
-                "{} is {kind}: a calibration is never written over it, even with --force; \
-                 choose another file",
-                path.display()
-            );
-        }
-        ensure!(
-            a.force || !path.exists(),
-            "{} exists: pass --force to replace it",
-            path.display()
-        );
-        if let Some(other) = outputs[..i].iter().find(|o| same_file(o, path)) {
+        let written = Written {
+            what: "a calibration",
+            flag,
+            example,
+        };
+        check_replace(path, a.force, written)?;
+        if let Some((other, ..)) = outputs[..i].iter().find(|(o, ..)| same_file(o, path)) {
             bail!(
                 "{} and {} name one file: each output needs a file of its own (the second \
                  would replace the first)",
