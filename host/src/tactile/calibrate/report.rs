@@ -167,6 +167,12 @@ impl CalibrationReport {
                 ));
             }
         }
+        // Shallow slopes also come from a ball given larger than it is: its circles then
+        // mean shallower presses than were made, and every depth reads shallow. Only the
+        // user knows how deep they pressed.
+        if max_slope.iter().any(|&m| m < STEEP_SLOPE) {
+            warnings.extend(press_depth_warning(presses));
+        }
 
         warnings.extend(saturation_warning(presses));
 
@@ -203,6 +209,20 @@ impl CalibrationReport {
             warnings,
         }
     }
+}
+
+/// How deep the presses' circles say they went, for the user to hold against what they
+/// did (a ball given larger than it is fits the same circles with shallower presses).
+fn press_depth_warning(presses: &[PressFit]) -> Option<String> {
+    let depths = presses.iter().map(|p| p.depth_mm).filter(|d| d.is_finite());
+    let (lo, hi) = depths.fold((f64::INFINITY, 0.0f64), |(lo, hi), d| {
+        (lo.min(d), hi.max(d))
+    });
+    (lo <= hi).then(|| {
+        format!(
+            "with the ball diameter given, the presses' circles mean presses {lo:.2}-{hi:.2} mm deep: if they went deeper, the ball is smaller than --ball-diameter-mm says and every depth will read shallow"
+        )
+    })
 }
 
 /// The warning when presses saturate the camera inside their contact: the user can fix
@@ -336,5 +356,22 @@ mod tests {
             "{w}"
         );
         assert!(w.contains("exposure"), "{w}");
+    }
+
+    /// The presses' depths, from the shallowest to the deepest, and the ball named.
+    #[test]
+    fn press_depths_are_said_with_the_ball_as_a_cause() {
+        assert_eq!(press_depth_warning(&[]), None);
+        let mut presses = [
+            press("a", [0.0; 2]),
+            press("b", [0.0; 2]),
+            press("c", [0.0; 2]),
+        ];
+        for (p, d) in presses.iter_mut().zip([0.5, 0.36, f64::NAN]) {
+            p.depth_mm = d;
+        }
+        let w = press_depth_warning(&presses).unwrap();
+        assert!(w.contains("presses 0.36-0.50 mm deep"), "{w}");
+        assert!(w.contains("--ball-diameter-mm"), "{w}");
     }
 }
