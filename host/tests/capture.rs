@@ -177,6 +177,9 @@ fn a_recording_replays_frame_for_frame() {
         Recorder::create(&dir).is_err(),
         "an existing recording is never overwritten"
     );
+    // A recording with frames is never discarded.
+    recorder.discard();
+    assert!(dir.join("index.jsonl").exists());
     let mut replay = ReplaySource::open(&dir).unwrap();
     assert_eq!(replay.len(), r.frames.len());
     for f in &r.frames {

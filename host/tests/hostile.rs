@@ -304,6 +304,30 @@ fn arguments() {
         &["--period-ms 4294967295", "1 to 60000"],
     );
     assert!(!refused_rec.exists(), "a refused start left its recording");
+    // Nor a PNG recording's folders (made two levels deep here), nor, in a folder that
+    // was there, its empty index.
+    let png_rec = dir.join("new").join("frames");
+    let kept = dir.join("kept");
+    std::fs::create_dir(&kept).unwrap();
+    for out in [&png_rec, &kept] {
+        refused(
+            &[
+                "--sim",
+                "record",
+                "--png",
+                "--out",
+                s(out),
+                "--period-ms",
+                "4294967295",
+            ],
+            &["--period-ms 4294967295", "1 to 60000"],
+        );
+    }
+    assert!(
+        !dir.join("new").exists(),
+        "a refused start left its folders"
+    );
+    assert_eq!(std::fs::read_dir(&kept).unwrap().count(), 0, "left files");
     // `run` refuses a recording that exists before it calibrates a built-in model.
     refused(
         &[

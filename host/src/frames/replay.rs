@@ -69,14 +69,27 @@ pub struct Recorder {
     index: BufWriter<File>,
     images: u64,
     indexed: u64,
+    /// The folder as [`OutDir`] made it: removed by [`Recorder::discard`], kept
+    /// otherwise.
+    folder: Option<OutDir>,
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        // Frames already written are data: the folder stays unless discarded.
+        if let Some(folder) = self.folder.take() {
+            folder.keep();
+        }
+    }
 }
 
 impl Recorder {
     /// Start a recording in `dir`: created, or empty; a folder with files in it (an
     /// earlier recording, or anything else) is refused, so no frame is ever overwritten.
-    /// The folder stays whatever happens next: frames already written are data.
+    /// The folder stays whatever happens next (frames already written are data), unless
+    /// the recording is [discarded](Recorder::discard) before its first frame.
     pub fn create(dir: &Path) -> Result<Self, FrameError> {
-        OutDir::prepare(dir, Replace::Never)?.keep();
+        let folder = OutDir::prepare(dir, Replace::Never)?;
         let path = dir.join(INDEX_FILE);
         let file = File::options()
             .write(true)
@@ -88,7 +101,20 @@ impl Recorder {
             index: BufWriter::new(file),
             images: 0,
             indexed: 0,
+            folder: Some(folder),
         })
+    }
+
+    /// Undoes a recording that never started (the sensor refused the sequence): its
+    /// empty index goes, and the folders [`Recorder::create`] made with it. A recording
+    /// with a frame in it is kept.
+    pub fn discard(mut self) {
+        if self.images > 0 || self.indexed > 0 {
+            return;
+        }
+        let _ = std::fs::remove_file(self.dir.join(INDEX_FILE));
+        // Dropped unkept: removes what it made (nothing, for a folder that was there).
+        drop(self.folder.take());
     }
 
     /// Write a frame's image now (its index line follows once it is labelled).

@@ -105,8 +105,20 @@ pub fn run(a: Args) -> Result<()> {
         });
     }
     let sensor = &mut opened.sensor;
-    a.sequence.start(sensor)?;
-    let end = a.sequence.deadline(sensor)?;
+    let started = a
+        .sequence
+        .start(sensor)
+        .and_then(|()| a.sequence.deadline(sensor));
+    let end = match started {
+        Ok(end) => end,
+        Err(e) => {
+            // Nothing was recorded: the folders and empty indexes made for it go.
+            for camera in cameras {
+                camera.recorder.discard();
+            }
+            return Err(e);
+        }
+    };
     let progress = spinner("recording");
     let mut failure = None;
     while !stop.load(Ordering::SeqCst) && end.is_none_or(|e| sensor.clock().now_us() < e) {
