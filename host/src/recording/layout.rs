@@ -47,7 +47,8 @@ fn span_at(file: &mut File, len: u64, start: u64) -> std::io::Result<Option<Span
     let head: [u8; 9] = read_at(file, start)?;
     let opcode = head[0];
     let body = u64::from_le_bytes(head[1..].try_into().expect("8 bytes"));
-    if !(op::HEADER..=op::DATA_END).contains(&opcode) {
+    // The specification's records, and private ones (0x80 and up).
+    if !(op::HEADER..=op::DATA_END).contains(&opcode) && opcode < 0x80 {
         return Ok(None);
     }
     Ok(start
@@ -77,6 +78,37 @@ pub fn record_holding(
         start = span.end;
     }
     Ok(None)
+}
+
+/// `true` when the chunk `span` is whole by its own fields (its header and compressed
+/// records fill its body exactly) and a record starts where it ends (or the file ends
+/// there): then its length field, which says where reading goes on, is sound.
+pub fn chunk_is_consistent(file: &mut File, len: u64, span: Span) -> std::io::Result<bool> {
+    // start, end, uncompressed size (u64 each), uncompressed CRC (u32), then the
+    // compression string's length.
+    const FIXED: u64 = 8 + 8 + 8 + 4;
+    let body = span.end - span.start - RECORD_HEAD;
+    if span.opcode != op::CHUNK || body < FIXED + 4 + 8 {
+        return Ok(false);
+    }
+    let at = span.start + RECORD_HEAD + FIXED;
+    let compression: [u8; 4] = read_at(file, at)?;
+    let compression = u64::from(u32::from_le_bytes(compression));
+    let Some(size_at) = (at + 4).checked_add(compression) else {
+        return Ok(false);
+    };
+    if size_at + 8 > span.end {
+        return Ok(false);
+    }
+    let compressed = u64::from_le_bytes(read_at(file, size_at)?);
+    if size_at
+        .checked_add(8)
+        .and_then(|s| s.checked_add(compressed))
+        != Some(span.end)
+    {
+        return Ok(false);
+    }
+    Ok(span.end == len || span_at(file, len, span.end)?.is_some())
 }
 
 /// The channels (id → topic, message encoding) the summary section of a finished file
@@ -169,6 +201,30 @@ mod tests {
             at = span.end;
         }
         assert!(chunks > 5, "{chunks} chunks");
+        // Every chunk is whole by its fields; one whose length field was changed is not.
+        let mut at = 8u64;
+        let mut first_chunk = None;
+        while let Some(span) = record_holding(&mut file, len, 8, at).unwrap() {
+            if span.opcode == op::CHUNK {
+                assert!(chunk_is_consistent(&mut file, len, span).unwrap());
+                first_chunk.get_or_insert(span);
+            }
+            if span.opcode == op::FOOTER {
+                break;
+            }
+            at = span.end;
+        }
+        let chunk = first_chunk.unwrap();
+        for shorter in [1, 8, 100] {
+            let cut = Span {
+                end: chunk.end - shorter,
+                ..chunk
+            };
+            assert!(
+                !chunk_is_consistent(&mut file, len, cut).unwrap(),
+                "{shorter}"
+            );
+        }
         // Byte 10 lies in the first record (the header).
         let first = record_holding(&mut file, len, 8, 10).unwrap().unwrap();
         assert_eq!((first.opcode, first.start), (op::HEADER, 8));

@@ -99,6 +99,8 @@ pub struct RecordingReader {
     summary_read: bool,
     /// The data section's end was read: what follows is the summary.
     data_ended: bool,
+    /// How the records are read (kept for a reader that goes on after a skip).
+    options: LinearReaderOptions,
 }
 
 impl std::fmt::Debug for RecordingReader {
@@ -162,6 +164,7 @@ impl RecordingReader {
             path: path.to_path_buf(),
             file,
             reader: LinearReader::new_with_options(reader_options()),
+            options: reader_options(),
             channels: HashMap::new(),
             truncated: None,
             note: None,
@@ -211,8 +214,8 @@ impl RecordingReader {
             let more = self.skipped_total - places.len();
             let one = self.skipped_total == 1;
             parts.push(format!(
-                "{} damaged chunk{} skipped, {}{}: {} messages are lost, the rest of the \
-                 file was read",
+                "{} damaged chunk{} skipped, {}{}: {} messages are lost, the reading went \
+                 on after {}",
                 self.skipped_total,
                 if one { "" } else { "s" },
                 places.join(", "),
@@ -222,6 +225,7 @@ impl RecordingReader {
                     String::new()
                 },
                 if one { "its" } else { "their" },
+                if one { "it" } else { "them" },
             ));
         }
         if self.lost_messages > 0 {
@@ -247,18 +251,21 @@ impl RecordingReader {
         else {
             return false;
         };
-        if span.opcode != mcap::records::op::CHUNK
-            || self.file.seek(SeekFrom::Start(span.end)).is_err()
-        {
+        let sound = span.opcode == mcap::records::op::CHUNK
+            && layout::chunk_is_consistent(&mut self.file, self.len, span).unwrap_or(false);
+        if !sound || self.file.seek(SeekFrom::Start(span.end)).is_err() {
             return false;
         }
         if self.skipped.len() < NAMED_SKIPS {
             self.skipped.push((span.start, span.end, error.to_string()));
         }
         self.skipped_total += 1;
-        self.reader = LinearReader::new_with_options(reader_options().with_skip_start_magic(true));
+        self.reader =
+            LinearReader::new_with_options(self.options.clone().with_skip_start_magic(true));
         self.read_bytes = span.end;
         self.boundary = span.end;
+        // Said even to a caller that stops reading before the end.
+        self.note = self.compose_note();
         true
     }
 
@@ -360,7 +367,16 @@ impl RecordingReader {
                     // A chunk whose bytes are not the ones written (a damaged disk or
                     // copy): skipped whole (none of its records is handed out: its
                     // checksum is checked first), and the reading goes on after it.
-                    if self.skip_damaged_chunk(&e) {
+                    // Not a chunk this reader cannot read (another compression).
+                    let damage = matches!(
+                        e,
+                        mcap::McapError::BadChunkCrc { .. }
+                            | mcap::McapError::DecompressionError(_)
+                            | mcap::McapError::BadChunkLength { .. }
+                            | mcap::McapError::UnexpectedEoc
+                            | mcap::McapError::Io(_)
+                    );
+                    if damage && self.skip_damaged_chunk(&e) {
                         continue;
                     }
                     // Damage in the summary, after every message was read: said, not
@@ -373,7 +389,7 @@ impl RecordingReader {
                     | mcap::McapError::DecompressionError(_) = e
                     {
                         self.truncated = Some(format!(
-                            "a chunk ending by byte {} of {} is damaged ({e}) and where it \
+                            "a chunk read up to byte {} of {} is damaged ({e}) and where it \
                              ends cannot be told; everything before that chunk was read, \
                              nothing of it or after",
                             self.read_bytes, self.len
@@ -434,6 +450,7 @@ impl RecordingReader {
                     }) else {
                         if self.skipped_total > 0 {
                             self.lost_messages += 1;
+                            self.note = self.compose_note();
                             continue;
                         }
                         return Some(Err(self.format(format!(
@@ -644,11 +661,10 @@ pub fn frames<E: From<RecordingError>>(
 /// The header alone: a pass over the file that skips the chunks undecompressed.
 pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
     let mut reader = RecordingReader::open(path)?;
-    reader.reader = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_emit_chunks(true)
-            .with_record_length_limit(RECORD_LIMIT),
-    );
+    reader.options = LinearReaderOptions::default()
+        .with_emit_chunks(true)
+        .with_record_length_limit(RECORD_LIMIT);
+    reader.reader = LinearReader::new_with_options(reader.options.clone());
     let mut header = RecordingHeader::default();
     while let Some(record) = reader.next_record() {
         match record? {

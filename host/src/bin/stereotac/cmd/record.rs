@@ -113,7 +113,8 @@ pub fn run(a: Args) -> Result<()> {
         Ok(end) => end,
         Err(e) => {
             // Nothing was recorded: the folders and empty indexes made for it go.
-            for camera in cameras {
+            // The last first: the first camera's folder holds the others'.
+            for camera in cameras.into_iter().rev() {
                 camera.recorder.discard();
             }
             return Err(e);
