@@ -100,14 +100,20 @@ impl Live {
         {
             Ok(end) => Ok((self, end)),
             Err(e) => {
-                if let Ok(RecordingSummary {
-                    path: Some(path), ..
-                }) = self.recorder.finish()
-                {
-                    let _ = std::fs::remove_file(path);
-                }
+                self.abandon();
                 Err(e)
             }
+        }
+    }
+
+    /// Undoes a session that never started its sequence (the sensor refused it, or a
+    /// stage could not be set up): the recording holds its header alone and goes.
+    pub fn abandon(self) {
+        if let Ok(RecordingSummary {
+            path: Some(path), ..
+        }) = self.recorder.finish()
+        {
+            let _ = std::fs::remove_file(path);
         }
     }
 

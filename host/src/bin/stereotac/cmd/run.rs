@@ -176,18 +176,30 @@ pub fn run(a: Args) -> Result<()> {
             Ok(())
         },
     )?;
-    if let Some(t) = &tactile {
-        t.record(&live.recorder)?;
-    }
-    if let Some(s) = &stereo {
-        s.record(&live.recorder)?;
-    }
-    let stamp = |i: usize| live.session.captures()[i].stamp_ref();
-    let tactile_stage = tactile.as_ref().map(|t| t.stage(stamp(0))).transpose()?;
-    let stereo_stage = stereo
-        .as_ref()
-        .map(|s| s.stage([stamp(0), stamp(1)]))
-        .transpose()?;
+    // The model and calibration go into the recording, and the stages are set up;
+    // a failure there leaves no header-only recording behind.
+    let stages = (|| -> Result<_> {
+        if let Some(t) = &tactile {
+            t.record(&live.recorder)?;
+        }
+        if let Some(s) = &stereo {
+            s.record(&live.recorder)?;
+        }
+        let stamp = |i: usize| live.session.captures()[i].stamp_ref();
+        let tactile_stage = tactile.as_ref().map(|t| t.stage(stamp(0))).transpose()?;
+        let stereo_stage = stereo
+            .as_ref()
+            .map(|s| s.stage([stamp(0), stamp(1)]))
+            .transpose()?;
+        Ok((tactile_stage, stereo_stage))
+    })();
+    let (tactile_stage, stereo_stage) = match stages {
+        Ok(stages) => stages,
+        Err(e) => {
+            live.abandon();
+            return Err(e);
+        }
+    };
     let mut pipeline = Pipeline::new(tactile_stage, stereo_stage);
     let mut hooks = RunHooks {
         report: Report::new(a.jsonl),
