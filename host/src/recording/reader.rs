@@ -10,7 +10,9 @@
 //! is and says so. A damaged chunk (its checksum or decompression fails) is skipped
 //! and reading goes on after it, where its length field says it ends ([`layout`]); the
 //! note names it. Damage in the summary section, after every message, is a note too.
-//! Damage anywhere else is an error naming the file.
+//! Damage whose end cannot be told (a length field) stops the reading there, with a
+//! note, as a cut does. A file that holds no record before its damage, or a chunk in a
+//! compression this build cannot read, is an error naming the file.
 //!
 //! [`layout`]: super::layout
 //!
@@ -269,6 +271,18 @@ impl RecordingReader {
         true
     }
 
+    /// Damage whose end cannot be told (a length field itself damaged, a record that
+    /// cannot be one): the reading stops there, and what came before is kept, as with a
+    /// file cut short. A file damaged before its first record is refused instead
+    /// ([`RecordingReader::next_record`]).
+    fn stop_at_damage(&mut self, error: &impl std::fmt::Display) {
+        self.truncated = Some(format!(
+            "the file is damaged at byte {} of {} ({error}) and where the damage ends cannot \
+             be told: everything before it was read, nothing after",
+            self.read_bytes, self.len
+        ));
+    }
+
     /// The channel of a message read after a skipped chunk that declared it: from the
     /// file's summary.
     fn channel_from_summary(&mut self, id: u16) -> Option<(String, String)> {
@@ -385,18 +399,12 @@ impl RecordingReader {
                         self.truncated = Some(summary_damaged(&e));
                         return None;
                     }
-                    if let mcap::McapError::BadChunkCrc { .. }
-                    | mcap::McapError::DecompressionError(_) = e
-                    {
-                        self.truncated = Some(format!(
-                            "a chunk read up to byte {} of {} is damaged ({e}) and where it \
-                             ends cannot be told; everything before that chunk was read, \
-                             nothing of it or after",
-                            self.read_bytes, self.len
-                        ));
-                        return None;
+                    // A chunk this build cannot decompress is not damage: refused.
+                    if let mcap::McapError::UnsupportedCompression(_) = e {
+                        return Some(Err(self.format(e.to_string())));
                     }
-                    return Some(Err(self.format(e.to_string())));
+                    self.stop_at_damage(&e);
+                    return None;
                 }
             };
             let (opcode, data) = match event {
@@ -429,7 +437,8 @@ impl RecordingReader {
                         self.truncated = Some(summary_damaged(&e));
                         return None;
                     }
-                    return Some(Err(self.format(e)));
+                    self.stop_at_damage(&e);
+                    return None;
                 }
             };
             use mcap::records::Record as R;
@@ -1019,6 +1028,34 @@ mod tests {
         assert_eq!(times, (0..2000).collect::<Vec<_>>());
         let note = note.unwrap_or_default();
         assert!(note.contains("summary section"), "{note}");
+        // A chunk's length field damaged (one less, or 4096 more): where the chunk ends
+        // cannot be trusted, so the reading stops there with a note, keeping what came
+        // before (it was an error, and the pairs before were lost).
+        let mut walk = 8usize;
+        let mut chunks = Vec::new();
+        while walk + 9 <= bytes.len() && bytes[walk] != mcap::records::op::FOOTER {
+            if bytes[walk] == mcap::records::op::CHUNK {
+                chunks.push(walk);
+            }
+            let len = u64::from_le_bytes(bytes[walk + 1..walk + 9].try_into().unwrap());
+            walk += 9 + len as usize;
+        }
+        assert!(chunks.len() > 10, "{} chunks", chunks.len());
+        let fresh = json_recording_with("length", 2000, options());
+        let whole = std::fs::read(&fresh).unwrap();
+        let _ = std::fs::remove_file(fresh);
+        for bit in [0, 12] {
+            let mut broken = whole.clone();
+            let at = chunks[chunks.len() / 2] + 1 + bit / 8;
+            broken[at] ^= 1 << (bit % 8);
+            std::fs::write(&damaged, &broken).unwrap();
+            let (times, note) = read_times(&damaged);
+            let note = note.expect("said");
+            assert!(note.contains("damaged at byte"), "bit {bit}: {note}");
+            let read = times.len() as u64;
+            assert!(read > 500 && read < 2000, "bit {bit}: {read}");
+            assert_eq!(times, (0..read).collect::<Vec<_>>());
+        }
         let _ = std::fs::remove_file(damaged);
         // Two recordings one after the other: the first is read whole, and the bytes
         // after it are said (`cat` of two files was read as the first with no word).
