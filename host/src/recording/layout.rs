@@ -111,24 +111,30 @@ pub fn chunk_is_consistent(file: &mut File, len: u64, span: Span) -> std::io::Re
     Ok(span.end == len || span_at(file, len, span.end)?.is_some())
 }
 
-/// The channels (id → topic, message encoding) the summary section of a finished file
-/// repeats, or none when the file has no summary, or its footer or records are not sound.
-/// Bodies longer than `limit` are not read.
-pub fn summary_channels(
-    file: &mut File,
-    len: u64,
-    limit: usize,
-) -> std::io::Result<HashMap<u16, (String, String)>> {
-    let mut channels = HashMap::new();
+/// What a finished file's summary section repeats that the reader may need after
+/// damage.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Summary {
+    /// Channels: id → (topic, message encoding).
+    pub channels: HashMap<u16, (String, String)>,
+    /// Every chunk's place (from the chunk index records), in file order.
+    pub chunks: Vec<Span>,
+}
+
+/// The summary section of a finished file of `len` bytes; empty when the file has no
+/// summary, or its footer is not sound (records that are not sound end it). Bodies longer
+/// than `limit` are not read.
+pub fn summary(file: &mut File, len: u64, limit: usize) -> std::io::Result<Summary> {
+    let mut found = Summary::default();
     let magic = mcap::MAGIC.len() as u64;
     let Some(footer_at) = len.checked_sub(magic + FOOTER_LEN) else {
-        return Ok(channels);
+        return Ok(found);
     };
     let footer: [u8; FOOTER_LEN as usize] = read_at(file, footer_at)?;
     let body = u64::from_le_bytes(footer[1..9].try_into().expect("8 bytes"));
     let summary_start = u64::from_le_bytes(footer[9..17].try_into().expect("8 bytes"));
     if footer[0] != op::FOOTER || body != FOOTER_LEN - RECORD_HEAD || summary_start < magic {
-        return Ok(channels);
+        return Ok(found);
     }
     let mut start = summary_start;
     while start < footer_at {
@@ -136,17 +142,33 @@ pub fn summary_channels(
             break;
         };
         let body_len = span.end - span.start - RECORD_HEAD;
-        if span.opcode == op::CHANNEL && body_len <= limit as u64 {
+        let wanted = matches!(span.opcode, op::CHANNEL | op::CHUNK_INDEX);
+        if wanted && body_len <= limit as u64 {
             let mut body = vec![0u8; body_len as usize];
             file.seek(SeekFrom::Start(span.start + RECORD_HEAD))?;
             file.read_exact(&mut body)?;
-            if let Ok(mcap::records::Record::Channel(c)) = mcap::parse_record(op::CHANNEL, &body) {
-                channels.insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
+            match mcap::parse_record(span.opcode, &body) {
+                Ok(mcap::records::Record::Channel(c)) => {
+                    found
+                        .channels
+                        .insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
+                }
+                Ok(mcap::records::Record::ChunkIndex(c)) => {
+                    if let Some(end) = c.chunk_start_offset.checked_add(c.chunk_length) {
+                        found.chunks.push(Span {
+                            opcode: op::CHUNK,
+                            start: c.chunk_start_offset,
+                            end,
+                        });
+                    }
+                }
+                _ => {}
             }
         }
         start = span.end;
     }
-    Ok(channels)
+    found.chunks.sort_by_key(|c| c.start);
+    Ok(found)
 }
 
 #[cfg(test)]
@@ -159,7 +181,7 @@ mod tests {
     /// record it names begins where the previous one ended; the summary gives the
     /// channel; a length field past the end stops the walk.
     #[test]
-    fn walks_records_and_reads_the_summary_channels() {
+    fn walks_records_and_reads_the_summary() {
         let path =
             std::env::temp_dir().join(format!("stereotac-layout-{}.mcap", std::process::id()));
         let file = std::io::BufWriter::new(File::create(&path).unwrap());
@@ -230,25 +252,30 @@ mod tests {
         assert_eq!((first.opcode, first.start), (op::HEADER, 8));
         assert!(first.end > 10);
         assert_eq!(record_holding(&mut file, len, 108, 50).unwrap(), None);
-        let channels = summary_channels(&mut file, len, 1 << 20).unwrap();
+        let found = summary(&mut file, len, 1 << 20).unwrap();
         assert_eq!(
-            channels.get(&channel),
+            found.channels.get(&channel),
             Some(&("/a/topic".to_string(), "json".to_string()))
         );
+        // The summary indexes every chunk the walk found, each whole by its fields.
+        assert_eq!(found.chunks.len(), chunks);
+        for c in &found.chunks {
+            assert_eq!(bytes[c.start as usize], op::CHUNK);
+            assert!(chunk_is_consistent(&mut file, len, *c).unwrap());
+        }
         // A length field that runs past the end: not a record.
         let mut broken = bytes.clone();
         broken[9..17].copy_from_slice(&u64::MAX.to_le_bytes());
         std::fs::write(&path, &broken).unwrap();
         let mut file = File::open(&path).unwrap();
         assert_eq!(record_holding(&mut file, len, 8, 2000).unwrap(), None);
-        // No footer: no summary channels.
+        // No footer: no summary.
         std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
         let mut file = File::open(&path).unwrap();
         let half = len / 2;
-        assert!(
-            summary_channels(&mut file, half, 1 << 20)
-                .unwrap()
-                .is_empty()
+        assert_eq!(
+            summary(&mut file, half, 1 << 20).unwrap(),
+            Summary::default()
         );
         let _ = std::fs::remove_file(&path);
     }

@@ -97,8 +97,8 @@ pub struct RecordingReader {
     skipped_total: usize,
     /// Messages after a skipped chunk on a channel neither read nor in the summary.
     lost_messages: u64,
-    /// The summary's channels were looked up (after a skip).
-    summary_read: bool,
+    /// The file's summary, once looked up (after damage).
+    summary: Option<layout::Summary>,
     /// The data section's end was read: what follows is the summary.
     data_ended: bool,
     /// How the records are read (kept for a reader that goes on after a skip).
@@ -178,7 +178,7 @@ impl RecordingReader {
             skipped: Vec::new(),
             skipped_total: 0,
             lost_messages: 0,
-            summary_read: false,
+            summary: None,
             data_ended: false,
         })
     }
@@ -216,8 +216,8 @@ impl RecordingReader {
             let more = self.skipped_total - places.len();
             let one = self.skipped_total == 1;
             parts.push(format!(
-                "{} damaged chunk{} skipped, {}{}: {} messages are lost, the reading went \
-                 on after {}",
+                "{} damaged chunk{} skipped, {}{}: the messages in {} not read before the \
+                 damage was found are lost, the reading went on after {}",
                 self.skipped_total,
                 if one { "" } else { "s" },
                 places.join(", "),
@@ -226,7 +226,7 @@ impl RecordingReader {
                 } else {
                     String::new()
                 },
-                if one { "its" } else { "their" },
+                if one { "it" } else { "them" },
                 if one { "it" } else { "them" },
             ));
         }
@@ -258,16 +258,7 @@ impl RecordingReader {
         if !sound || self.file.seek(SeekFrom::Start(span.end)).is_err() {
             return false;
         }
-        if self.skipped.len() < NAMED_SKIPS {
-            self.skipped.push((span.start, span.end, error.to_string()));
-        }
-        self.skipped_total += 1;
-        self.reader =
-            LinearReader::new_with_options(self.options.clone().with_skip_start_magic(true));
-        self.read_bytes = span.end;
-        self.boundary = span.end;
-        // Said even to a caller that stops reading before the end.
-        self.note = self.compose_note();
+        self.skip_to(span.start, span.end, error);
         true
     }
 
@@ -286,19 +277,55 @@ impl RecordingReader {
     /// The channel of a message read after a skipped chunk that declared it: from the
     /// file's summary.
     fn channel_from_summary(&mut self, id: u16) -> Option<(String, String)> {
+        let found = self.summary()?.channels.get(&id).cloned()?;
+        self.channels.insert(id, found.clone());
+        Some(found)
+    }
+
+    /// The file's summary (read once; empty when it has none or it is not sound), with
+    /// the file left where the reader is.
+    fn summary(&mut self) -> Option<&layout::Summary> {
         use std::io::{Seek, SeekFrom};
-        if !self.summary_read {
-            self.summary_read = true;
-            let found = layout::summary_channels(&mut self.file, self.len, RECORD_LIMIT);
-            // Back where the reader is, whatever the lookup did.
-            if self.file.seek(SeekFrom::Start(self.read_bytes)).is_err() {
-                return None;
-            }
-            for (k, v) in found.unwrap_or_default() {
-                self.channels.entry(k).or_insert(v);
-            }
+        if self.summary.is_none() {
+            let found = layout::summary(&mut self.file, self.len, RECORD_LIMIT);
+            self.summary = Some(found.unwrap_or_default());
+            self.file.seek(SeekFrom::Start(self.read_bytes)).ok()?;
         }
-        self.channels.get(&id).cloned()
+        self.summary.as_ref()
+    }
+
+    /// After damage whose end cannot be told from the file's own fields: goes on at the
+    /// first chunk the summary indexes past the damage, when that chunk is whole by its
+    /// fields (`true`); what lies between is skipped.
+    fn resume_at_indexed_chunk(&mut self, error: &impl std::fmt::Display) -> bool {
+        use std::io::{Seek, SeekFrom};
+        let (at, len) = (self.read_bytes.saturating_sub(1), self.len);
+        let Some(next) = self
+            .summary()
+            .and_then(|s| s.chunks.iter().find(|c| c.start > at).copied())
+        else {
+            return false;
+        };
+        let sound = layout::chunk_is_consistent(&mut self.file, len, next).unwrap_or(false);
+        if !sound || self.file.seek(SeekFrom::Start(next.start)).is_err() {
+            return false;
+        }
+        self.skip_to(at, next.start, error);
+        true
+    }
+
+    /// Records a skip of bytes `from..to` and goes on reading at `to`.
+    fn skip_to(&mut self, from: u64, to: u64, error: &impl std::fmt::Display) {
+        if self.skipped.len() < NAMED_SKIPS {
+            self.skipped.push((from, to, error.to_string()));
+        }
+        self.skipped_total += 1;
+        self.reader =
+            LinearReader::new_with_options(self.options.clone().with_skip_start_magic(true));
+        self.read_bytes = to;
+        self.boundary = to;
+        // Said even to a caller that stops reading before the end.
+        self.note = self.compose_note();
     }
 
     fn format(&self, message: impl Into<String>) -> RecordingError {
@@ -403,6 +430,9 @@ impl RecordingReader {
                     if let mcap::McapError::UnsupportedCompression(_) = e {
                         return Some(Err(self.format(e.to_string())));
                     }
+                    if self.resume_at_indexed_chunk(&e) {
+                        continue;
+                    }
                     self.stop_at_damage(&e);
                     return None;
                 }
@@ -436,6 +466,9 @@ impl RecordingReader {
                     if self.data_ended {
                         self.truncated = Some(summary_damaged(&e));
                         return None;
+                    }
+                    if self.resume_at_indexed_chunk(&e) {
+                        continue;
                     }
                     self.stop_at_damage(&e);
                     return None;
@@ -1029,8 +1062,9 @@ mod tests {
         let note = note.unwrap_or_default();
         assert!(note.contains("summary section"), "{note}");
         // A chunk's length field damaged (one less, or 4096 more): where the chunk ends
-        // cannot be trusted, so the reading stops there with a note, keeping what came
-        // before (it was an error, and the pairs before were lost).
+        // cannot be trusted, so the reading goes on at the next chunk the summary indexes
+        // (it was an error, and the pairs before were lost); without a summary, it stops
+        // there with a note, keeping what came before.
         let mut walk = 8usize;
         let mut chunks = Vec::new();
         while walk + 9 <= bytes.len() && bytes[walk] != mcap::records::op::FOOTER {
@@ -1048,6 +1082,22 @@ mod tests {
             let mut broken = whole.clone();
             let at = chunks[chunks.len() / 2] + 1 + bit / 8;
             broken[at] ^= 1 << (bit % 8);
+            std::fs::write(&damaged, &broken).unwrap();
+            let (times, note) = read_times(&damaged);
+            let note = note.expect("said");
+            assert!(
+                note.contains("1 damaged chunk skipped"),
+                "bit {bit}: {note}"
+            );
+            assert!(times.windows(2).all(|w| w[0] < w[1]));
+            // One less: the chunk's records were whole and all read before its end was
+            // found wrong, so nothing is lost.
+            assert!(times.len() > 1700, "bit {bit}: {}", times.len());
+            assert_eq!((times[0], times[times.len() - 1]), (0, 1999));
+            // No summary (the footer points at none): the reading stops there.
+            let footer = broken.len() - 8 - 29;
+            assert_eq!(broken[footer], mcap::records::op::FOOTER);
+            broken[footer + 9..footer + 17].fill(0);
             std::fs::write(&damaged, &broken).unwrap();
             let (times, note) = read_times(&damaged);
             let note = note.expect("said");
