@@ -16,6 +16,10 @@ use mcap::records::op;
 
 /// Bytes of a record's opcode and length.
 const RECORD_HEAD: u64 = 9;
+/// Most chunk places a summary gives (a hostile summary cannot take more memory).
+const MAX_CHUNKS: usize = 1 << 20;
+/// Largest channel record read from a summary (a topic, an encoding, a little metadata).
+const MAX_CHANNEL_BODY: u64 = 64 << 10;
 /// A footer record: head, summary start, summary offset start, summary CRC.
 const FOOTER_LEN: u64 = RECORD_HEAD + 8 + 8 + 4;
 
@@ -111,6 +115,12 @@ pub fn chunk_is_consistent(file: &mut File, len: u64, span: Span) -> std::io::Re
     Ok(span.end == len || span_at(file, len, span.end)?.is_some())
 }
 
+/// `true` when `span` (a chunk's place as an index gives it) is where a chunk record
+/// starts: its opcode and length field say so, and it is whole by its fields.
+pub fn is_chunk_at(file: &mut File, len: u64, span: Span) -> std::io::Result<bool> {
+    Ok(span_at(file, len, span.start)? == Some(span) && chunk_is_consistent(file, len, span)?)
+}
+
 /// What a finished file's summary section repeats that the reader may need after
 /// damage.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -142,27 +152,32 @@ pub fn summary(file: &mut File, len: u64, limit: usize) -> std::io::Result<Summa
             break;
         };
         let body_len = span.end - span.start - RECORD_HEAD;
-        let wanted = matches!(span.opcode, op::CHANNEL | op::CHUNK_INDEX);
-        if wanted && body_len <= limit as u64 {
+        let body_at = span.start + RECORD_HEAD;
+        // A chunk index starts with two times, then the chunk's start and length: only
+        // those are read. At most one index per chunk the file could hold.
+        if span.opcode == op::CHUNK_INDEX && body_len >= 32 && found.chunks.len() < MAX_CHUNKS {
+            let place: [u8; 16] = read_at(file, body_at + 16)?;
+            let chunk_start = u64::from_le_bytes(place[..8].try_into().expect("8 bytes"));
+            let chunk_len = u64::from_le_bytes(place[8..].try_into().expect("8 bytes"));
+            if let Some(end) = chunk_start.checked_add(chunk_len).filter(|&e| e <= len) {
+                found.chunks.push(Span {
+                    opcode: op::CHUNK,
+                    start: chunk_start,
+                    end,
+                });
+            }
+        }
+        if span.opcode == op::CHANNEL
+            && body_len <= MAX_CHANNEL_BODY.min(limit as u64)
+            && found.channels.len() < usize::from(u16::MAX)
+        {
             let mut body = vec![0u8; body_len as usize];
-            file.seek(SeekFrom::Start(span.start + RECORD_HEAD))?;
+            file.seek(SeekFrom::Start(body_at))?;
             file.read_exact(&mut body)?;
-            match mcap::parse_record(span.opcode, &body) {
-                Ok(mcap::records::Record::Channel(c)) => {
-                    found
-                        .channels
-                        .insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
-                }
-                Ok(mcap::records::Record::ChunkIndex(c)) => {
-                    if let Some(end) = c.chunk_start_offset.checked_add(c.chunk_length) {
-                        found.chunks.push(Span {
-                            opcode: op::CHUNK,
-                            start: c.chunk_start_offset,
-                            end,
-                        });
-                    }
-                }
-                _ => {}
+            if let Ok(mcap::records::Record::Channel(c)) = mcap::parse_record(op::CHANNEL, &body) {
+                found
+                    .channels
+                    .insert(c.id, (c.topic.to_string(), c.message_encoding.to_string()));
             }
         }
         start = span.end;
@@ -260,8 +275,13 @@ mod tests {
         // The summary indexes every chunk the walk found, each whole by its fields.
         assert_eq!(found.chunks.len(), chunks);
         for c in &found.chunks {
-            assert_eq!(bytes[c.start as usize], op::CHUNK);
-            assert!(chunk_is_consistent(&mut file, len, *c).unwrap());
+            assert!(is_chunk_at(&mut file, len, *c).unwrap());
+            // One byte off is not a chunk's place.
+            let off = Span {
+                start: c.start + 1,
+                ..*c
+            };
+            assert!(!is_chunk_at(&mut file, len, off).unwrap());
         }
         // A length field that runs past the end: not a record.
         let mut broken = bytes.clone();
