@@ -129,6 +129,32 @@ fn reader_options() -> LinearReaderOptions {
         .with_record_length_limit(RECORD_LIMIT)
 }
 
+/// `Ok` unless `body` is an attachment too short for its fields. The mcap crate's
+/// parser slices an attachment's body up to its last four bytes (the checksum) before
+/// checking that they are there, and panics on a body that ends right after the data's
+/// length field: a damaged or hostile file must give an error instead.
+fn attachment_fits(opcode: u8, body: &[u8]) -> Result<(), mcap::McapError> {
+    if opcode != mcap::records::op::ATTACHMENT {
+        return Ok(());
+    }
+    let too_short = || mcap::McapError::BadAttachmentLength {
+        header: 0,
+        available: body.len() as u64,
+    };
+    // Log time and create time, then the name and the media type (u32 length and
+    // bytes each), then the data's length (u64), then the data and a u32 checksum.
+    let mut at: usize = 16;
+    for _ in 0..2 {
+        let len = body.get(at..at + 4).ok_or_else(too_short)?;
+        let len = u32::from_le_bytes(len.try_into().expect("4 bytes")) as usize;
+        at = at.checked_add(4 + len).ok_or_else(too_short)?;
+    }
+    match at.checked_add(8 + 4) {
+        Some(end) if end <= body.len() => Ok(()),
+        _ => Err(too_short()),
+    }
+}
+
 /// Damaged chunks the note names by their bytes (the others are counted).
 const NAMED_SKIPS: usize = 5;
 
@@ -488,7 +514,9 @@ impl RecordingReader {
                     (opcode, data)
                 }
             };
-            let record = match mcap::parse_record(opcode, data) {
+            let parsed =
+                attachment_fits(opcode, data).and_then(|()| mcap::parse_record(opcode, data));
+            let record = match parsed {
                 Ok(r) => r,
                 Err(e) => {
                     let e = e.to_string();
@@ -958,6 +986,29 @@ mod tests {
             "{note}"
         );
         let _ = std::fs::remove_file(&path);
+    }
+
+    /// An attachment whose body ends right after its data's length field (the mcap
+    /// parser would panic on it) is an error; one with its fields whole parses.
+    #[test]
+    fn short_attachments_are_refused_not_a_panic() {
+        let mut body = Vec::new();
+        body.extend_from_slice(&[0u8; 16]);
+        for text in ["a", "b"] {
+            body.extend_from_slice(&(text.len() as u32).to_le_bytes());
+            body.extend_from_slice(text.as_bytes());
+        }
+        body.extend_from_slice(&0u64.to_le_bytes());
+        let op = mcap::records::op::ATTACHMENT;
+        for cut in [body.len(), 3, 0, 20] {
+            assert!(attachment_fits(op, &body[..cut]).is_err(), "{cut}");
+        }
+        let mut whole = body.clone();
+        whole.extend_from_slice(&0u32.to_le_bytes());
+        attachment_fits(op, &whole).unwrap();
+        assert!(mcap::parse_record(op, &whole).is_ok());
+        // Other records are not looked at.
+        attachment_fits(mcap::records::op::MESSAGE, &[]).unwrap();
     }
 
     /// A recording of `n` JSON messages on the LED phase topic, log times 0..n.
