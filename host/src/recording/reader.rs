@@ -10,7 +10,8 @@
 //! is and says so. A damaged chunk (its checksum or decompression fails) is skipped
 //! and reading goes on after it, where its length field says it ends ([`layout`]); the
 //! note names it. Damage in the summary section, after every message, is a note too.
-//! Damage whose end cannot be told (a length field) stops the reading there, with a
+//! Damage whose end the file's own fields cannot tell (a length field) goes on at the
+//! next chunk the summary indexes, or, without one, stops the reading there with a
 //! note, as a cut does. A file that holds no record before its damage, or a chunk in a
 //! compression this build cannot read, is an error naming the file.
 //!
@@ -292,6 +293,21 @@ impl RecordingReader {
         true
     }
 
+    /// After damage [`Self::skip_damaged_chunk`] could not skip: `true` when the reading
+    /// goes on at the next chunk the summary indexes; otherwise the reading ends with a
+    /// note (damage in the summary itself, after every message, or no place to go on).
+    fn go_on_after_damage(&mut self, error: &impl std::fmt::Display) -> bool {
+        if self.data_ended {
+            self.truncated = Some(summary_damaged(error));
+            return false;
+        }
+        if self.resume_at_indexed_chunk(error) {
+            return true;
+        }
+        self.stop_at_damage(error);
+        false
+    }
+
     /// Damage whose end cannot be told (a length field itself damaged, a record that
     /// cannot be one): the reading stops there, and what came before is kept, as with a
     /// file cut short. A file damaged before its first record is refused instead
@@ -472,23 +488,18 @@ impl RecordingReader {
                     if damage && self.skip_damaged_chunk(&e) {
                         continue;
                     }
-                    // Damage in the summary, after every message was read: said, not
-                    // fatal.
-                    if self.data_ended {
-                        self.truncated = Some(summary_damaged(&e));
-                        return None;
-                    }
                     // A chunk in a compression this build cannot read is not damage:
-                    // refused. A name no MCAP writer uses is a damaged header.
+                    // refused (past the data's end it is the summary's damage). A name
+                    // no MCAP writer uses is a damaged header.
                     if let mcap::McapError::UnsupportedCompression(name) = &e
+                        && !self.data_ended
                         && ["zstd", "lz4", ""].contains(&name.as_str())
                     {
                         return Some(Err(self.format(e.to_string())));
                     }
-                    if self.resume_at_indexed_chunk(&e) {
+                    if self.go_on_after_damage(&e) {
                         continue;
                     }
-                    self.stop_at_damage(&e);
                     return None;
                 }
             };
@@ -520,17 +531,9 @@ impl RecordingReader {
                 Ok(r) => r,
                 Err(e) => {
                     let e = e.to_string();
-                    if self.skip_damaged_chunk(&e) {
+                    if self.skip_damaged_chunk(&e) || self.go_on_after_damage(&e) {
                         continue;
                     }
-                    if self.data_ended {
-                        self.truncated = Some(summary_damaged(&e));
-                        return None;
-                    }
-                    if self.resume_at_indexed_chunk(&e) {
-                        continue;
-                    }
-                    self.stop_at_damage(&e);
                     return None;
                 }
             };
