@@ -14,7 +14,7 @@ use stereotac::live::runner::{self, Hooks, Stopped, Until};
 use stereotac::live::session::Session;
 use stereotac::live::{Output, Pipeline, PipelineError};
 use stereotac::matcher::{CameraSync, MatcherConfig};
-use stereotac::recording::reader::{self, Content};
+use stereotac::recording::content::{self, Content};
 use stereotac::recording::writer::{Recorder, RecorderOptions};
 use stereotac::sim::camera::{PhaseImages, SimClocking, SimulatedCamera};
 use stereotac::sim::link::LoopbackConfig;
@@ -123,7 +123,7 @@ fn run_with(unplug_us: Option<f64>, flag: &AtomicBool) -> (Stopped, Count, PathB
 /// Frames per camera in a recording, read through to its summary.
 fn recorded_frames(path: &Path) -> [u64; 2] {
     let mut n = [0u64; 2];
-    let (_, truncated) = reader::frames(path, |c, _| {
+    let (_, truncated) = content::frames(path, |c, _| {
         if let Content::Frame(f) = c {
             n[f.camera] += 1;
         }

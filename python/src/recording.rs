@@ -1,7 +1,7 @@
 //! Recordings from Python: `Recording(path)` reads an MCAP recording (`stereotac run`,
 //! `record`, `process`, the demo) and iterates its frames and messages in file order as
 //! numpy arrays and dicts. Reading and decoding are the library's
-//! ([`stereotac::recording::reader::stream`], [`stereotac::recording::decoded`]).
+//! ([`stereotac::recording::content::stream`], [`stereotac::recording::decoded`]).
 
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -12,10 +12,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 
 use stereotac::recording::RecordingError;
+use stereotac::recording::content::{Content, ContentStream, RecordedFrame, stream};
 use stereotac::recording::decoded::{Decoded, decode};
-use stereotac::recording::reader::{
-    Content, ContentStream, Record, RecordedFrame, RecordingHeader, header, stream,
-};
+use stereotac::recording::reader::{Record, RecordingHeader, header};
 use stereotac::recording::topics;
 use stereotac::tactile::model::TactileModel;
 

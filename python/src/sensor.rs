@@ -24,8 +24,8 @@ use stereotac::live::{
     Output, Pipeline, PipelineError, StereoStage, TactileStage, check_ambient, stages_of,
 };
 use stereotac::matcher::{MatcherConfig, StampRef};
+use stereotac::recording::content::RecordedFrame;
 use stereotac::recording::messages::{FrameInfo, StereoRecord, TactileRecord};
-use stereotac::recording::reader::RecordedFrame;
 use stereotac::recording::writer::{Recorder, RecorderOptions, clock_origin_unix_ns};
 use stereotac::sensors::{self, OpenedSensor, SensorChoice};
 use stereotac::stereo::calibration::{LengthUnit, StereoCalibration};

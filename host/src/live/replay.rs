@@ -10,7 +10,7 @@ use image::RgbImage;
 use super::{Job, Router};
 use crate::matcher::Label;
 use crate::recording::RecordingError;
-use crate::recording::reader::{self, Content};
+use crate::recording::content::{self, Content};
 
 /// A pair from a recording, named after its first frame's phase index.
 #[derive(Debug, Clone)]
@@ -52,7 +52,7 @@ pub fn pairs<E: From<RecordingError>>(
     mut each: impl FnMut(RecordedPair) -> Result<(), E>,
 ) -> Result<Option<String>, E> {
     let mut router = Router::default();
-    let (_, truncated) = reader::frames(path, |content, _| -> Result<ControlFlow<()>, E> {
+    let (_, truncated) = content::frames(path, |content, _| -> Result<ControlFlow<()>, E> {
         let Content::Frame(f) = content else {
             return Ok(ControlFlow::Continue(()));
         };

@@ -12,12 +12,15 @@
 //! - [`reader`]: reads a recording back, streaming, and recovers what a killed writer
 //!   left (everything up to the last complete chunk); a damaged chunk is skipped and the
 //!   rest read (`layout` walks the records' lengths to find where it ends).
+//! - [`content`]: frames joined with their labels, pushed ([`content::frames`]) or
+//!   pulled from a reading thread ([`content::stream`]).
 //!
 //! Time: every message's log time is the host clock (`HostClock`, µs since the run
 //! began) placed on the Unix epoch by the wall-clock time of the host clock's origin,
 //! which the `stereotac` metadata record keeps (`clock_origin_unix_ns`). The JSON
 //! messages carry the host µs themselves, so nothing is lost to the conversion.
 
+pub mod content;
 pub mod decoded;
 mod layout;
 pub mod messages;

@@ -13,8 +13,9 @@ use anyhow::{Context, Result, bail};
 use foxglove::Decode;
 use stereotac::describe;
 use stereotac::live::{Job, Pipeline, PipelineError, check_ambient};
+use stereotac::recording::content::{self, Content};
 use stereotac::recording::messages::{ClockInfo, PhaseInfo};
-use stereotac::recording::reader::{self, Content, Record, RecordingHeader};
+use stereotac::recording::reader::{self, Record, RecordingHeader};
 use stereotac::recording::topics;
 use stereotac::recording::writer::{Item, Recorder, RecorderOptions};
 use stereotac::stereo::StereoCalibration;
@@ -176,7 +177,7 @@ pub fn run(a: Args) -> Result<()> {
         Ok(open)
     };
     let mut stdout_open = true;
-    let read = reader::frames(
+    let read = content::frames(
         &a.recording,
         |content, (done, len)| -> Result<ControlFlow<()>> {
             progress.set_length(len.max(1));
