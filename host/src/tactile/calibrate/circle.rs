@@ -36,6 +36,15 @@ pub struct OutlineFit {
     pub outline_px: usize,
 }
 
+impl OutlineFit {
+    /// Whether the outline is a circle: its inliers within 6 % of the radius (at least
+    /// 1.5 px) and at least 60 % of it inliers. Two contacts, a sliding ball or a shape
+    /// that is not a ball fail it.
+    pub fn is_round(&self) -> bool {
+        self.rms_px <= (0.06 * self.circle.r).max(1.5) && self.inlier_fraction >= 0.6
+    }
+}
+
 /// Fits the contact circle of a touched-pixel mask (`w × h`, consumed); `None` when
 /// there is no usable outline. Outline pixels next to an `unknown` pixel (one the colour
 /// filter rejected: saturated, too dark) are left out: the outline there is where the
@@ -264,6 +273,28 @@ fn keep_largest_component(mask: &mut [bool], w: usize, h: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Round: inliers within 6 % of the radius (1.5 px for small circles) and 60 % of the
+    /// outline inliers; just past either bound is not.
+    #[test]
+    fn roundness_bounds() {
+        let fit = |r: f64, rms_px: f64, inlier_fraction: f64| OutlineFit {
+            circle: Circle {
+                cx: 0.0,
+                cy: 0.0,
+                r,
+            },
+            rms_px,
+            inlier_fraction,
+            outline_px: 100,
+        };
+        assert!(fit(50.0, 3.0, 0.6).is_round());
+        assert!(!fit(50.0, 3.01, 0.6).is_round());
+        assert!(!fit(50.0, 1.0, 0.59).is_round());
+        assert!(fit(10.0, 1.5, 0.9).is_round());
+        assert!(!fit(10.0, 1.51, 0.9).is_round());
+        assert!(!fit(10.0, f64::NAN, 0.9).is_round());
+    }
 
     #[test]
     fn circle_fit_recovers_an_arc() {

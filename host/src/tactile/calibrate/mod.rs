@@ -466,8 +466,13 @@ pub fn calibrate(
             })
             .collect()
     };
+    // Flat skin is measured away from round outlines only: around one that is not a
+    // circle (two contacts, a sliding ball, a ball larger than the circle shows) the
+    // circle misses part of the imprint, whose slopes would count as flat skin's noise.
     let circles_of = |fits: &[Option<OutlineFit>]| -> Vec<Option<Circle>> {
-        fits.iter().map(|f| f.map(|f| f.circle)).collect()
+        fits.iter()
+            .map(|f| f.filter(OutlineFit::is_round).map(|f| f.circle))
+            .collect()
     };
     let first_threshold = threshold::provisional(&maps);
     let first = fit_all(first_threshold);
@@ -601,15 +606,10 @@ pub fn calibrate(
             })
         } else {
             match fit {
-                Some(f)
-                    if !overridden
-                        && (f.rms_px > (0.06 * f.circle.r).max(1.5) || f.inlier_fraction < 0.6) =>
-                {
-                    Some(Rejection::NotCircular {
-                        rms_px: f.rms_px,
-                        inlier_fraction: f.inlier_fraction,
-                    })
-                }
+                Some(f) if !overridden && !f.is_round() => Some(Rejection::NotCircular {
+                    rms_px: f.rms_px,
+                    inlier_fraction: f.inlier_fraction,
+                }),
                 _ => None,
             }
         };

@@ -98,10 +98,10 @@ impl CalibrationReport {
             ));
         }
         let threshold = model.contact.threshold;
-        if noise.is_some_and(|n| n.unbounded > MAX_THRESHOLD) {
+        if let Some(n) = noise.filter(|n| n.unbounded > MAX_THRESHOLD) {
             warnings.push(format!(
-                "flat skin departs from the references by up to {:.2} (threshold held at {MAX_THRESHOLD}): are the reference frames from this sensor and these lights?",
-                noise.map_or(0.0, |n| n.p9999)
+                "flat skin departs from the references by up to {:.2} (99.99th percentile), so its contact threshold would be {:.2}, above the {MAX_THRESHOLD} allowed (held there; light contact will be missed): are the reference frames from this sensor and these lights, and is the LED light bright enough (dim light makes the colours noisy)?",
+                n.p9999, n.unbounded
             ));
         }
 
