@@ -466,13 +466,8 @@ pub fn calibrate(
             })
             .collect()
     };
-    // Flat skin is measured away from round outlines only: around one that is not a
-    // circle (two contacts, a sliding ball, a ball larger than the circle shows) the
-    // circle misses part of the imprint, whose slopes would count as flat skin's noise.
     let circles_of = |fits: &[Option<OutlineFit>]| -> Vec<Option<Circle>> {
-        fits.iter()
-            .map(|f| f.filter(OutlineFit::is_round).map(|f| f.circle))
-            .collect()
+        fits.iter().map(|f| f.map(|f| f.circle)).collect()
     };
     let first_threshold = threshold::provisional(&maps);
     let first = fit_all(first_threshold);

@@ -99,8 +99,13 @@ impl CalibrationReport {
         }
         let threshold = model.contact.threshold;
         if let Some(n) = noise.filter(|n| n.unbounded > MAX_THRESHOLD) {
+            let held = if n.p9999 >= MAX_THRESHOLD {
+                "a skin at rest will read as contact in places"
+            } else {
+                "less margin over the noise, and light contact will be missed"
+            };
             warnings.push(format!(
-                "flat skin departs from the references by up to {:.2} (99.99th percentile), so its contact threshold would be {:.2}, above the {MAX_THRESHOLD} allowed (held there; light contact will be missed): are the reference frames from this sensor and these lights, and is the LED light bright enough (dim light makes the colours noisy)?",
+                "flat skin departs from the references by up to {:.2} (99.99th percentile), so its contact threshold would be {:.2}, above the {MAX_THRESHOLD} allowed (held there: {held}): are the reference frames from this sensor and these lights, and is the LED light bright enough (dim light makes the colours noisy)?",
                 n.p9999, n.unbounded
             ));
         }
