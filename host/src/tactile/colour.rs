@@ -187,7 +187,10 @@ impl Reference {
         (self.weight_red[i], self.weight_blue[i])
     }
 
-    /// The reference's planes over indices `range` (panics outside the reference).
+    /// The reference's planes over indices `range` (panics outside the reference). Inlined
+    /// so that loops over `range` see every plane's length and run without bounds checks
+    /// (in vector lanes).
+    #[inline(always)]
     pub fn planes(&self, range: std::ops::Range<usize>) -> ReferencePlanes<'_> {
         ReferencePlanes {
             inv_red: &self.inv_red[range.clone()],

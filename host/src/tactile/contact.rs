@@ -208,16 +208,19 @@ fn block_departures_portable(
         &dy.clipped[..n],
     );
     let mut out = vec![0.0f32; n];
-    let (mut unlit_dx, mut unlit_dy) = (0usize, 0usize);
+    // Per block, bit 0 set when dx is unlit, bit 1 when dy is, counted after the loop:
+    // with the counts inside it the loop stayed scalar (detection at rest 235 → 150 µs
+    // at 640×480 here).
+    let mut unlit = vec![0u8; n];
     for i in 0..n {
         let (d_dx, lit_dx) = ref_dx.departure(filter, i, [rx[i], gx[i], bx[i]]);
         let (d_dy, lit_dy) = ref_dy.departure(filter, i, [ry[i], gy[i], by[i]]);
-        unlit_dx += usize::from(!lit_dx);
-        unlit_dy += usize::from(!lit_dy);
+        unlit[i] = u8::from(!lit_dx) | (u8::from(!lit_dy) << 1);
         let clipped = (cx[i] | cy[i]) != 0;
         out[i] = if clipped { f32::NAN } else { 0.0 + d_dx + d_dy };
     }
-    (out, [unlit_dx, unlit_dy])
+    let count = |bit: u8| unlit.iter().map(|&u| u32::from(u & bit != 0)).sum::<u32>() as usize;
+    (out, [count(1), count(2)])
 }
 
 /// Where contact was found: the regions to integrate, and the blocks (of
@@ -344,11 +347,18 @@ pub fn find_regions(
         .zip(&my.clipped)
         .map(|(&a, &b)| (a != 0) != (b != 0))
         .collect();
-    join_clipped_neighbours(&mut detection.touched, &one_phase, gw, gh);
-    join_enclosing_clipped(&mut detection.touched, &one_phase, params.min_cells, gw, gh);
     // The regions hold the contacts with the blocks they took in (a joined block can
-    // lie past the padding of the contact's own box).
-    let (_, contacts) = label_components(&detection.touched, gw, gh);
+    // lie past the padding of the contact's own box). With no block clipped in one phase
+    // nothing joins, and the contacts are the components kept (most frames: the two
+    // passes over the blocks are skipped).
+    let contacts = if one_phase.iter().any(|&c| c) {
+        join_clipped_neighbours(&mut detection.touched, &one_phase, gw, gh);
+        join_enclosing_clipped(&mut detection.touched, &one_phase, params.min_cells, gw, gh);
+        label_components(&detection.touched, gw, gh).1
+    } else {
+        let kept = components.into_iter().zip(&keep).filter(|(_, k)| **k);
+        kept.map(|(c, _)| c).collect()
+    };
     let mut regions: Vec<Roi> = contacts
         .iter()
         .map(|c| {

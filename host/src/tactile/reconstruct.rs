@@ -667,13 +667,10 @@ impl Reconstructor {
             let src = depth_px.row(ry);
             let inside = &imprint[ry * roi.width..(ry + 1) * roi.width];
             let dst = &mut out.depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
-            for (rx, ((d, s), &keep)) in dst.iter_mut().zip(src).zip(inside).enumerate() {
+            for ((d, s), &keep) in dst.iter_mut().zip(src).zip(inside) {
                 *d = if keep { (s - anchor) * scale } else { 0.0 };
-                // The first NaN is kept, never replaced.
-                if extreme.0.is_finite() && (d.is_nan() || d.abs() > extreme.0.abs()) {
-                    extreme = (*d, roi.x + rx, y);
-                }
             }
+            update_extreme(&mut extreme, dst, roi.x, y);
             let m = &mut out.contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
             for (d, s) in m
                 .iter_mut()
@@ -750,6 +747,24 @@ fn photometric_slopes(
     }
 }
 
+/// `extreme` (`(depth, x, y)`, the largest |depth| so far, or the first NaN, which is
+/// kept, never replaced) updated with `row`, row `y` of depths from column `x0`. Rows
+/// that hold no NaN and nothing beyond it are not searched: the bits of |depth| order as
+/// the values do and a NaN's lie above infinity's, so one integer maximum (in vector
+/// lanes) tells.
+fn update_extreme(extreme: &mut (f32, usize, usize), row: &[f32], x0: usize, y: usize) {
+    let largest = row.iter().fold(0u32, |m, d| m.max(d.abs().to_bits()));
+    let beats = largest > f32::INFINITY.to_bits() || f32::from_bits(largest) > extreme.0.abs();
+    if !(extreme.0.is_finite() && beats) {
+        return;
+    }
+    for (dx, d) in row.iter().enumerate() {
+        if extreme.0.is_finite() && (d.is_nan() || d.abs() > extreme.0.abs()) {
+            *extreme = (*d, x0 + dx, y);
+        }
+    }
+}
+
 fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
     let mut ring = Vec::new();
     let mut near = vec![false; w];
@@ -790,6 +805,28 @@ fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn extreme_is_the_largest_magnitude_or_the_first_nan() {
+        let mut e = (0.0f32, 0, 0);
+        update_extreme(&mut e, &[0.0, 0.5, -0.7, 0.2], 10, 3);
+        assert_eq!(e, (-0.7, 12, 3));
+        // A row with nothing beyond it changes nothing; a tie keeps the first.
+        update_extreme(&mut e, &[0.1, 0.7, -0.3], 0, 4);
+        assert_eq!(e, (-0.7, 12, 3));
+        update_extreme(&mut e, &[0.9, f32::INFINITY], 0, 5);
+        assert_eq!(e, (f32::INFINITY, 1, 5));
+        // The first NaN wins over anything after it and stays.
+        let mut e = (0.3f32, 1, 1);
+        update_extreme(&mut e, &[0.0, f32::NAN, 5.0, -f32::NAN], 2, 6);
+        assert!(e.0.is_nan() && (e.1, e.2) == (3, 6), "{e:?}");
+        update_extreme(&mut e, &[9.0, f32::NAN], 0, 7);
+        assert_eq!((e.1, e.2), (3, 6));
+        // An empty row changes nothing.
+        let mut e = (0.25f32, 4, 4);
+        update_extreme(&mut e, &[], 0, 0);
+        assert_eq!(e, (0.25, 4, 4));
+    }
 
     /// The row-wise ring equals the pixel-by-pixel definition on random imprints.
     #[test]
