@@ -5,7 +5,9 @@
 //! empty one is used, and one with files in it is refused unless the user passed
 //! `--force` ([`Replace::Force`]), or an earlier run of the same command made it
 //! ([`Replace::OwnEarlierRun`], for the demo's scratch folder: a marker file, [`MARKER`],
-//! names the command; its files are replaced, others left alone). When the value is dropped without [`OutDir::keep`]
+//! names the command; its files are replaced, others left alone; a folder the command
+//! was forced into while it held other files is not marked). When the value is dropped
+//! without [`OutDir::keep`]
 //! (the run failed), a directory this run created is removed again with what it wrote,
 //! and so are the parent folders it made for it (when still empty); one that existed
 //! before is left as it is.
@@ -117,14 +119,18 @@ impl OutDir {
             .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
             .collect::<Result<_, _>>()
             .map_err(io)?;
+        let ours = match replace {
+            Replace::OwnEarlierRun { command, .. } => {
+                std::fs::read_to_string(path.join(MARKER)).is_ok_and(|m| m.trim() == command)
+            }
+            _ => false,
+        };
         let allowed = entries.is_empty()
-            || match replace {
-                Replace::Never | Replace::NotForced => false,
-                Replace::Force | Replace::OwnEarlierRun { force: true, .. } => true,
-                Replace::OwnEarlierRun { command, .. } => {
-                    std::fs::read_to_string(path.join(MARKER)).is_ok_and(|m| m.trim() == command)
-                }
-            };
+            || ours
+            || matches!(
+                replace,
+                Replace::Force | Replace::OwnEarlierRun { force: true, .. }
+            );
         if !allowed {
             let example = entries.iter().min().cloned().unwrap_or_default();
             return Err(OutDirError::NotEmpty {
@@ -134,7 +140,12 @@ impl OutDir {
                 forcible: replace != Replace::Never,
             });
         }
-        dir.mark(replace)?;
+        // Forced into a folder that held other files and was not this command's: it
+        // stays the user's, unmarked, so a later run without `--force` is refused again
+        // rather than taking it for its own.
+        if entries.is_empty() || ours {
+            dir.mark(replace)?;
+        }
         Ok(dir)
     }
 
@@ -292,6 +303,19 @@ mod tests {
             OutDir::prepare(&d, demo).is_err(),
             "not marked as the demo's"
         );
+        // Forced into the user's folder, the demo does not mark it as its own: the
+        // next run without --force is refused again.
+        let forced = Replace::OwnEarlierRun {
+            command: "demo",
+            force: true,
+        };
+        OutDir::prepare(&d, forced).unwrap().keep();
+        assert!(
+            !d.join(MARKER).exists(),
+            "the user's folder marked as the demo's"
+        );
+        let e = OutDir::prepare(&d, demo).unwrap_err().to_string();
+        assert!(e.contains("mine.txt") && e.contains("--force"), "{e}");
         let e2 = scratch("own");
         OutDir::prepare(&e2, demo).unwrap().keep();
         std::fs::write(e2.join("depth.npy"), b"x").unwrap();

@@ -747,8 +747,8 @@ fn photometric_slopes(
     }
 }
 
-/// `extreme` (`(depth, x, y)`, the largest |depth| so far, or the first NaN, which is
-/// kept, never replaced) updated with `row`, row `y` of depths from column `x0`. Rows
+/// `extreme` (`(depth, x, y)`, the largest |depth| so far, or the first value that is not
+/// finite, which is kept, never replaced) updated with `row`, row `y` of depths from column `x0`. Rows
 /// that hold no NaN and nothing beyond it are not searched: the bits of |depth| order as
 /// the values do and a NaN's lie above infinity's, so one integer maximum (in vector
 /// lanes) tells.
@@ -807,7 +807,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn extreme_is_the_largest_magnitude_or_the_first_nan() {
+    fn extreme_is_the_largest_magnitude_or_the_first_non_finite() {
         let mut e = (0.0f32, 0, 0);
         update_extreme(&mut e, &[0.0, 0.5, -0.7, 0.2], 10, 3);
         assert_eq!(e, (-0.7, 12, 3));
@@ -815,6 +815,9 @@ mod tests {
         update_extreme(&mut e, &[0.1, 0.7, -0.3], 0, 4);
         assert_eq!(e, (-0.7, 12, 3));
         update_extreme(&mut e, &[0.9, f32::INFINITY], 0, 5);
+        assert_eq!(e, (f32::INFINITY, 1, 5));
+        // Not finite: kept, even against a NaN after it.
+        update_extreme(&mut e, &[f32::NAN], 0, 6);
         assert_eq!(e, (f32::INFINITY, 1, 5));
         // The first NaN wins over anything after it and stays.
         let mut e = (0.3f32, 1, 1);
