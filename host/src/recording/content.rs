@@ -73,6 +73,8 @@ pub fn frames<E: From<RecordingError>>(
     let mut header = RecordingHeader::default();
     let mut labels: HashMap<(usize, u64), (FrameInfo, Label)> = HashMap::new();
     let mut unlabelled = 0u64;
+    // The caller stopped the reading: labels still waiting for their images are not lost.
+    let mut stopped = false;
     let bad = |topic: &str, log_time_ns, message: String| RecordingError::Message {
         path: path.to_path_buf(),
         topic: topic.to_string(),
@@ -138,11 +140,13 @@ pub fn frames<E: From<RecordingError>>(
                     )?
                     .is_break()
                     {
+                        stopped = true;
                         break;
                     }
                 }
                 _ => {
                     if each(Content::Other(record), progress)?.is_break() {
+                        stopped = true;
                         break;
                     }
                 }
@@ -150,12 +154,14 @@ pub fn frames<E: From<RecordingError>>(
             Record::Metadata { name, entries } => {
                 header.metadata.insert(name.clone(), entries.clone());
                 if each(Content::Other(record), progress)?.is_break() {
+                    stopped = true;
                     break;
                 }
             }
             Record::Attachment { name, data, .. } => {
                 header.attachments.insert(name.clone(), data.clone());
                 if each(Content::Other(record), progress)?.is_break() {
+                    stopped = true;
                     break;
                 }
             }
@@ -167,6 +173,19 @@ pub fn frames<E: From<RecordingError>>(
             "1 image whose label was in a damaged chunk was skipped".to_string()
         } else {
             format!("{unlabelled} images whose labels were in a damaged chunk were skipped")
+        };
+        note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
+    }
+    // Labels whose images never came: in a damaged chunk, or past where the reading
+    // stopped (a cut file). Their frames are lost as well, and counted.
+    if !stopped && !labels.is_empty() {
+        let lost = if labels.len() == 1 {
+            "1 frame label whose image never came (in a damaged chunk, or past the end read) was skipped".to_string()
+        } else {
+            format!(
+                "{} frame labels whose images never came (in a damaged chunk, or past the end read) were skipped",
+                labels.len()
+            )
         };
         note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
     }
@@ -376,6 +395,14 @@ mod tests {
             note.contains("1 image whose label was in a damaged chunk"),
             "{note}"
         );
+        assert!(
+            note.contains("1 frame label whose image never came"),
+            "frame 19's label: {note}"
+        );
+        // A reader that stops early loses nothing: no label is counted.
+        let r = frames::<RecordingError>(&path, |_, _| Ok(ControlFlow::Break(())));
+        let note = r.unwrap().1.unwrap_or_default();
+        assert!(!note.contains("label"), "{note}");
         let _ = std::fs::remove_file(&path);
     }
 
