@@ -64,7 +64,9 @@ pub const MAX_PENDING_LABELS: usize = 4096;
 /// other message in file order (and may break off); the header is returned with how the
 /// file ended.
 /// A frame's image and label are joined by camera and timestamp (the label comes
-/// first); an image whose label never came is reported, not guessed.
+/// first); an image whose label never came is reported, not guessed, and so is a label
+/// whose image never came (unless `each` broke off: the image may have been still to
+/// come).
 pub fn frames<E: From<RecordingError>>(
     path: &Path,
     mut each: impl FnMut(Content, (u64, u64)) -> Result<ControlFlow<()>, E>,
@@ -73,7 +75,9 @@ pub fn frames<E: From<RecordingError>>(
     let mut header = RecordingHeader::default();
     let mut labels: HashMap<(usize, u64), (FrameInfo, Label)> = HashMap::new();
     let mut unlabelled = 0u64;
-    // The caller stopped the reading: labels still waiting for their images are not lost.
+    // The caller broke off: labels still waiting may have had their images still to come
+    // (a writer that puts other messages between a label and its image), so they are not
+    // counted as lost.
     let mut stopped = false;
     let bad = |topic: &str, log_time_ns, message: String| RecordingError::Message {
         path: path.to_path_buf(),
@@ -176,14 +180,14 @@ pub fn frames<E: From<RecordingError>>(
         };
         note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
     }
-    // Labels whose images never came: in a damaged chunk, or past where the reading
-    // stopped (a cut file). Their frames are lost as well, and counted.
+    // Labels whose images never came: in a damaged chunk, or after where the reading
+    // ended (a cut file). Their frames are lost as well, and counted.
     if !stopped && !labels.is_empty() {
         let lost = if labels.len() == 1 {
-            "1 frame label whose image never came (in a damaged chunk, or past the end read) was skipped".to_string()
+            "1 frame label whose image never came (in a damaged chunk, or after where the reading ended) was skipped".to_string()
         } else {
             format!(
-                "{} frame labels whose images never came (in a damaged chunk, or past the end read) were skipped",
+                "{} frame labels whose images never came (in a damaged chunk, or after where the reading ended) were skipped",
                 labels.len()
             )
         };
@@ -324,8 +328,8 @@ mod tests {
     }
 
     /// Frames whose labels were in a skipped chunk: their images are skipped and
-    /// counted, every other frame is read; without a skipped chunk, an image with no
-    /// label is an error.
+    /// counted, and so are labels whose images were in it; every other frame is read;
+    /// without a skipped chunk, an image with no label is an error.
     #[test]
     fn images_whose_labels_were_lost_are_skipped_and_counted() {
         use foxglove::Encode;
@@ -399,10 +403,68 @@ mod tests {
             note.contains("1 frame label whose image never came"),
             "frame 19's label: {note}"
         );
-        // A reader that stops early loses nothing: no label is counted.
-        let r = frames::<RecordingError>(&path, |_, _| Ok(ControlFlow::Break(())));
-        let note = r.unwrap().1.unwrap_or_default();
-        assert!(!note.contains("label"), "{note}");
+        let _ = std::fs::remove_file(&path);
+    }
+
+    /// A label whose image never came is counted when the reading ends, and not when the
+    /// caller broke off while it was waiting (its image may have been still to come).
+    #[test]
+    fn labels_without_images_are_counted_unless_the_reading_was_broken_off() {
+        use foxglove::Encode;
+        let path =
+            std::env::temp_dir().join(format!("stereotac-waiting-{}.mcap", std::process::id()));
+        let file = std::io::BufWriter::new(File::create(&path).unwrap());
+        let mut w = mcap::WriteOptions::new().create(file).unwrap();
+        let meta = BTreeMap::new();
+        let labels = w
+            .add_channel(0, &topics::camera_frame(0), "json", &meta)
+            .unwrap();
+        let images = w
+            .add_channel(0, &topics::camera_image(0), "protobuf", &meta)
+            .unwrap();
+        let other = w.add_channel(0, topics::LED_PHASE, "json", &meta).unwrap();
+        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
+        let header = |channel_id, t: u64| mcap::records::MessageHeader {
+            channel_id,
+            sequence: t as u32,
+            log_time: t,
+            publish_time: t,
+        };
+        let mut raw = Vec::new();
+        let image = RgbImage::from_pixel(8, 8, image::Rgb([10, 20, 30]));
+        super::super::messages::rgb_image(&image, 0, "cam0")
+            .encode(&mut raw)
+            .unwrap();
+        // Frame 0: its label, another message, then its image; frame 1: a label only.
+        w.write_to_known_channel(&header(labels, 0), label).unwrap();
+        w.write_to_known_channel(&header(other, 0), b"{}").unwrap();
+        w.write_to_known_channel(&header(images, 0), &raw).unwrap();
+        w.write_to_known_channel(&header(labels, 1), label).unwrap();
+        w.finish().unwrap();
+        drop(w);
+        let read = |stop_at_other: bool| {
+            let mut n = 0;
+            let (_, note) = frames::<RecordingError>(&path, |c, _| {
+                n += usize::from(matches!(c, Content::Frame(_)));
+                let stop = stop_at_other && matches!(c, Content::Other(_));
+                Ok(if stop {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                })
+            })
+            .unwrap();
+            (n, note.unwrap_or_default())
+        };
+        let (n, note) = read(false);
+        assert_eq!(n, 1);
+        assert!(
+            note.contains("1 frame label whose image never came"),
+            "frame 1's label: {note:?}"
+        );
+        // Broken off at the message between frame 0's label and its image.
+        let (n, note) = read(true);
+        assert_eq!((n, note.as_str()), (0, ""));
         let _ = std::fs::remove_file(&path);
     }
 
