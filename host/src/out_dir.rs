@@ -119,8 +119,9 @@ impl OutDir {
             .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
             .collect::<Result<_, _>>()
             .map_err(io)?;
+        // An empty folder needs no marker to be used: read only for one with files.
         let ours = match replace {
-            Replace::OwnEarlierRun { command, .. } => {
+            Replace::OwnEarlierRun { command, .. } if !entries.is_empty() => {
                 std::fs::read_to_string(path.join(MARKER)).is_ok_and(|m| m.trim() == command)
             }
             _ => false,

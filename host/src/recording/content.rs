@@ -172,28 +172,34 @@ pub fn frames<E: From<RecordingError>>(
         }
     }
     let mut note = reader.truncated().map(str::to_string);
-    if unlabelled > 0 {
-        let lost = if unlabelled == 1 {
-            "1 image whose label was in a damaged chunk was skipped".to_string()
-        } else {
-            format!("{unlabelled} images whose labels were in a damaged chunk were skipped")
-        };
-        note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
-    }
+    add_count(
+        &mut note,
+        unlabelled as usize,
+        "image whose label was in a damaged chunk was skipped",
+        "images whose labels were in a damaged chunk were skipped",
+    );
     // Labels whose images never came: in a damaged chunk, or after where the reading
     // ended (a cut file). Their frames are lost as well, and counted.
-    if !stopped && !labels.is_empty() {
-        let lost = if labels.len() == 1 {
-            "1 frame label whose image never came (in a damaged chunk, or after where the reading ended) was skipped".to_string()
-        } else {
-            format!(
-                "{} frame labels whose images never came (in a damaged chunk, or after where the reading ended) were skipped",
-                labels.len()
-            )
-        };
-        note = Some(note.map_or(lost.clone(), |n| format!("{n}; {lost}")));
+    if !stopped {
+        add_count(
+            &mut note,
+            labels.len(),
+            "frame label whose image never came (in a damaged chunk, or after where the reading ended) was skipped",
+            "frame labels whose images never came (in a damaged chunk, or after where the reading ended) were skipped",
+        );
     }
     Ok((header, note))
+}
+
+/// Adds "`n` `many`" ("1 `one`" when `n` is 1) to the reading's note, after what it says
+/// already; nothing when `n` is 0.
+fn add_count(note: &mut Option<String>, n: usize, one: &str, many: &str) {
+    let said = match n {
+        0 => return,
+        1 => format!("1 {one}"),
+        n => format!("{n} {many}"),
+    };
+    *note = Some(note.take().map_or(said.clone(), |s| format!("{s}; {said}")));
 }
 
 /// What [`stream`] hands on.
@@ -292,6 +298,9 @@ mod tests {
 
     use super::*;
 
+    /// A camera frame label (JSON, as `record` writes it).
+    const LABEL: &[u8] = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
+
     /// A file of frame labels whose images never come is refused once too many wait,
     /// instead of growing without bound.
     #[test]
@@ -302,7 +311,6 @@ mod tests {
         let mut w = mcap::WriteOptions::new().create(file).unwrap();
         let topic = topics::camera_frame(0);
         let channel = w.add_channel(0, &topic, "json", &BTreeMap::new()).unwrap();
-        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
         for i in 0..(MAX_PENDING_LABELS as u64 + 10) {
             let header = mcap::records::MessageHeader {
                 channel_id: channel,
@@ -310,7 +318,7 @@ mod tests {
                 log_time: i,
                 publish_time: i,
             };
-            w.write_to_known_channel(&header, label).unwrap();
+            w.write_to_known_channel(&header, LABEL).unwrap();
         }
         w.finish().unwrap();
         drop(w);
@@ -347,7 +355,6 @@ mod tests {
         let images = w
             .add_channel(0, &topics::camera_image(0), "protobuf", &meta)
             .unwrap();
-        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
         let image = RgbImage::from_pixel(16, 16, image::Rgb([10, 20, 30]));
         let mut label_at = Vec::new();
         for i in 0..40u64 {
@@ -357,7 +364,7 @@ mod tests {
                 log_time: i,
                 publish_time: i,
             };
-            w.write_to_known_channel(&header(labels), label).unwrap();
+            w.write_to_known_channel(&header(labels), LABEL).unwrap();
             label_at.push(i);
             let mut raw = Vec::new();
             super::super::messages::rgb_image(&image, i, "cam0")
@@ -382,9 +389,9 @@ mod tests {
         // A byte of the label chunk of frame 20 (the label is its only message).
         let mut bytes = std::fs::read(&path).unwrap();
         let labels_at: Vec<usize> = bytes
-            .windows(label.len())
+            .windows(LABEL.len())
             .enumerate()
-            .filter(|(_, w)| *w == label)
+            .filter(|(_, w)| *w == LABEL)
             .map(|(i, _)| i)
             .collect();
         assert_eq!(labels_at.len(), 40);
@@ -423,7 +430,6 @@ mod tests {
             .add_channel(0, &topics::camera_image(0), "protobuf", &meta)
             .unwrap();
         let other = w.add_channel(0, topics::LED_PHASE, "json", &meta).unwrap();
-        let label = br#"{"sequence": 0, "timestamp_us": 0.0, "exposure_us": 1.0, "stamp_ref": "exposure_start", "label": "unresolved", "index": null, "phase": null, "trigger": null}"#;
         let header = |channel_id, t: u64| mcap::records::MessageHeader {
             channel_id,
             sequence: t as u32,
@@ -436,10 +442,10 @@ mod tests {
             .encode(&mut raw)
             .unwrap();
         // Frame 0: its label, another message, then its image; frame 1: a label only.
-        w.write_to_known_channel(&header(labels, 0), label).unwrap();
+        w.write_to_known_channel(&header(labels, 0), LABEL).unwrap();
         w.write_to_known_channel(&header(other, 0), b"{}").unwrap();
         w.write_to_known_channel(&header(images, 0), &raw).unwrap();
-        w.write_to_known_channel(&header(labels, 1), label).unwrap();
+        w.write_to_known_channel(&header(labels, 1), LABEL).unwrap();
         w.finish().unwrap();
         drop(w);
         let read = |stop_at_other: bool| {

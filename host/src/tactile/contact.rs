@@ -156,8 +156,9 @@ pub fn block_deviations(
 }
 
 /// [`block_deviations`] and, per phase (`[dx, dy]`), the number of blocks where the filter
-/// rejected that phase. One branch-free pass (vector lanes); detection and calibration's threshold both use it,
-/// so the threshold is measured on the very numbers it is compared with.
+/// rejected that phase. One branch-free pass (vector lanes); detection and calibration's
+/// threshold both use it, so the threshold is measured on the very numbers it is compared
+/// with.
 #[allow(unsafe_code)]
 fn block_departures(
     dx: &BlockMeans,

@@ -748,10 +748,10 @@ fn photometric_slopes(
 }
 
 /// `extreme` (`(depth, x, y)`, the largest |depth| so far, or the first value that is not
-/// finite, which is kept, never replaced) updated with `row`, row `y` of depths from column `x0`. Rows
-/// that hold no NaN and nothing beyond it are not searched: the bits of |depth| order as
-/// the values do and a NaN's lie above infinity's, so one integer maximum (in vector
-/// lanes) tells.
+/// finite, which is kept, never replaced) updated with `row`, row `y` of depths from
+/// column `x0`. Rows that hold no NaN and nothing beyond it are not searched: the bits of
+/// |depth| order as the values do and a NaN's lie above infinity's, so one integer maximum
+/// (in vector lanes) tells.
 fn update_extreme(extreme: &mut (f32, usize, usize), row: &[f32], x0: usize, y: usize) {
     let largest = row.iter().fold(0u32, |m, d| m.max(d.abs().to_bits()));
     let beats = largest > f32::INFINITY.to_bits() || f32::from_bits(largest) > extreme.0.abs();
