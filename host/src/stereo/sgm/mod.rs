@@ -720,14 +720,16 @@ fn costs(s: &Shape, left: PlaneRow<'_>, right: PlaneRow<'_>, out: &mut [u8]) {
 fn hamming_runs(b: [u8; CENSUS_BYTES], runs: PlaneRow<'_>, out: &mut [u8]) {
     let n = out.len();
     let [r0, r1, r2, r3, r4, r5] = runs.map(|r| &r[..n]);
+    // At most 48 ones: wrapping adds never wrap, and keep the loop free of overflow
+    // checks in dev and test builds (which then ran it scalar).
     let ones = |a: u8, r: u8| (a ^ r).count_ones() as u8;
     for k in 0..n {
         out[k] = ones(b[0], r0[k])
-            + ones(b[1], r1[k])
-            + ones(b[2], r2[k])
-            + ones(b[3], r3[k])
-            + ones(b[4], r4[k])
-            + ones(b[5], r5[k]);
+            .wrapping_add(ones(b[1], r1[k]))
+            .wrapping_add(ones(b[2], r2[k]))
+            .wrapping_add(ones(b[3], r3[k]))
+            .wrapping_add(ones(b[4], r4[k]))
+            .wrapping_add(ones(b[5], r5[k]));
     }
 }
 
@@ -930,11 +932,15 @@ trait Lane: Copy + Ord {
     /// A penalty (`p1` or `p2`), which fits when the type was chosen for it.
     fn of_penalty(v: u16) -> Self;
     fn widen(self) -> u16;
-    /// Sums that stay in range by the bounds above.
+    /// Sums that stay in range by the bounds above: wrapping adds, which never wrap
+    /// then and keep the loops free of overflow checks in dev and test builds (which
+    /// ran the sweeps scalar, ten times slower; the tests check the sums against their
+    /// definition).
     fn add(self, o: Self) -> Self;
     /// Sums that may not (a padding lane plus `p1`): clamped at the type's maximum,
     /// which no step ever needs to beat.
     fn add_clamped(self, o: Self) -> Self;
+    /// A difference that stays non-negative by the bounds above (wrapping, as `add`).
     fn sub(self, o: Self) -> Self;
 }
 
@@ -956,7 +962,7 @@ impl Lane for u8 {
     }
     #[inline(always)]
     fn add(self, o: Self) -> Self {
-        self + o
+        self.wrapping_add(o)
     }
     #[inline(always)]
     fn add_clamped(self, o: Self) -> Self {
@@ -964,7 +970,7 @@ impl Lane for u8 {
     }
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
-        self - o
+        self.wrapping_sub(o)
     }
 }
 
@@ -986,7 +992,7 @@ impl Lane for u16 {
     }
     #[inline(always)]
     fn add(self, o: Self) -> Self {
-        self + o
+        self.wrapping_add(o)
     }
     #[inline(always)]
     fn add_clamped(self, o: Self) -> Self {
@@ -994,7 +1000,7 @@ impl Lane for u16 {
     }
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
-        self - o
+        self.wrapping_sub(o)
     }
 }
 
@@ -1134,7 +1140,7 @@ fn step_two<T: Lane>(
         let o = path_cost(c, (ob, om, oa2), mo, jo, pen.p1);
         *oa = a;
         *oo = o;
-        *s = a.widen() + o.widen();
+        *s = a.widen().wrapping_add(o.widen());
         la = la.min(a);
         lo = lo.min(o);
     }
@@ -1158,7 +1164,11 @@ fn start<T: Lane, const SET: bool>(cost: &[u8], out: &mut [T], sum: &mut [u16]) 
     let mut least = T::MAX;
     for ((o, s), &c) in out.iter_mut().zip(sum.iter_mut()).zip(cost) {
         *o = T::of_cost(c);
-        *s = if SET { o.widen() } else { *s + o.widen() };
+        *s = if SET {
+            o.widen()
+        } else {
+            s.wrapping_add(o.widen())
+        };
         least = least.min(*o);
     }
     least
@@ -1190,7 +1200,11 @@ fn step<T: Lane, const SET: bool>(
         .zip(below.iter().zip(here).zip(above));
     for (((o, s), &c), ((&b, &m), &a)) in lanes {
         *o = path_cost(c, (b, m, a), prev_min, jump, pen.p1);
-        *s = if SET { o.widen() } else { *s + o.widen() };
+        *s = if SET {
+            o.widen()
+        } else {
+            s.wrapping_add(o.widen())
+        };
         least = least.min(*o);
     }
     least
