@@ -245,6 +245,64 @@ fn a_built_in_capture_and_the_same_images_through_a_calibration_file_agree() {
         (got / want - 1.0).abs() < 1e-6,
         "--units m: {got} vs {want} mm"
     );
+
+    // What the calibration's reading warns of (here a misspelt key) is in summary.json
+    // with the result's warnings, and `--strict` fails on it.
+    let noted = dir.join("rig_noted.yaml");
+    std::fs::write(&noted, rig.to_opencv_yaml() + "k1: 0.5\n").unwrap();
+    let n = dir.join("noted");
+    let (ok, _, err) = stereo_from_files(&noted, &left_png, &right_png, &n, &[]);
+    assert!(
+        ok && err.matches("`k1`").count() == 1,
+        "printed once: {err}"
+    );
+    let s: Value =
+        serde_json::from_str(&std::fs::read_to_string(n.join("summary.json")).unwrap()).unwrap();
+    let warnings = s["warnings"].as_array().unwrap();
+    assert!(
+        warnings.len() == 1 && warnings[0].as_str().unwrap().contains("`k1`"),
+        "{warnings:?}"
+    );
+    let (ok, _, err) =
+        stereo_from_files(&noted, &left_png, &right_png, &n, &["--strict", "--force"]);
+    assert!(!ok && err.contains("1 warning(s) under --strict"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every depth written lies within `--near-mm..--far-mm`: the matcher searches whole
+/// blocks of 16 disparities, a little past the range, and what it finds past it is
+/// dropped and counted (a plane at 130–175 mm with the range starting at 160 used to
+/// keep its depths from 129 mm, under a warning that said they lay at the range's ends).
+#[test]
+fn depths_outside_the_working_range_are_dropped_and_counted() {
+    let dir = temp_dir("stereo-range");
+    let (ok, text, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "150",
+        "--near-mm",
+        "160",
+        "--far-mm",
+        "400",
+        "--out-dir",
+        dir.join("out").to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let s: Value = serde_json::from_str(&text).unwrap();
+    let dropped = s["stats"]["outside_range"].as_u64().unwrap();
+    assert!(dropped > 1000, "{}", s["stats"]);
+    let depth = npy_f32(&dir.join("out").join("depth.npy"));
+    let valid: Vec<f32> = depth.into_iter().filter(|d| d.is_finite()).collect();
+    assert!(!valid.is_empty());
+    assert!(
+        valid.iter().all(|&d| (159.99..=400.01).contains(&d)),
+        "{:?}",
+        valid
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(a, b), &d| (a.min(d), b.max(d)))
+    );
+    assert_eq!(s["stats"]["valid"].as_u64().unwrap() as usize, valid.len());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

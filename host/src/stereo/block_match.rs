@@ -308,6 +308,10 @@ pub struct MatchStats {
     pub left_right: usize,
     /// Removed as a speckle.
     pub speckle: usize,
+    /// Matched at a depth outside the working range (`near_mm`..`far_mm`; the search,
+    /// rounded up to whole blocks of disparities, runs a little past it), dropped by the
+    /// pipeline: what it writes lies within the range asked for.
+    pub outside_range: usize,
 }
 
 impl MatchStats {
@@ -331,6 +335,7 @@ impl MatchStats {
         self.range_edge += o.range_edge;
         self.left_right += o.left_right;
         self.speckle += o.speckle;
+        self.outside_range += o.outside_range;
         self
     }
 }

@@ -104,6 +104,80 @@ pub const MAX_RIG_TURN_DEG: f64 = 60.0;
 /// Plausible focal lengths, as multiples of the image width.
 pub const FOCAL_RANGE_OF_WIDTH: (f64, f64) = (0.1, 10.0);
 
+/// Largest ratio of the two cameras' focal lengths without a note.
+pub const MAX_FOCAL_MISMATCH: f64 = 1.25;
+/// Largest ratio of a camera's two focal lengths (`fy / fx` or its inverse): pixels are
+/// square or nearly.
+pub const MAX_PIXEL_ASPECT: f64 = 1.5;
+/// Largest skew (`K[0][1]`) as a share of `fx`: calibrations give 0, or nearly.
+pub const MAX_SKEW_OF_FOCAL: f64 = 0.05;
+/// How near a pixel must come back to itself through the lens model (unprojected to a
+/// ray, projected again), px.
+const LENS_ROUND_TRIP_PX: f64 = 0.01;
+
+/// Why a camera's intrinsics cannot be a real camera's, if they cannot: pixels far from
+/// square, a large skew, the principal point outside the image, or a lens model that does
+/// not map the middle of the image (halfway from the principal point to each edge and
+/// corner) to rays and back: coefficients mistyped, scaled or of another model. The
+/// wide-angle edges are not asked for: a fisheye model may turn back beyond its lens's
+/// field of view.
+fn implausible_intrinsics(cam: &Camera) -> Option<String> {
+    let k = &cam.k;
+    let (fx, fy, skew, cx, cy) = (k[(0, 0)], k[(1, 1)], k[(0, 1)], k[(0, 2)], k[(1, 2)]);
+    let (w, h) = (f64::from(cam.width), f64::from(cam.height));
+    let aspect = fy / fx;
+    if !(1.0 / MAX_PIXEL_ASPECT..=MAX_PIXEL_ASPECT).contains(&aspect) {
+        return Some(format!(
+            "focal lengths fx = {fx} and fy = {fy} px differ {:.2}×: a camera's pixels are \
+             square or nearly (within {MAX_PIXEL_ASPECT}×); one of them is mistyped, scaled, \
+             or of another image size",
+            aspect.max(1.0 / aspect)
+        ));
+    }
+    if skew.is_nan() || skew.abs() > MAX_SKEW_OF_FOCAL * fx {
+        return Some(format!(
+            "skew K[0][1] = {skew} px is {:.0}% of fx: calibrations give 0 or nearly (at most \
+             {:.0}%); the camera matrix is mistyped",
+            100.0 * skew.abs() / fx,
+            100.0 * MAX_SKEW_OF_FOCAL
+        ));
+    }
+    if !((0.0..=w).contains(&cx) && (0.0..=h).contains(&cy)) {
+        return Some(format!(
+            "principal point ({cx}, {cy}) lies outside the {w}×{h} image: the camera matrix \
+             belongs to another image size, or cx and cy are mistyped"
+        ));
+    }
+    let ends = [
+        (0.0, 0.0),
+        (w, 0.0),
+        (0.0, h),
+        (w, h),
+        (w / 2.0, 0.0),
+        (w / 2.0, h),
+    ]
+    .into_iter()
+    .chain([(0.0, h / 2.0), (w, h / 2.0)]);
+    for (ex, ey) in ends {
+        let pixel = [(cx + ex) / 2.0, (cy + ey) / 2.0];
+        let back = cam.unproject(pixel).and_then(|ray| cam.project(&ray));
+        let ok =
+            back.is_some_and(|b| (b[0] - pixel[0]).hypot(b[1] - pixel[1]) <= LENS_ROUND_TRIP_PX);
+        if !ok {
+            return Some(format!(
+                "lens model ({}, coefficients {:?}) does not map pixel ({:.0}, {:.0}), halfway \
+                 from the principal point to the image's edge, to a ray and back: the \
+                 coefficients are mistyped, scaled, or of another model",
+                cam.distortion.model_label(),
+                cam.distortion.coefficients(),
+                pixel[0],
+                pixel[1]
+            ));
+        }
+    }
+    None
+}
+
 /// A calibrated stereo pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StereoCalibration {
@@ -155,13 +229,12 @@ impl StereoCalibration {
                 centre = centre.max((g.k[(i, 2)] - t.k[(i, 2)]).abs());
             }
         }
-        let cos = ((self.r.transpose() * truth.r).trace() - 1.0) / 2.0;
         CalibrationDifference {
             focal_error_percent: focal,
             principal_point_error_px: centre,
             baseline_error_percent: (self.baseline() - truth.baseline()).abs() / truth.baseline()
                 * 100.0,
-            rotation_error_deg: cos.clamp(-1.0, 1.0).acos().to_degrees(),
+            rotation_error_deg: turn_deg(&(self.r.transpose() * truth.r)),
         }
     }
 }
@@ -482,15 +555,19 @@ fn read_bounded(path: &std::path::Path) -> Result<String, String> {
 /// taken as the nearest rotation (within about 0.03° of what was written).
 const ROTATION_ROUNDING: f64 = 1e-3;
 
-/// The angle (degrees) rotation `r` turns by, from its trace, the cosine clamped: for a
-/// rotation within round-off of the identity the trace can exceed 3 by an ulp, and an
-/// unclamped arc cosine would be NaN. NaN only for a matrix that is not finite.
+/// The angle (degrees) rotation `r` turns by: `atan2(sin, cos)` with the cosine from the
+/// trace and the sine from the antisymmetric part (`|R − Rᵀ|`'s axial vector / 2). The
+/// arc cosine of the trace alone loses half the digits near the identity (round-off of
+/// 1e-16 in the trace reads as a turn of 1e-6°), where stereo rigs are. NaN only for a
+/// matrix that is not finite.
 fn turn_deg(r: &Matrix3<f64>) -> f64 {
     let cos = (r.trace() - 1.0) / 2.0;
-    if cos.is_nan() {
-        return f64::NAN;
-    }
-    cos.clamp(-1.0, 1.0).acos().to_degrees()
+    let axial = Vector3::new(
+        r[(2, 1)] - r[(1, 2)],
+        r[(0, 2)] - r[(2, 0)],
+        r[(1, 0)] - r[(0, 1)],
+    );
+    (axial.norm() / 2.0).atan2(cos).to_degrees()
 }
 
 /// `r`'s distance from a rotation: the largest entry of `RᵀR − I` and `|det R − 1|`.
@@ -591,7 +668,23 @@ impl StereoCalibration {
             }
         };
         notes.extend(c.swapped_note());
+        notes.extend(c.unmatched_focal_note());
         Ok((c, notes))
+    }
+
+    /// A note when the two cameras' focal lengths differ by more than
+    /// [`MAX_FOCAL_MISMATCH`]: rectification brings them to one, but a stereo pair is
+    /// nearly always two cameras of one model, so the files may belong to two rigs.
+    fn unmatched_focal_note(&self) -> Option<String> {
+        let (l, r) = (self.left.k[(0, 0)], self.right.k[(0, 0)]);
+        let ratio = (l / r).max(r / l);
+        (ratio > MAX_FOCAL_MISMATCH).then(|| {
+            format!(
+                "the cameras' focal lengths differ {ratio:.2}× (fx {l} px left, {r} px right): \
+                 a stereo pair is nearly always two cameras of one model; check that both \
+                 cameras' numbers come from one calibration of this rig"
+            )
+        })
     }
 
     /// A note when the camera called right sits left of the one called left (`T`'s x
@@ -746,6 +839,20 @@ impl StereoCalibration {
                 "{right_file} carries no baseline (projection_matrix[0][3] is 0): not the right camera of a stereo pair"
             )));
         }
+        // A rectified pair shares its focal lengths and rows: the baseline is read as
+        // `-P2[0,3] / P2[0,0]`, so a right file of another calibration (or another
+        // scale) would give a wrong baseline and every depth off by the same factor.
+        for ((i, j), name) in [((0, 0), "fx"), ((1, 1), "fy"), ((1, 2), "cy")] {
+            let (a, b) = (p1[(i, j)], p2[(i, j)]);
+            if (a - b).is_nan() || (a - b).abs() > 1e-4 * a.abs().max(b.abs()).max(1.0) {
+                return Err(CalibError::Inconsistent(format!(
+                    "{left_file} and {right_file}: the projection matrices disagree on {name} \
+                     ({a} left, {b} right, projection_matrix[{i}][{j}]): a rectified pair \
+                     shares fx, fy and cy, and the baseline is read from the right one's \
+                     Tx / fx; give the two camera_info files of one stereo calibration"
+                )));
+            }
+        }
         let (r, t) = extrinsics_from_rectification(&r1, &r2, &p2);
         Self::checked(
             left,
@@ -831,6 +938,11 @@ impl StereoCalibration {
                         fhi * w
                     )));
                 }
+            }
+            if let Some(why) = implausible_intrinsics(cam) {
+                return Err(CalibError::Inconsistent(format!(
+                    "{file}: the {side} camera's {why}"
+                )));
             }
         }
         Ok(Self { left, right, r, t })
@@ -1195,6 +1307,114 @@ pub(crate) mod tests {
         );
         let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
         assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
+    }
+
+    /// Camera matrices and lens models no camera has are refused naming the camera, the
+    /// number and the likely cause (they used to give depth a few per cent off, or none,
+    /// with exit 0); the sensor's own rigs, pinhole and fisheye, pass.
+    #[test]
+    fn intrinsics_no_camera_has_are_refused() {
+        let refused = |c: &StereoCalibration| {
+            StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml())
+                .map(|_| ())
+                .unwrap_err()
+                .to_string()
+        };
+        for distortion in [
+            Distortion::NONE,
+            Distortion::BrownConrady([-0.3, 0.1, 0.001, -0.002, -0.02, 0.0, 0.0, 0.0]),
+            Distortion::KannalaBrandt([0.05, -0.01, 0.002, -0.0003]),
+        ] {
+            let c = sensor_pair(distortion);
+            StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap();
+        }
+        let mut c = sensor_pair(Distortion::NONE);
+        c.right.k[(0, 1)] = 500.0;
+        let e = refused(&c);
+        assert!(
+            e.contains("right camera's skew") && e.contains("500"),
+            "{e}"
+        );
+        let mut c = sensor_pair(Distortion::NONE);
+        c.left.k[(1, 1)] = 3000.0;
+        let e = refused(&c);
+        assert!(
+            e.contains("left camera's focal lengths") && e.contains("7.14×"),
+            "{e}"
+        );
+        let mut c = sensor_pair(Distortion::NONE);
+        (c.left.k[(0, 2)], c.left.k[(1, 2)]) = (5000.0, -3000.0);
+        let e = refused(&c);
+        assert!(
+            e.contains("principal point (5000, -3000) lies outside"),
+            "{e}"
+        );
+        for k in [
+            Distortion::BrownConrady([1e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            Distortion::BrownConrady([-40.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            Distortion::KannalaBrandt([-30.0, 0.0, 0.0, 0.0]),
+        ] {
+            let c = sensor_pair(k);
+            let e = refused(&c);
+            assert!(
+                e.contains("lens model") && e.contains("to a ray and back"),
+                "{e}"
+            );
+        }
+    }
+
+    /// A ROS pair whose projection matrices disagree on the focal length (a right file
+    /// from another calibration) is refused: its baseline, read as `-Tx / fx`, would be
+    /// off by their ratio (14 mm read as 11.8, every depth 17 % short, exit 0).
+    #[test]
+    fn a_ros_pair_of_two_calibrations_is_refused() {
+        let c = sensor_pair(Distortion::NONE);
+        let (left, right) = crate::stereo::ros_info::camera_info_pair(&c).unwrap();
+        StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &right)).unwrap();
+        let p = |text: &str| -> Vec<f64> {
+            let line = text
+                .lines()
+                .skip_while(|l| !l.starts_with("projection_matrix"))
+                .find_map(|l| l.trim().strip_prefix("data: ["))
+                .unwrap();
+            let line = line.trim_end_matches(']');
+            line.split(',').map(|v| v.trim().parse().unwrap()).collect()
+        };
+        let p2 = p(&right);
+        let scaled: Vec<f64> = p2.iter().map(|v| v * 1.19).collect();
+        let fmt = |v: &[f64]| {
+            v.iter()
+                .map(|x| format!("{x:?}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let other = right.replace(&fmt(&p2), &fmt(&scaled));
+        assert_ne!(other, right, "the test must change the right projection");
+        let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &other))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("l.yaml and r.yaml") && e.contains("disagree on fx"),
+            "{e}"
+        );
+    }
+
+    /// Cameras of very different focal lengths are read, with a note.
+    #[test]
+    fn cameras_of_different_focal_lengths_are_noted() {
+        let dir = std::env::temp_dir().join(format!("stereotac-focal-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("c.yaml");
+        let mut c = sensor_pair(Distortion::NONE);
+        c.right.k[(0, 0)] *= 1.5;
+        c.right.k[(1, 1)] *= 1.5;
+        std::fs::write(&file, c.to_opencv_yaml()).unwrap();
+        let (_, notes) = StereoCalibration::load_noting(&[file], LengthUnit::Mm).unwrap();
+        assert!(
+            notes.len() == 1 && notes[0].contains("focal lengths differ 1.52×"),
+            "{notes:?}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

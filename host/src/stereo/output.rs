@@ -86,7 +86,7 @@ pub struct ColourRanges {
 
 /// What [`write_outputs`] writes beyond the usual files.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct OutputOptions {
+pub struct OutputOptions<'a> {
     /// How the pictures' ranges are chosen.
     pub colour_range: PictureRange,
     /// Also write `mesh.ply` ([`write_mesh`]).
@@ -94,14 +94,18 @@ pub struct OutputOptions {
     /// Files the caller wrote into the folder before (the inputs of a built-in capture):
     /// listed first among the summary's files.
     pub written_before: &'static [&'static str],
+    /// Warnings from before the frame (the calibration's notes, see
+    /// [`super::StereoCalibration::load_noting`]): the summary's warnings start with them.
+    pub earlier_warnings: &'a [String],
 }
 
-impl Default for OutputOptions {
+impl Default for OutputOptions<'_> {
     fn default() -> Self {
         Self {
             colour_range: PictureRange::Auto,
             mesh: false,
             written_before: &[],
+            earlier_warnings: &[],
         }
     }
 }
@@ -158,7 +162,7 @@ pub fn write_outputs(
     pipeline: &StereoPipeline,
     frame: &StereoFrame,
     config: &StereoConfig,
-    options: OutputOptions,
+    options: OutputOptions<'_>,
 ) -> Result<StereoSummary, OutputError> {
     let rect = pipeline.rectification();
     let (d_lo, d_hi) = pipeline.matcher().disparity_range();
@@ -246,8 +250,14 @@ pub fn write_outputs(
         files,
         mesh_triangles,
         colour_ranges,
-        warnings: super::warnings::of(&frame.stats, &depths, w * h, config.near_mm, config.far_mm)
-            .into_iter()
+        warnings: (options.earlier_warnings.iter().cloned())
+            .chain(super::warnings::of(
+                &frame.stats,
+                &depths,
+                w * h,
+                config.near_mm,
+                config.far_mm,
+            ))
             .chain((beyond_png16 > 0).then(|| depth16_warning(beyond_png16, depths.len())))
             .collect(),
     };

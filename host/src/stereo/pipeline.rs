@@ -287,8 +287,16 @@ impl StereoPipeline {
             t.apply(&mut disparity);
         }
         let holes_filled = self.config.hole_fill.map_or(0, |f| f.apply(&mut disparity));
-        let t_filter = Instant::now();
         let (focal, baseline) = (self.rectification.focal(), self.rectification.baseline());
+        let mut stats = matched.stats;
+        stats.outside_range = keep_within_range(
+            &mut disparity,
+            focal * baseline,
+            self.config.near_mm,
+            self.config.far_mm,
+        );
+        stats.valid = stats.valid.saturating_sub(stats.outside_range);
+        let t_filter = Instant::now();
         let (mut cloud, mut depth_mm) = rayon::join(
             || reproject(&disparity, &self.rectification.q),
             || depth_from_disparity(&disparity, focal, baseline),
@@ -320,12 +328,27 @@ impl StereoPipeline {
             disparity,
             depth_mm,
             cloud,
-            stats: matched.stats,
+            stats,
             holes_filled,
             outliers_removed,
             timings,
         })
     }
+}
+
+/// Drops the disparities whose depth `f·B / d` lies outside `near_mm..=far_mm` (the
+/// matcher searches whole blocks of 16 disparities, a little past the range asked for),
+/// so every depth written lies within the working range. Returns how many it dropped.
+fn keep_within_range(disparity: &mut Grid<f32>, fb: f64, near_mm: f64, far_mm: f64) -> usize {
+    let (lo, hi) = ((fb / far_mm) as f32, (fb / near_mm) as f32);
+    let mut dropped = 0;
+    for d in disparity.as_mut_slice() {
+        if d.is_finite() && !(*d >= lo && *d <= hi) {
+            *d = f32::NAN;
+            dropped += 1;
+        }
+    }
+    dropped
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! What a stereo result should make its user look twice at: almost nothing matched, many
 //! best matches at the ends of the disparity range (the scene is nearer than `--near-mm`
-//! or beyond `--far-mm`), depths crowding the range's ends. Each warning says what was
+//! or beyond `--far-mm`) or past them (dropped: outside the working range), depths
+//! crowding the range's ends. Each warning says what was
 //! seen, with the numbers, and what to try; `stereo --strict` turns them into failure.
 
 use super::block_match::MatchStats;
@@ -43,6 +44,15 @@ pub fn of(
              scene is nearer than --near-mm {near_mm} or beyond --far-mm {far_mm}; widen the \
              range",
             100.0 * edge
+        ));
+    }
+    let outside = stats.outside_range as f64 / pixels;
+    if outside > MAX_RANGE_EDGE_FRACTION {
+        out.push(format!(
+            "{:.0}% of pixels matched at depths outside --near-mm {near_mm}..--far-mm \
+             {far_mm} and were left without one: part of the scene lies outside the working \
+             range; widen it",
+            100.0 * outside
         ));
     }
     if !depths.is_empty() {
@@ -93,6 +103,15 @@ mod tests {
             .collect();
         let w = of(&stats, &crowded, 1000, 50.0, 400.0);
         assert!(w.iter().any(|w| w.contains("50% of depths")), "{w:?}");
+        let outside = MatchStats {
+            outside_range: 150,
+            ..stats
+        };
+        let w = of(&outside, &healthy, 1000, 50.0, 400.0);
+        assert!(
+            w.len() == 1 && w[0].contains("15% of pixels matched at depths outside"),
+            "{w:?}"
+        );
         assert!(
             !of(&stats, &[], 0, 50.0, 400.0).is_empty(),
             "nothing at all warns"

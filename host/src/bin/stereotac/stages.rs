@@ -29,11 +29,19 @@ pub const META_STEREO: &str = "stereo_settings";
 /// Reads a stereo calibration (`--calib` files, `--units`), printing a warning for each
 /// key its format does not have (ignored, but a misspelt key should be seen).
 pub fn load_calibration(files: &[PathBuf], units: LengthUnit) -> Result<StereoCalibration> {
+    load_calibration_noting(files, units).map(|(calib, _)| calib)
+}
+
+/// [`load_calibration`], also returning the warnings it printed.
+pub fn load_calibration_noting(
+    files: &[PathBuf],
+    units: LengthUnit,
+) -> Result<(StereoCalibration, Vec<String>)> {
     let (calib, notes) = StereoCalibration::load_noting(files, units)?;
-    for note in notes {
+    for note in &notes {
         eprintln!("warning: {note}");
     }
-    Ok(calib)
+    Ok((calib, notes))
 }
 
 /// Model and calibration options.

@@ -77,6 +77,9 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let out = OutDir::prepare(&a.out_dir, Replace::force_if(a.force))?;
+    // The calibration's notes are printed as it is read and carried into summary.json
+    // (and `--strict`) with the result's own warnings.
+    let mut notes = Vec::new();
     let (calib, left, right) = match a.synthetic {
         Some(z) => {
             if !(z.is_finite() && z > 0.0) {
@@ -99,7 +102,8 @@ pub fn run(a: Args) -> Result<()> {
             (calib, l, r)
         }
         None => {
-            let calib = crate::stages::load_calibration(&a.calib, a.units)?;
+            let calib;
+            (calib, notes) = crate::stages::load_calibration_noting(&a.calib, a.units)?;
             let left = read_grey(a.left.as_deref().context("--left is required")?)?;
             let right = read_grey(a.right.as_deref().context("--right is required")?)?;
             (calib, left, right)
@@ -131,6 +135,7 @@ pub fn run(a: Args) -> Result<()> {
         } else {
             &[]
         },
+        earlier_warnings: &notes,
     };
     let summary = write_outputs(out.path(), &pipeline, &frame, &config, options)?;
     out.keep();
@@ -139,7 +144,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         print_summary(&a.out_dir, &summary);
     }
-    for w in &summary.warnings {
+    for w in summary.warnings.iter().skip(notes.len()) {
         eprintln!("warning: {w}");
     }
     anyhow::ensure!(
@@ -165,7 +170,7 @@ fn print_summary(dir: &Path, s: &StereoSummary) {
     let st = &s.stats;
     println!(
         "valid {:.1} % of pixels; rejected: border {}, low texture {}, not unique {}, \
-         range edge {}, left-right {}, speckle {}, outliers {}",
+         range edge {}, left-right {}, speckle {}, outside the range {}, outliers {}",
         100.0 * s.fill_rate,
         st.border,
         st.low_texture,
@@ -173,6 +178,7 @@ fn print_summary(dir: &Path, s: &StereoSummary) {
         st.range_edge,
         st.left_right,
         st.speckle,
+        st.outside_range,
         s.outliers_removed
     );
     if let Some([lo, mid, hi]) = s.depth_mm {

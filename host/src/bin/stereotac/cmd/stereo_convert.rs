@@ -128,8 +128,14 @@ fn check_round_trip(read: &StereoCalibration, back: &StereoCalibration, name: &s
     );
     ensure!(
         worst <= ROUND_TRIP && distortion,
-        "{name} would not read back as the calibration read ({d:?}, distortion {}); nothing written",
-        if distortion { "same" } else { "differs" }
+        "{name} would not read back as the calibration read (focal lengths {:.2e} % off, \
+         principal points {:.2e} px, baseline {:.2e} %, rotation {:.2e}°, distortion {}; \
+         {ROUND_TRIP:.0e} allowed): nothing written; please report this with the file read",
+        d.focal_error_percent,
+        d.principal_point_error_px,
+        d.baseline_error_percent,
+        d.rotation_error_deg,
+        if distortion { "the same" } else { "differs" }
     );
     Ok(())
 }
