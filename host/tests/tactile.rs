@@ -10,6 +10,7 @@ use stereotac::tactile::calibrate::{
 };
 use stereotac::tactile::images::{ImageError, load_pairs};
 use stereotac::tactile::model::{Background, ModelError, ModelKind, TactileModel};
+use stereotac::tactile::phase_check::PhaseImageError;
 use stereotac::tactile::poisson::SolverKind;
 use stereotac::tactile::reconstruct::{ReconstructError, Reconstructor};
 use stereotac::tactile::render::{Optics, Reflectance, Scene, Shape, Spot, render, render_truth};
@@ -399,14 +400,78 @@ fn hostile_images_give_finite_output_or_typed_errors() {
                 "{w}x{h}: the middle third reads as contact"
             );
         }
+        // (One image as dx and dy: refused as two frames of one phase where the frame
+        // is wide or tall enough to tell.)
         let everywhere = rec.reconstruct(&noise_like(&img), &noise_like(&img));
         assert!(
             match &everywhere {
                 Ok(r) => r.depth_mm.as_slice().iter().all(|d| d.is_finite()),
-                Err(e) => matches!(e, ReconstructError::LightChanged { .. }),
+                Err(e) => matches!(
+                    e,
+                    ReconstructError::LightChanged { .. }
+                        | ReconstructError::FramePair(PhaseImageError::SamePhase { .. })
+                ),
             },
             "{w}x{h}: {:?}",
             everywhere.err()
+        );
+    }
+}
+
+/// Reference frames that show a press (taken with something on the skin) are refused,
+/// naming the place: every press departs from them there, and a model calibrated on
+/// them read a phantom contact there in every frame. The same presses on references of
+/// the skin at rest calibrate.
+#[test]
+fn references_that_show_a_press_are_refused_with_the_place() {
+    let optics = optics();
+    let s = settings(&optics);
+    let presses = ball_presses(&optics, 12, 6.0, 11);
+    let rest = reference_frames(&optics);
+    calibrate(&presses, Some((&rest.0, &rest.1).into()), &s, |_| {}).unwrap();
+    let (w_mm, h_mm) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    for (fx, fy) in [(0.3, 0.6), (0.75, 0.25)] {
+        let (cx, cy) = (fx * w_mm, fy * h_mm);
+        let scene = Scene {
+            shapes: vec![Shape::Ball {
+                cx,
+                cy,
+                diameter: 6.0,
+                depth: 1.0,
+            }],
+        };
+        let pressed = render(&optics, &scene, 999);
+        let e = calibrate(
+            &presses,
+            Some((&pressed.dx, &pressed.dy).into()),
+            &s,
+            |_| {},
+        )
+        .map(|_| ())
+        .unwrap_err();
+        let CalibrationError::SharedDeparture {
+            x,
+            y,
+            given,
+            departs_in,
+            ..
+        } = &e
+        else {
+            panic!("ball at {cx:.1}, {cy:.1} mm: {e}");
+        };
+        assert!(*given && departs_in.0 * 10 >= departs_in.1 * 6, "{e}");
+        assert!(
+            e.to_string()
+                .contains("the reference frames show something"),
+            "{e}"
+        );
+        let off_mm = (x / optics.px_per_mm - cx).hypot(y / optics.px_per_mm - cy);
+        assert!(
+            off_mm < 1.0,
+            "named {x}, {y} px for a ball at {cx:.1}, {cy:.1} mm: {e}"
         );
     }
 }
@@ -438,6 +503,12 @@ fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_
         dy: good[1].dx.clone(),
         dark: None,
     });
+    mixed.push(CalibrationPair {
+        name: "dx twice".into(),
+        dx: good[2].dx.clone(),
+        dy: good[2].dx.clone(),
+        dark: None,
+    });
     let with_bad = calibrate(&mixed, refs(), &s, |_| {}).unwrap();
     assert_eq!(
         with_bad.model.contact.threshold,
@@ -445,7 +516,19 @@ fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_
     );
     assert_eq!(with_bad.presses.len(), good.len());
     let names: Vec<&str> = with_bad.rejected.iter().map(|r| r.name.as_str()).collect();
-    assert_eq!(names, ["black", "swapped"], "in the presses' order");
+    assert_eq!(
+        names,
+        ["black", "swapped", "dx twice"],
+        "in the presses' order"
+    );
+    assert!(
+        with_bad.rejected[2]
+            .reason
+            .to_string()
+            .contains("look like two images of the dx phase"),
+        "{}",
+        with_bad.rejected[2].reason
+    );
     // A threshold given below the flat skin's noise is used, with a warning that names
     // the measured one; the measured threshold itself gets none.
     let says = "contact threshold given";
@@ -1092,34 +1175,66 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A folder's pairs: a file that cannot be read, or a frame without its partner, costs
+/// that press (set aside with the reason), not the calibration; a folder with nothing
+/// readable is an error naming the first reason.
 #[test]
-fn pair_directories_report_unpaired_and_unreadable_files() {
+fn pair_directories_set_aside_unpaired_and_unreadable_files() {
     let dir = std::env::temp_dir().join(format!("stereotac-pairs-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     assert!(matches!(load_pairs(&dir), Err(ImageError::Empty { .. })));
     let img = RgbImage::new(4, 4);
     img.save(dir.join("a_dx.png")).unwrap();
-    assert!(matches!(load_pairs(&dir), Err(ImageError::Unpaired { .. })));
-    std::fs::write(dir.join("a_dy.png"), b"not a png").unwrap();
     let err = load_pairs(&dir).unwrap_err();
     assert!(
-        matches!(err, ImageError::Read { .. }) && err.to_string().contains("a_dy.png"),
+        matches!(&err, ImageError::NoneReadable { first, .. } if matches!(**first, ImageError::Unpaired { .. })),
+        "{err}"
+    );
+    std::fs::write(dir.join("a_dy.png"), b"not a png").unwrap();
+    let err = load_pairs(&dir).unwrap_err().to_string();
+    assert!(
+        err.contains("none of its 1 pair(s) could be read") && err.contains("a_dy.png"),
         "{err}"
     );
     img.save(dir.join("a_dy.png")).unwrap();
-    assert_eq!(load_pairs(&dir).unwrap().len(), 1);
-    assert!(load_pairs(&dir).unwrap()[0].dark.is_none());
+    let got = load_pairs(&dir).unwrap();
+    assert!(got.pairs.len() == 1 && got.set_aside.is_empty());
+    assert!(got.pairs[0].dark.is_none());
     img.save(dir.join("a_dark.png")).unwrap();
     assert!(
-        load_pairs(&dir).unwrap()[0].dark.is_some(),
+        load_pairs(&dir).unwrap().pairs[0].dark.is_some(),
         "NAME_dark.png goes with its pair"
     );
+    // Beside the good pair: a dark frame alone, a damaged PNG, a grey frame.
     img.save(dir.join("b_dark.png")).unwrap();
-    let err = load_pairs(&dir).unwrap_err();
+    std::fs::write(dir.join("c_dx.png"), b"\x89PNG\r\n\x1a\n cut short").unwrap();
+    img.save(dir.join("c_dy.png")).unwrap();
+    img.save(dir.join("d_dx.png")).unwrap();
+    image::DynamicImage::ImageRgb8(img.clone())
+        .into_luma8()
+        .save(dir.join("d_dy.png"))
+        .unwrap();
+    let got = load_pairs(&dir).unwrap();
+    let names: Vec<&str> = got.pairs.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["a"]);
+    let aside: Vec<(&str, String)> = got
+        .set_aside
+        .iter()
+        .map(|(n, e)| (n.as_str(), e.to_string()))
+        .collect();
+    assert_eq!(aside.len(), 3, "{aside:?}");
     assert!(
-        matches!(err, ImageError::Unpaired { .. }) && err.to_string().contains("b_dark.png"),
-        "{err}"
+        aside[0].0 == "b" && aside[0].1.contains("b_dark.png"),
+        "{aside:?}"
+    );
+    assert!(
+        aside[1].0 == "c" && aside[1].1.contains("c_dx.png"),
+        "{aside:?}"
+    );
+    assert!(
+        aside[2].0 == "d" && aside[2].1.contains("d_dy.png"),
+        "{aside:?}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -40,6 +40,30 @@ pub enum ImageError {
         /// Directory.
         path: PathBuf,
     },
+    /// Pairs were found, but none could be read.
+    #[error(
+        "{}: none of its {count} pair(s) could be read; the first: {first}",
+        path.display()
+    )]
+    NoneReadable {
+        /// Directory.
+        path: PathBuf,
+        /// Pairs found.
+        count: usize,
+        /// Why the first could not be read.
+        first: Box<ImageError>,
+    },
+}
+
+/// The pairs of a folder ([`load_pairs`]), and those set aside: a file that cannot be
+/// read (damaged, truncated, grey, 16-bit) or a `_dx` without its `_dy` costs that press,
+/// not the calibration.
+#[derive(Debug)]
+pub struct FolderPairs {
+    /// The pairs read, sorted by name.
+    pub pairs: Vec<CalibrationPair>,
+    /// Each pair set aside: its name and why.
+    pub set_aside: Vec<(String, ImageError)>,
 }
 
 /// Reads an 8-bit RGB(A) image; grey, 16-bit and oversized images are refused
@@ -62,8 +86,10 @@ pub fn load_references(
 }
 
 /// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored), with
-/// its LEDs-off frame `NAME_dark.png` when there is one, sorted by name.
-pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
+/// its LEDs-off frame `NAME_dark.png` when there is one, sorted by name. A pair that
+/// cannot be read is set aside with the reason; an error when the folder cannot be
+/// listed, holds no pairs, or none can be read.
+pub fn load_pairs(dir: &Path) -> Result<FolderPairs, ImageError> {
     let dir_error = |source| ImageError::Dir {
         path: dir.to_path_buf(),
         source,
@@ -88,15 +114,21 @@ pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
             path: dir.to_path_buf(),
         });
     }
-    found
-        .into_iter()
-        .map(|(name, [dx, dy, dark])| match (dx, dy) {
-            (Some(dx), Some(dy)) => Ok(CalibrationPair {
-                dx: load_rgb(&dx)?,
-                dy: load_rgb(&dy)?,
-                dark: dark.as_deref().map(load_rgb).transpose()?,
-                name,
-            }),
+    let count = found.len();
+    let mut out = FolderPairs {
+        pairs: Vec::with_capacity(count),
+        set_aside: Vec::new(),
+    };
+    for (name, [dx, dy, dark]) in found {
+        let pair = match (dx, dy) {
+            (Some(dx), Some(dy)) => (|| {
+                Ok(CalibrationPair {
+                    dx: load_rgb(&dx)?,
+                    dy: load_rgb(&dy)?,
+                    dark: dark.as_deref().map(load_rgb).transpose()?,
+                    name: name.clone(),
+                })
+            })(),
             (Some(path), None) => Err(ImageError::Unpaired {
                 path,
                 partner: format!("{name}_dy.png"),
@@ -109,6 +141,19 @@ pub fn load_pairs(dir: &Path) -> Result<Vec<CalibrationPair>, ImageError> {
                 path: dark.unwrap_or_default(),
                 partner: format!("{name}_dx.png and {name}_dy.png"),
             }),
-        })
-        .collect()
+        };
+        match pair {
+            Ok(p) => out.pairs.push(p),
+            Err(e) => out.set_aside.push((name, e)),
+        }
+    }
+    if out.pairs.is_empty() {
+        let (_, first) = out.set_aside.swap_remove(0);
+        return Err(ImageError::NoneReadable {
+            path: dir.to_path_buf(),
+            count,
+            first: Box::new(first),
+        });
+    }
+    Ok(out)
 }

@@ -42,6 +42,22 @@ pub enum PhaseImageError {
         /// Which images.
         what: String,
     },
+    /// Both images' red-blue balance runs the same way: one image of one phase given
+    /// twice, or two frames of the same phase.
+    #[error(
+        "{what}: the dx and dy images both change colour from {direction}, as {phase} does: \
+         they look like two images of the {phase} phase (the same file given twice, or two \
+         frames of one phase); give one frame of each phase (dx: strips 1 and 3, left and \
+         right, lit; dy: strips 2 and 4, top and bottom)"
+    )]
+    SamePhase {
+        /// Which images.
+        what: String,
+        /// "left to right" or "top to bottom".
+        direction: &'static str,
+        /// The phase both look like.
+        phase: &'static str,
+    },
 }
 
 /// Summary of one phase image: lit fraction and how red minus blue changes across it.
@@ -79,11 +95,19 @@ pub fn look(image: &RgbImage, filter: &ColourFilter) -> PhaseLook {
         thirds_y[ty].0 += r - bl;
         thirds_y[ty].1 += 1;
     }
-    let mean = |t: (f32, usize)| if t.1 > 0 { t.0 / t.1 as f32 } else { 0.0 };
+    // Across a frame too narrow for three thirds (fewer than three blocks) the balance
+    // is unknown: 0, not one third's mean against an empty one's.
+    let change = |t: &[(f32, usize); 3]| {
+        if t[0].1 > 0 && t[2].1 > 0 {
+            t[2].0 / t[2].1 as f32 - t[0].0 / t[0].1 as f32
+        } else {
+            0.0
+        }
+    };
     PhaseLook {
         lit: lit as f32 / b.len().max(1) as f32,
-        across: mean(thirds_x[2]) - mean(thirds_x[0]),
-        down: mean(thirds_y[2]) - mean(thirds_y[0]),
+        across: change(&thirds_x),
+        down: change(&thirds_y),
     }
 }
 
@@ -112,6 +136,19 @@ pub fn check_pair(
             what: what.to_string(),
         });
     }
+    let (dx_horizontal, dy_vertical) = (strong(a) && !dx_vertical, strong(b) && !dy_horizontal);
+    let same = match (dx_horizontal && dy_horizontal, dx_vertical && dy_vertical) {
+        (true, _) => Some(("left to right", "dx")),
+        (_, true) => Some(("top to bottom", "dy")),
+        _ => None,
+    };
+    if let Some((direction, phase)) = same {
+        return Err(PhaseImageError::SamePhase {
+            what: what.to_string(),
+            direction,
+            phase,
+        });
+    }
     Ok(())
 }
 
@@ -135,6 +172,14 @@ mod tests {
             check_pair(&p.dy, &p.dx, &f, "refs"),
             Err(PhaseImageError::Swapped { .. })
         ));
+        // One phase given twice, either one.
+        for (img, phase) in [(&p.dx, "dx"), (&p.dy, "dy")] {
+            let e = check_pair(img, img, &f, "refs").unwrap_err();
+            assert!(
+                matches!(e, PhaseImageError::SamePhase { phase: p, .. } if p == phase),
+                "{e}"
+            );
+        }
         let black = RgbImage::new(160, 120);
         let white = RgbImage::from_pixel(160, 120, image::Rgb([255, 255, 255]));
         let grey = RgbImage::from_pixel(160, 120, image::Rgb([90, 90, 90]));

@@ -15,6 +15,7 @@
 
 pub mod circle;
 pub mod report;
+pub mod shared_departure;
 pub mod threshold;
 
 use std::collections::HashMap;
@@ -273,6 +274,35 @@ pub enum CalibrationError {
     /// sensor's dx and dy phases.
     #[error(transparent)]
     References(#[from] PhaseImageError),
+    /// Most presses depart from the references at one place away from themselves (see
+    /// [`shared_departure`]).
+    #[error(
+        "{} presses of {} depart from the {} at px ({x}, {y}), over {area_mm2:.1} mm², away \
+         from their own press: {}",
+        departs_in.0,
+        departs_in.1,
+        if *given { "reference frames" } else { "presses' median (the background without reference frames)" },
+        if *given {
+            "the reference frames show something there the presses do not (a press, debris, \
+             a mark, another light); give frames of the skin at rest, or leave out \
+             --ref-dx/--ref-dy to use the presses' median"
+        } else {
+            "most presses were made there; spread them over the skin, or give reference \
+             frames of the skin at rest"
+        }
+    )]
+    SharedDeparture {
+        /// Pixel column of the place.
+        x: f64,
+        /// Pixel row.
+        y: f64,
+        /// Its area (mm²).
+        area_mm2: f64,
+        /// Presses departing there, of those away from it.
+        departs_in: (usize, usize),
+        /// Whether reference frames were given (else the presses' median is used).
+        given: bool,
+    },
 }
 
 fn rejected_list(rejected: &[RejectedPress]) -> String {
@@ -502,6 +532,28 @@ pub fn calibrate(
         h.div_ceil(step),
         threshold::FLAT_CLEARANCE_PX / step as f64,
     );
+    // Something the references show and the presses do not (or every press made at one
+    // place) departs in most presses at the same place: refused, or every frame the
+    // model reads would show it as a contact.
+    if let Some(shared) = shared_departure::find(
+        &blocks,
+        &circles,
+        w.div_ceil(step),
+        h.div_ceil(step),
+        // The flat skin's own threshold, also when another is given.
+        measured.map_or(contact_params.threshold, |n| n.threshold),
+        contact_params.min_cells,
+    ) {
+        let px = |b: f64| ((b + 0.5) * step as f64).round();
+        let mm2 = (shared.cells * step * step) as f64 / settings.px_per_mm.powi(2);
+        return Err(CalibrationError::SharedDeparture {
+            x: px(shared.centre.0),
+            y: px(shared.centre.1),
+            area_mm2: mm2,
+            departs_in: shared.departs_in,
+            given: references.is_some(),
+        });
+    }
     drop(blocks);
     let mut noise = None;
     let mut fixed_warning = None;

@@ -138,10 +138,10 @@ pub fn run(a: Args) -> Result<()> {
         .as_deref()
         .map(|dir| OutDir::prepare(dir, Replace::force_if(a.force)))
         .transpose()?;
-    let pairs = if a.dir.is_file() {
-        recorded_pairs(&a.dir)?
+    let (pairs, unreadable) = if a.dir.is_file() {
+        (recorded_pairs(&a.dir)?, Vec::new())
     } else {
-        load_pairs(&a.dir).map_err(|e| {
+        let folder = load_pairs(&a.dir).map_err(|e| {
             let e = anyhow::Error::from(e);
             // A `record --png` folder: frames with an index, not named pairs.
             if a.dir.join("index.jsonl").is_file() {
@@ -154,8 +154,14 @@ pub fn run(a: Args) -> Result<()> {
             } else {
                 e
             }
-        })?
+        })?;
+        (folder.pairs, folder.set_aside)
     };
+    // A press whose files cannot be read costs that press only: said now (before the
+    // work) and again with the presses the calibration sets aside.
+    for (name, why) in &unreadable {
+        eprintln!("warning: press {name} set aside: {why}");
+    }
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let epochs = settings.mlp.epochs;
@@ -199,6 +205,9 @@ pub fn run(a: Args) -> Result<()> {
             },
             100.0 * p.saturated[0].max(p.saturated[1])
         );
+    }
+    for (name, why) in &unreadable {
+        println!("{name:<16} set aside: cannot be read: {why}");
     }
     for r in &cal.rejected {
         println!("{:<16} set aside: {}", r.name, r.reason);
