@@ -250,7 +250,7 @@ fn arguments() {
             "--out-dir",
             s(&scaled),
         ],
-        &["-10", "all positive"],
+        &["--near-mm -10", "positive and finite"],
     );
     // Options whose values may start with '-' do not take the next flag as their value
     // without saying so.

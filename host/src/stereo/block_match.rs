@@ -205,8 +205,11 @@ pub enum MatchError {
     },
     /// Distances that give no disparity range.
     #[error(
-        "no disparity range for focal {focal_px} px, baseline {baseline_mm} mm, \
-         depths {near_mm}..{far_mm} mm (all positive, near < far, at most 4096 px)"
+        "no disparity range for --near-mm {near_mm} and --far-mm {far_mm} (focal \
+         {focal_px} px, baseline {baseline_mm} mm): both must be positive and finite, \
+         --near-mm below --far-mm, and the nearest depth's disparity at most 4096 px \
+         (--near-mm at least {:.1} mm with this rig)",
+        focal_px * baseline_mm / 4095.0
     )]
     BadDepthRange {
         /// Focal length.

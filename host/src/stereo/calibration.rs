@@ -107,8 +107,8 @@ pub const FOCAL_RANGE_OF_WIDTH: (f64, f64) = (0.1, 10.0);
 /// Largest ratio of the two cameras' focal lengths without a note.
 pub const MAX_FOCAL_MISMATCH: f64 = 1.25;
 /// Largest ratio of a camera's two focal lengths (`fy / fx` or its inverse): pixels are
-/// square or nearly.
-pub const MAX_PIXEL_ASPECT: f64 = 1.5;
+/// square or nearly; 2×1 binning and interlaced fields (720×240) give 2.
+pub const MAX_PIXEL_ASPECT: f64 = 2.5;
 /// Largest skew (`K[0][1]`) as a share of `fx`: calibrations give 0, or nearly.
 pub const MAX_SKEW_OF_FOCAL: f64 = 0.05;
 /// How near a pixel must come back to itself through the lens model (unprojected to a
@@ -117,10 +117,11 @@ const LENS_ROUND_TRIP_PX: f64 = 0.01;
 
 /// Why a camera's intrinsics cannot be a real camera's, if they cannot: pixels far from
 /// square, a large skew, the principal point outside the image, or a lens model that does
-/// not map the middle of the image (halfway from the principal point to each edge and
-/// corner) to rays and back: coefficients mistyped, scaled or of another model. The
-/// wide-angle edges are not asked for: a fisheye model may turn back beyond its lens's
-/// field of view.
+/// not map the middle of the image (eight pixels a quarter of the image's smaller side
+/// from the principal point) to rays and back: coefficients mistyped, scaled or of
+/// another model. Nothing farther out is asked for: a circular fisheye's picture ends
+/// before the frame's edges, and its model may turn back beyond the lens's field of
+/// view.
 fn implausible_intrinsics(cam: &Camera) -> Option<String> {
     let k = &cam.k;
     let (fx, fy, skew, cx, cy) = (k[(0, 0)], k[(1, 1)], k[(0, 1)], k[(0, 2)], k[(1, 2)]);
@@ -129,8 +130,9 @@ fn implausible_intrinsics(cam: &Camera) -> Option<String> {
     if !(1.0 / MAX_PIXEL_ASPECT..=MAX_PIXEL_ASPECT).contains(&aspect) {
         return Some(format!(
             "focal lengths fx = {fx} and fy = {fy} px differ {:.2}×: a camera's pixels are \
-             square or nearly (within {MAX_PIXEL_ASPECT}×); one of them is mistyped, scaled, \
-             or of another image size",
+             square or nearly (2× with binning or interlaced fields; at most \
+             {MAX_PIXEL_ASPECT}× is read); one of them is mistyped, scaled, or of another \
+             image size",
             aspect.max(1.0 / aspect)
         ));
     }
@@ -148,25 +150,17 @@ fn implausible_intrinsics(cam: &Camera) -> Option<String> {
              belongs to another image size, or cx and cy are mistyped"
         ));
     }
-    let ends = [
-        (0.0, 0.0),
-        (w, 0.0),
-        (0.0, h),
-        (w, h),
-        (w / 2.0, 0.0),
-        (w / 2.0, h),
-    ]
-    .into_iter()
-    .chain([(0.0, h / 2.0), (w, h / 2.0)]);
-    for (ex, ey) in ends {
-        let pixel = [(cx + ex) / 2.0, (cy + ey) / 2.0];
+    let r = w.min(h) / 4.0;
+    for k in 0..8 {
+        let angle = f64::from(k) * std::f64::consts::FRAC_PI_4;
+        let pixel = [cx + r * angle.cos(), cy + r * angle.sin()];
         let back = cam.unproject(pixel).and_then(|ray| cam.project(&ray));
         let ok =
             back.is_some_and(|b| (b[0] - pixel[0]).hypot(b[1] - pixel[1]) <= LENS_ROUND_TRIP_PX);
         if !ok {
             return Some(format!(
-                "lens model ({}, coefficients {:?}) does not map pixel ({:.0}, {:.0}), halfway \
-                 from the principal point to the image's edge, to a ray and back: the \
+                "lens model ({}, coefficients {:?}) does not map pixel ({:.0}, {:.0}), a \
+                 quarter of the image from the principal point, to a ray and back: the \
                  coefficients are mistyped, scaled, or of another model",
                 cam.distortion.model_label(),
                 cam.distortion.coefficients(),
@@ -725,7 +719,20 @@ impl StereoCalibration {
         unit: LengthUnit,
         notes: &mut Vec<String>,
     ) -> Result<Self, CalibError> {
+        if text.trim().is_empty() {
+            return Err(CalibError::Read {
+                file: file.into(),
+                why: "the file is empty".into(),
+            });
+        }
         let f = Fields::parse(file, text)?;
+        // One camera_info file alone: say so instead of missing OpenCV's keys.
+        if f.has("camera_matrix") && f.has("projection_matrix") && !f.has("K1") && !f.has("M1") {
+            return Err(CalibError::Files(format!(
+                "{file} is a ROS camera_info file, one camera's: give the left and the right \
+                 camera's files, --calib LEFT --calib RIGHT"
+            )));
+        }
         notes.extend(f.unknown_keys(&[OPENCV_KEYS_READ, OPENCV_KEYS_UNUSED], OPENCV_KEYS_READ));
         let (width, height) = f.image_size()?;
         let model = f.model()?;
@@ -810,6 +817,12 @@ impl StereoCalibration {
         let mut read = |file: &str,
                         text: &str|
          -> Result<(Camera, Matrix3<f64>, Matrix3x4<f64>), CalibError> {
+            if text.trim().is_empty() {
+                return Err(CalibError::Read {
+                    file: file.into(),
+                    why: "the file is empty".into(),
+                });
+            }
             let f = Fields::parse(file, text)?;
             notes.extend(f.unknown_keys(&[ROS_KEYS], ROS_KEYS));
             let (width, height) = f.image_size()?;
@@ -839,9 +852,10 @@ impl StereoCalibration {
                 "{right_file} carries no baseline (projection_matrix[0][3] is 0): not the right camera of a stereo pair"
             )));
         }
-        // A rectified pair shares its focal lengths and rows: the baseline is read as
-        // `-P2[0,3] / P2[0,0]`, so a right file of another calibration (or another
-        // scale) would give a wrong baseline and every depth off by the same factor.
+        // A rectified pair shares its focal lengths and rows. The baseline is read from
+        // the right file alone, `-P2[0,3] / P2[0,0]`: a right file whose fx was edited,
+        // or that belongs to another calibration, gives another baseline (or another
+        // rig's), and every depth off by the same factor.
         for ((i, j), name) in [((0, 0), "fx"), ((1, 1), "fy"), ((1, 2), "cy")] {
             let (a, b) = (p1[(i, j)], p2[(i, j)]);
             if (a - b).is_nan() || (a - b).abs() > 1e-4 * a.abs().max(b.abs()).max(1.0) {
@@ -1328,6 +1342,19 @@ pub(crate) mod tests {
             let c = sensor_pair(distortion);
             StereoCalibration::from_opencv_yaml("c.yaml", &c.to_opencv_yaml()).unwrap();
         }
+        // A circular fisheye (a 190° lens whose picture is a 600 px circle in a 1280×720
+        // frame; its polynomial turns back beyond the picture) reads.
+        let mut wide = sensor_pair(Distortion::KannalaBrandt([0.0, -0.006, 0.0, 0.0]));
+        for cam in [&mut wide.left, &mut wide.right] {
+            (cam.width, cam.height) = (1280, 720);
+            cam.k = Matrix3::new(190.0, 0.0, 640.0, 0.0, 190.0, 360.0, 0.0, 0.0, 1.0);
+        }
+        StereoCalibration::from_opencv_yaml("c.yaml", &wide.to_opencv_yaml()).unwrap();
+        // Binned pixels (2×1) read.
+        let mut binned = sensor_pair(Distortion::NONE);
+        binned.left.k[(1, 1)] = 210.0;
+        binned.right.k[(1, 1)] = 212.0;
+        StereoCalibration::from_opencv_yaml("c.yaml", &binned.to_opencv_yaml()).unwrap();
         let mut c = sensor_pair(Distortion::NONE);
         c.right.k[(0, 1)] = 500.0;
         let e = refused(&c);
@@ -1363,11 +1390,11 @@ pub(crate) mod tests {
         }
     }
 
-    /// A ROS pair whose projection matrices disagree on the focal length (a right file
-    /// from another calibration) is refused: its baseline, read as `-Tx / fx`, would be
-    /// off by their ratio (14 mm read as 11.8, every depth 17 % short, exit 0).
+    /// A ROS pair whose projection matrices disagree on the focal length (the right
+    /// file's fx edited, its Tx kept) is refused: its baseline, read as `-Tx / fx`, was
+    /// off by their ratio (14 mm read as 11.8, every depth 16 % short, exit 0).
     #[test]
-    fn a_ros_pair_of_two_calibrations_is_refused() {
+    fn a_ros_pair_whose_focal_lengths_disagree_is_refused() {
         let c = sensor_pair(Distortion::NONE);
         let (left, right) = crate::stereo::ros_info::camera_info_pair(&c).unwrap();
         StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &right)).unwrap();
@@ -1381,14 +1408,15 @@ pub(crate) mod tests {
             line.split(',').map(|v| v.trim().parse().unwrap()).collect()
         };
         let p2 = p(&right);
-        let scaled: Vec<f64> = p2.iter().map(|v| v * 1.19).collect();
+        let mut edited = p2.clone();
+        edited[0] *= 1.19;
         let fmt = |v: &[f64]| {
             v.iter()
                 .map(|x| format!("{x:?}"))
                 .collect::<Vec<_>>()
                 .join(", ")
         };
-        let other = right.replace(&fmt(&p2), &fmt(&scaled));
+        let other = right.replace(&fmt(&p2), &fmt(&edited));
         assert_ne!(other, right, "the test must change the right projection");
         let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", &other))
             .unwrap_err()
@@ -1397,6 +1425,25 @@ pub(crate) mod tests {
             e.contains("l.yaml and r.yaml") && e.contains("disagree on fx"),
             "{e}"
         );
+    }
+
+    /// An empty file, and one camera_info file given alone, are named as such (they
+    /// used to read as a missing image size and a missing `K1`).
+    #[test]
+    fn an_empty_file_and_a_lone_camera_info_file_are_named() {
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", " \n").unwrap_err();
+        assert_eq!(e.to_string(), "reading c.yaml: the file is empty");
+        let (left, _) =
+            crate::stereo::ros_info::camera_info_pair(&sensor_pair(Distortion::NONE)).unwrap();
+        let e = StereoCalibration::from_opencv_yaml("left.yaml", &left).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("left.yaml is a ROS camera_info file")
+                && e.to_string().contains("--calib LEFT --calib RIGHT"),
+            "{e}"
+        );
+        let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", "")).unwrap_err();
+        assert_eq!(e.to_string(), "reading r.yaml: the file is empty");
     }
 
     /// Cameras of very different focal lengths are read, with a note.

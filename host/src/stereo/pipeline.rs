@@ -107,6 +107,24 @@ pub enum StereoError {
         /// The nearest depth whose disparity fits the image (mm).
         nearest_mm: f64,
     },
+    /// The rectified image is narrower than the fewest disparities searched beside the
+    /// matching window, or lower than the window: no working range fits it.
+    #[error(
+        "the rectified image is {}×{} px: too small to match whatever the working range \
+         (16 disparities beside the {}-px matching window need at least {}×{} px); give \
+         larger frames (and their calibration), or raise --scale",
+        size.0,
+        size.1,
+        least.1 - 2,
+        least.0,
+        least.1
+    )]
+    TooSmall {
+        /// Rectified size (px).
+        size: (u32, u32),
+        /// The least size that can match (px).
+        least: (u32, u32),
+    },
     /// A frame of the wrong size.
     #[error("{camera} frame: {source}")]
     FrameSize {
@@ -211,6 +229,17 @@ impl StereoPipeline {
             )?
         };
         let width = rectification.width;
+        // The fewest disparities searched (16) and the matching window's margins must fit
+        // beside each other whatever the range: narrower, no --near-mm helps.
+        // (And the window must fit the height.)
+        let least = (16 + params.block_size + 2, params.block_size + 2);
+        let height = rectification.height;
+        if width < least.0 || height < least.1 {
+            return Err(StereoError::TooSmall {
+                size: (width, height),
+                least,
+            });
+        }
         if params.max_disparity() + 2 > width {
             let fb = rectification.focal() * rectification.baseline();
             return Err(StereoError::RangeBeyondImage {
@@ -280,14 +309,8 @@ impl StereoPipeline {
         let matched = self.matcher.compute(&left, &right)?;
         let t_match = Instant::now();
         let mut disparity = matched.disparity;
-        if let Some(s) = &self.config.spatial {
-            s.apply(&mut disparity);
-        }
-        if let Some(t) = &mut self.temporal {
-            t.apply(&mut disparity);
-        }
-        let holes_filled = self.config.hole_fill.map_or(0, |f| f.apply(&mut disparity));
         let (focal, baseline) = (self.rectification.focal(), self.rectification.baseline());
+        // Before the filters, which then only combine depths within the range.
         let mut stats = matched.stats;
         stats.outside_range = keep_within_range(
             &mut disparity,
@@ -296,6 +319,13 @@ impl StereoPipeline {
             self.config.far_mm,
         );
         stats.valid = stats.valid.saturating_sub(stats.outside_range);
+        if let Some(s) = &self.config.spatial {
+            s.apply(&mut disparity);
+        }
+        if let Some(t) = &mut self.temporal {
+            t.apply(&mut disparity);
+        }
+        let holes_filled = self.config.hole_fill.map_or(0, |f| f.apply(&mut disparity));
         let t_filter = Instant::now();
         let (mut cloud, mut depth_mm) = rayon::join(
             || reproject(&disparity, &self.rectification.q),
@@ -336,14 +366,14 @@ impl StereoPipeline {
     }
 }
 
-/// Drops the disparities whose depth `f·B / d` lies outside `near_mm..=far_mm` (the
-/// matcher searches whole blocks of 16 disparities, a little past the range asked for),
-/// so every depth written lies within the working range. Returns how many it dropped.
+/// Drops the disparities whose depth `f·B / d` (computed as [`depth_from_disparity`]
+/// does, in f32) lies outside `near_mm..=far_mm`: the matcher searches whole blocks of 16
+/// disparities, a little past the range asked for. Returns how many it dropped.
 fn keep_within_range(disparity: &mut Grid<f32>, fb: f64, near_mm: f64, far_mm: f64) -> usize {
-    let (lo, hi) = ((fb / far_mm) as f32, (fb / near_mm) as f32);
+    let (fb, near, far) = (fb as f32, near_mm as f32, far_mm as f32);
     let mut dropped = 0;
     for d in disparity.as_mut_slice() {
-        if d.is_finite() && !(*d >= lo && *d <= hi) {
+        if d.is_finite() && !(*d > 0.0 && (near..=far).contains(&(fb / *d))) {
             *d = f32::NAN;
             dropped += 1;
         }
@@ -399,6 +429,37 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    /// Images too small for any working range are refused as such (raising --near-mm,
+    /// which the range error advises, cannot help them), and an impossible range names
+    /// the flags and the nearest depth the rig allows.
+    #[test]
+    fn images_too_small_and_impossible_ranges_are_named() {
+        for (w, h) in [(8, 8), (64, 8), (26, 40)] {
+            let rig = StereoRig {
+                width: w,
+                height: h,
+                focal_px: 0.5 * w as f64,
+                baseline_mm: 14.0,
+            };
+            let e = StereoPipeline::new(&rig.calibration(), StereoConfig::default())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("{w}×{h} px: too small")), "{e}");
+        }
+        let rig = StereoRig::sensor();
+        let config = StereoConfig {
+            near_mm: -10.0,
+            ..StereoConfig::default()
+        };
+        let e = StereoPipeline::new(&rig.calibration(), config)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("--near-mm -10 and --far-mm 600") && e.contains("at least 1.1 mm"),
+            "{e}"
+        );
     }
 
     /// Outlier removal drops a point from the cloud, the disparity and the depth map
