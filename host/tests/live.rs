@@ -292,7 +292,20 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         text.contains("presses.mcap") && text.contains("demo.mcap"),
         "{text}"
     );
-    let model = dir.join("model.json");
+    // Into a folder that does not exist yet: made once the calibration succeeded. A
+    // file where a folder should be is said before the work.
+    let blocked = dir.join("a-file");
+    std::fs::write(&blocked, b"x").unwrap();
+    let (ok, _, err) = stereotac(&[
+        "calibrate",
+        path(&out.join("presses.mcap")),
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        path(&blocked.join("model.json")),
+    ]);
+    assert!(!ok && err.contains("is a file, not a folder"), "{err}");
+    let model = dir.join("models").join("model.json");
     let (ok, text, err) = stereotac(&[
         "calibrate",
         path(&out.join("presses.mcap")),
@@ -301,7 +314,38 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         "--out",
         path(&model),
     ]);
+    assert!(ok && model.is_file(), "{err}");
+    // The presses as a folder of pairs, one of them damaged: set aside with the reason
+    // (printed and in the report), the others calibrate.
+    let folder = dir.join("press-pairs");
+    let (ok, _, err) = stereotac(&[
+        "export",
+        path(&out.join("presses.mcap")),
+        "--pairs",
+        path(&folder),
+    ]);
     assert!(ok, "{err}");
+    std::fs::write(folder.join("broken_dx.png"), b"\x89PNG\r\n\x1a\n cut").unwrap();
+    std::fs::copy(folder.join("broken_dx.png"), folder.join("broken_dy.png")).unwrap();
+    let report = dir.join("report.json");
+    let (ok, folder_text, err) = stereotac(&[
+        "calibrate",
+        path(&folder),
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        path(&dir.join("from-folder.json")),
+        "--report",
+        path(&report),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        folder_text.contains("broken") && folder_text.contains("cannot be read"),
+        "{folder_text}"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(r["unreadable"][0]["name"], "broken", "{}", r["unreadable"]);
     assert!(
         text.contains("16 presses") || text.matches("phase0").count() == 16,
         "{text}"

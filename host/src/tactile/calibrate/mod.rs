@@ -535,9 +535,21 @@ pub fn calibrate(
     // Something the references show and the presses do not (or every press made at one
     // place) departs in most presses at the same place: refused, or every frame the
     // model reads would show it as a contact.
+    // (A press whose circle was given votes with that circle.)
+    let voting: Vec<Option<Circle>> = candidates
+        .iter()
+        .zip(&circles)
+        .map(|(&i, c)| {
+            settings
+                .overrides
+                .get(&pairs[i].name)
+                .map(|given| threshold::in_blocks(given, step))
+                .or(*c)
+        })
+        .collect();
     if let Some(shared) = shared_departure::find(
         &blocks,
-        &circles,
+        &voting,
         w.div_ceil(step),
         h.div_ceil(step),
         // The flat skin's own threshold, also when another is given.

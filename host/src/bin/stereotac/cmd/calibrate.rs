@@ -95,6 +95,23 @@ pub fn run(a: Args) -> Result<()> {
         };
         check_replace(path, a.force, written)?;
     }
+    // A folder the files go into that cannot be made (a file in its place) is said
+    // now; missing folders are made once the calibration has succeeded.
+    for path in std::iter::once(&a.out).chain(a.report.iter()) {
+        if let Some(blocker) = path
+            .ancestors()
+            .skip(1)
+            .filter(|p| !p.as_os_str().is_empty())
+            .find(|p| p.exists())
+            .filter(|p| !p.is_dir())
+        {
+            anyhow::bail!(
+                "{}: {} is a file, not a folder: give a path in a folder",
+                path.display(),
+                blocker.display()
+            );
+        }
+    }
     if let Some(report) = &a.report {
         anyhow::ensure!(
             !same_file(report, &a.out),
@@ -185,7 +202,29 @@ pub fn run(a: Args) -> Result<()> {
         },
     );
     progress.finish_and_clear();
-    let cal = result?;
+    // Too few presses: the error lists those it set aside; the unreadable ones too.
+    let unread_list = || {
+        unreadable
+            .iter()
+            .map(|(name, why)| format!("\n  {name}: cannot be read: {why}"))
+            .collect::<String>()
+    };
+    let cal = result.map_err(|e| {
+        let few = matches!(
+            e,
+            stereotac::tactile::calibrate::CalibrationError::TooFewPresses { .. }
+        );
+        let e = anyhow::Error::from(e);
+        if few && !unreadable.is_empty() {
+            e.context(format!(
+                "{} more press(es) set aside before calibrating:{}",
+                unreadable.len(),
+                unread_list()
+            ))
+        } else {
+            e
+        }
+    })?;
     println!(
         "{:<16} {:>8} {:>8} {:>8} {:>9} {:>8} {:>7}",
         "pair", "cx px", "cy px", "r px", "depth mm", "fit px", "sat %"
@@ -276,8 +315,19 @@ pub fn run(a: Args) -> Result<()> {
         write_overlays(dir.path(), &pairs, &cal)?;
         dir.keep();
     }
+    for path in std::iter::once(&a.out).chain(a.report.iter()) {
+        if let Some(folder) = path.parent().filter(|f| !f.as_os_str().is_empty()) {
+            std::fs::create_dir_all(folder)
+                .with_context(|| format!("making the folder {}", folder.display()))?;
+        }
+    }
     if let Some(path) = &a.report {
-        write_atomic(path, &serde_json::to_vec_pretty(&cal.report_json())?)
+        let mut report = cal.report_json();
+        report["unreadable"] = unreadable
+            .iter()
+            .map(|(name, why)| serde_json::json!({"name": name, "reason": why.to_string()}))
+            .collect();
+        write_atomic(path, &serde_json::to_vec_pretty(&report)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
     cal.model.save(&a.out)?;
