@@ -62,7 +62,19 @@ pub enum OutDirError {
         /// Whether `--force` would allow it.
         forcible: bool,
     },
-    /// It is a file, or could not be read or created.
+    /// It, or a folder it would be made in, is a file.
+    #[error(
+        "{}: {} is a file, not a folder: give a folder for the outputs",
+        path.display(),
+        blocker.display()
+    )]
+    NotAFolder {
+        /// The directory asked for.
+        path: PathBuf,
+        /// The file in its place, or in the place of one of its parents.
+        blocker: PathBuf,
+    },
+    /// It could not be read or created.
     #[error("{}: {source}", path.display())]
     Io {
         /// The directory.
@@ -91,6 +103,19 @@ impl OutDir {
         };
         // `symlink_metadata`: a symlink whose target is missing is there (and is refused
         // below as unreadable), never made or removed.
+        // A file where the folder (or one of its parents) should be: said as such, not
+        // as "Not a directory (os error 20)".
+        if let Some(blocker) = path
+            .ancestors()
+            .filter(|p| !p.as_os_str().is_empty())
+            .find(|p| std::fs::metadata(p).is_ok())
+            .filter(|p| !p.is_dir())
+        {
+            return Err(OutDirError::NotAFolder {
+                path: path.to_path_buf(),
+                blocker: blocker.to_path_buf(),
+            });
+        }
         let mut dir = Self {
             path: path.to_path_buf(),
             created: false,

@@ -345,6 +345,7 @@ fn arguments() {
     // Refused before the (empty) directory is even read.
     for (flag, value, says) in [
         ("--px-per-mm", "1e9", "px/mm"),
+        ("--px-per-mm", "1e-30", "above 0.5"),
         ("--ball-diameter-mm", "inf", "ball diameter"),
     ] {
         let model = dir.join("m.json");
@@ -368,6 +369,14 @@ fn output_folders() {
     let args = ["stereo", "--synthetic", "150", "--out-dir", s(&out)];
     refused(&args, &["notes.txt", "--force"]);
     assert!(!out.join("summary.json").exists());
+    // A file where the folder, or one of its parents, should be.
+    let file = out.join("notes.txt");
+    for place in [file.clone(), file.join("deeper")] {
+        refused(
+            &["stereo", "--synthetic", "150", "--out-dir", s(&place)],
+            &["notes.txt is a file, not a folder"],
+        );
+    }
     let forced = Command::new(env!("CARGO_BIN_EXE_stereotac"))
         .args(args)
         .arg("--force")

@@ -346,6 +346,27 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     assert_eq!(r["unreadable"][0]["name"], "broken", "{}", r["unreadable"]);
+    // An override naming no press is a slip, said before the work.
+    let overrides = dir.join("overrides.json");
+    std::fs::write(
+        &overrides,
+        br#"{"phase9999": {"cx": 10, "cy": 10, "r": 5}}"#,
+    )
+    .unwrap();
+    let (ok, _, err) = stereotac(&[
+        "calibrate",
+        path(&folder),
+        "--ball-diameter-mm",
+        "6",
+        "--out",
+        path(&dir.join("unused.json")),
+        "--overrides",
+        path(&overrides),
+    ]);
+    assert!(
+        !ok && err.contains("no press is named \"phase9999\""),
+        "{err}"
+    );
     assert!(
         text.contains("16 presses") || text.matches("phase0").count() == 16,
         "{text}"

@@ -161,7 +161,8 @@ impl BlockMatchParams {
             return bad(
                 "block_size",
                 b.into(),
-                "block_size² · 2 · prefilter_cap must be at most 65535",
+                "too large: at most 31 at the default prefilter_cap of 31 (window sums of \
+                 block_size² · 2 · prefilter_cap must be at most 65535)",
             );
         }
         if self.uniqueness_ratio >= 100 {

@@ -30,7 +30,7 @@ pub use report::{CalibrationReport, overlay};
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
-use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_SKIN_THICKNESS_MM};
+use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_PX_PER_MM, MIN_SKIN_THICKNESS_MM};
 use super::model::{
     AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, JointSample, LUT_MAX_COLOUR,
     LightModel, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, PhotometricModel,
@@ -179,13 +179,13 @@ impl CalibrationSettings {
     /// Checks the numbers a user gives (ball diameter, px/mm) against the bounds a model
     /// file is held to ([`super::model::validate`]), before any work.
     pub fn check(&self) -> Result<(), CalibrationError> {
-        for (what, v) in [
-            ("ball diameter (mm)", self.ball_diameter_mm),
-            ("px/mm", self.px_per_mm),
+        for (what, v, min) in [
+            ("ball diameter (mm)", self.ball_diameter_mm, 0.0),
+            ("px/mm", self.px_per_mm, MIN_PX_PER_MM),
         ] {
-            if !(v.is_finite() && v > 0.0 && v <= 1000.0) {
+            if !(v.is_finite() && v > min && v <= 1000.0) {
                 return Err(CalibrationError::Settings(format!(
-                    "{what} must be a finite positive number up to 1000, got {v}"
+                    "{what} must be a finite number above {min} and up to 1000, got {v}"
                 )));
             }
         }

@@ -21,6 +21,10 @@ pub const MAX_SKIN_THICKNESS_MM: f64 = 50.0;
 /// Largest LUT side (bins) and MLP layer width a model may declare.
 const MAX_TABLE: usize = 1024;
 
+/// The least image scale of a tactile sensor (px/mm, exclusive): below it a 640 px frame
+/// would span more than a metre of skin.
+pub const MIN_PX_PER_MM: f64 = 0.5;
+
 /// The first problem found, as (field, what is wrong).
 pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
     let fail = |field: &str, why: String| Err((field.to_string(), why));
@@ -29,14 +33,14 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
             return fail(field, format!("{v} px is outside 1..={MAX_FRAME_SIDE}"));
         }
     }
-    for (field, v, max) in [
-        ("px_per_mm", m.px_per_mm, 1000.0),
-        ("ball_diameter_mm", m.ball_diameter_mm, 1000.0),
+    for (field, v, min, max) in [
+        ("px_per_mm", m.px_per_mm, MIN_PX_PER_MM, 1000.0),
+        ("ball_diameter_mm", m.ball_diameter_mm, 0.0, 1000.0),
     ] {
-        if !(v.is_finite() && v > 0.0 && v <= max) {
+        if !(v.is_finite() && v > min && v <= max) {
             return fail(
                 field,
-                format!("{v} must be finite, positive and at most {max}"),
+                format!("{v} must be finite, above {min} and at most {max}"),
             );
         }
     }

@@ -174,6 +174,27 @@ pub fn run(a: Args) -> Result<()> {
         })?;
         (folder.pairs, folder.set_aside)
     };
+    // An override naming no press would change nothing: a slip in the name, said now.
+    let mut unknown: Vec<&String> = settings
+        .overrides
+        .keys()
+        .filter(|name| !pairs.iter().any(|p| &&p.name == name))
+        .collect();
+    unknown.sort();
+    if let (Some(first), Some(file)) = (unknown.first(), &a.overrides) {
+        let names: Vec<&str> = pairs.iter().take(5).map(|p| p.name.as_str()).collect();
+        anyhow::bail!(
+            "{}: no press is named {first:?}{} (the presses are named {}{})",
+            file.display(),
+            if unknown.len() > 1 {
+                format!(" (nor {} other name(s) there)", unknown.len() - 1)
+            } else {
+                String::new()
+            },
+            names.join(", "),
+            if pairs.len() > 5 { ", …" } else { "" }
+        );
+    }
     // A press whose files cannot be read costs that press only: said now (before the
     // work) and again with the presses the calibration sets aside.
     for (name, why) in &unreadable {
