@@ -84,6 +84,16 @@ pub enum OutDirError {
     },
 }
 
+/// The file that stands where folder `path` or one of its parents should be (the
+/// nearest of them that exists, when it is not a folder); `None` when the folder is
+/// there or can be made.
+pub fn file_in_the_way(path: &Path) -> Option<&Path> {
+    path.ancestors()
+        .filter(|p| !p.as_os_str().is_empty())
+        .find(|p| p.exists())
+        .filter(|p| !p.is_dir())
+}
+
 /// An output directory prepared for one run (see the module documentation).
 #[derive(Debug)]
 pub struct OutDir {
@@ -105,12 +115,7 @@ impl OutDir {
         // below as unreadable), never made or removed.
         // A file where the folder (or one of its parents) should be: said as such, not
         // as "Not a directory (os error 20)".
-        if let Some(blocker) = path
-            .ancestors()
-            .filter(|p| !p.as_os_str().is_empty())
-            .find(|p| std::fs::metadata(p).is_ok())
-            .filter(|p| !p.is_dir())
-        {
+        if let Some(blocker) = file_in_the_way(path) {
             return Err(OutDirError::NotAFolder {
                 path: path.to_path_buf(),
                 blocker: blocker.to_path_buf(),

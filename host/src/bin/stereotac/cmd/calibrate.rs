@@ -6,7 +6,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use stereotac::out_dir::{OutDir, Replace};
+use stereotac::out_dir::{OutDir, Replace, file_in_the_way};
 use stereotac::output::{Written, check_replace, same_file, write_atomic};
 
 use anyhow::{Context, Result};
@@ -98,13 +98,7 @@ pub fn run(a: Args) -> Result<()> {
     // A folder the files go into that cannot be made (a file in its place) is said
     // now; missing folders are made once the calibration has succeeded.
     for path in std::iter::once(&a.out).chain(a.report.iter()) {
-        if let Some(blocker) = path
-            .ancestors()
-            .skip(1)
-            .filter(|p| !p.as_os_str().is_empty())
-            .find(|p| p.exists())
-            .filter(|p| !p.is_dir())
-        {
+        if let Some(blocker) = path.parent().and_then(file_in_the_way) {
             anyhow::bail!(
                 "{}: {} is a file, not a folder: give a path in a folder",
                 path.display(),
