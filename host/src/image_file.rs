@@ -1,7 +1,8 @@
-//! Reading image files written by someone else, within bounds: the header is read first,
+//! Reading image files written by someone else, within bounds: the header is read first
+//! (what comes before the pixels may allocate at most [`MAX_IMAGE_HEADER_ALLOC`] bytes),
 //! and an image larger than [`MAX_FRAME_SIDE`] a side, or of a colour type or bit depth
 //! the caller cannot use, is refused before a pixel is decoded; decoding may allocate at
-//! most [`MAX_IMAGE_ALLOC`] bytes. One place for every file reader (tactile pairs, stereo
+//! most [`MAX_IMAGE_ALLOC`] bytes. [`header`] reads only the header. One place for every file reader (tactile pairs, stereo
 //! pairs, recordings replayed, frames inside MCAP files), so each gets the same rules.
 //!
 //! What each use accepts:
@@ -16,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use image::{ColorType, DynamicImage, ImageDecoder, ImageFormat, ImageReader, Limits, RgbImage};
 
-use crate::limits::{MAX_FRAME_SIDE, MAX_IMAGE_ALLOC};
+use crate::limits::{MAX_FRAME_SIDE, MAX_IMAGE_ALLOC, MAX_IMAGE_HEADER_ALLOC};
 
 /// What the caller will do with the pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,17 +109,26 @@ fn limits() -> Limits {
     l
 }
 
-/// Decodes from `reader` after checking the header; `path` names the source in errors.
-fn decode<R: BufRead + Seek>(
+/// Bounds while the header is read: no size limit (our own check names the size), and
+/// [`MAX_IMAGE_HEADER_ALLOC`] for what comes before the pixels.
+fn header_limits() -> Limits {
+    let mut l = Limits::no_limits();
+    l.max_alloc = Some(MAX_IMAGE_HEADER_ALLOC);
+    l
+}
+
+/// The decoder of `reader` once its header passed the checks; `path` names the source in
+/// errors.
+fn checked_decoder<'a, R: BufRead + Seek + 'a>(
     mut reader: ImageReader<R>,
     path: &Path,
     need: Need,
-) -> Result<DynamicImage, ImageFileError> {
+) -> Result<impl ImageDecoder + 'a, ImageFileError> {
     let decode_error = |source| ImageFileError::Decode {
         path: path.to_path_buf(),
         source,
     };
-    reader.no_limits();
+    reader.limits(header_limits());
     let decoder = reader.into_decoder().map_err(decode_error)?;
     let (width, height) = decoder.dimensions();
     let side = 1..=MAX_FRAME_SIDE as u32;
@@ -135,22 +145,44 @@ fn decode<R: BufRead + Seek>(
         found: describe(colour),
         need,
     })?;
-    let mut decoder = decoder;
+    Ok(decoder)
+}
+
+/// Decodes from `reader` after checking the header; `path` names the source in errors.
+fn decode<R: BufRead + Seek>(
+    reader: ImageReader<R>,
+    path: &Path,
+    need: Need,
+) -> Result<DynamicImage, ImageFileError> {
+    let decode_error = |source| ImageFileError::Decode {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut decoder = checked_decoder(reader, path, need)?;
     decoder.set_limits(limits()).map_err(decode_error)?;
     DynamicImage::from_decoder(decoder).map_err(decode_error)
 }
 
-/// Reads an image file for `need`, within the bounds above.
-pub fn read(path: &Path, need: Need) -> Result<DynamicImage, ImageFileError> {
+fn open(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>, ImageFileError> {
     let io = |source| ImageFileError::Io {
         path: path.to_path_buf(),
         source,
     };
-    let reader = ImageReader::open(path)
+    ImageReader::open(path)
         .map_err(io)?
         .with_guessed_format()
-        .map_err(io)?;
-    decode(reader, path, need)
+        .map_err(io)
+}
+
+/// Reads an image file for `need`, within the bounds above.
+pub fn read(path: &Path, need: Need) -> Result<DynamicImage, ImageFileError> {
+    decode(open(path)?, path, need)
+}
+
+/// The size `(width, height)` an image file declares, after the same checks as [`read`]
+/// and without decoding a pixel: to compare files before paying for them.
+pub fn header(path: &Path, need: Need) -> Result<(u32, u32), ImageFileError> {
+    Ok(checked_decoder(open(path)?, path, need)?.dimensions())
 }
 
 /// Reads an 8-bit colour image (tactile frames).
@@ -219,5 +251,67 @@ mod tests {
         );
         let e = decode_bytes("junk.png", b"not a png", ImageFormat::Png, Need::Grey);
         assert!(matches!(e, Err(ImageFileError::Decode { .. })));
+    }
+
+    /// A PNG of `img` carrying a colour profile of `profile_bytes` zeros.
+    fn png_with_profile(img: &RgbImage, profile_bytes: usize) -> Vec<u8> {
+        use image::ImageEncoder;
+        let mut out = Vec::new();
+        let mut encoder = image::codecs::png::PngEncoder::new(&mut out);
+        encoder.set_icc_profile(vec![0; profile_bytes]).unwrap();
+        encoder
+            .write_image(
+                img.as_raw(),
+                img.width(),
+                img.height(),
+                image::ExtendedColorType::Rgb8,
+            )
+            .unwrap();
+        out
+    }
+
+    #[test]
+    fn what_comes_before_the_pixels_is_bounded_and_the_pixels_are_not() {
+        let small = RgbImage::from_pixel(16, 12, image::Rgb([10, 20, 30]));
+        // A camera's profile is read with the header; one that expands past the header's
+        // bound is dropped instead of allocated (a 2 MB file held a 2 GiB profile).
+        for (profile, kept) in [(4096, true), (MAX_IMAGE_HEADER_ALLOC as usize + 1, false)] {
+            let bytes = png_with_profile(&small, profile);
+            let reader = || {
+                let mut r = ImageReader::new(Cursor::new(&bytes[..]));
+                r.set_format(ImageFormat::Png);
+                r
+            };
+            let mut decoder = checked_decoder(reader(), Path::new("p.png"), Need::Colour).unwrap();
+            let read = decoder.icc_profile().unwrap().map(|p| p.len());
+            assert_eq!(read.is_some(), kept, "{profile}: {read:?}");
+            let img = decode(reader(), Path::new("p.png"), Need::Colour).unwrap();
+            assert_eq!(img.into_rgb8(), small);
+        }
+        // The pixels themselves may take far more than the header's bound.
+        let (w, h) = (4096u32, MAX_IMAGE_HEADER_ALLOC as u32 / 4096 / 3 + 64);
+        let big = DynamicImage::ImageRgb8(RgbImage::new(w, h));
+        let img = decode_bytes("big.png", &png(&big), ImageFormat::Png, Need::Colour).unwrap();
+        assert_eq!((img.width(), img.height()), (w, h));
+    }
+
+    #[test]
+    fn the_header_alone_gives_the_size_after_the_same_checks() {
+        let dir = std::env::temp_dir().join(format!("stereotac-header-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (rgb, grey) = (dir.join("rgb.png"), dir.join("grey.png"));
+        RgbImage::new(40, 30).save(&rgb).unwrap();
+        image::GrayImage::new(40, 30).save(&grey).unwrap();
+        assert_eq!(header(&rgb, Need::Colour).unwrap(), (40, 30));
+        assert_eq!(header(&grey, Need::Grey).unwrap(), (40, 30));
+        assert!(matches!(
+            header(&grey, Need::Colour),
+            Err(ImageFileError::Colour { .. })
+        ));
+        assert!(matches!(
+            header(&dir.join("none.png"), Need::Colour),
+            Err(ImageFileError::Io { .. })
+        ));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -11,6 +11,12 @@ pub const MAX_FRAME_SIDE: usize = 8192;
 /// [`MAX_FRAME_SIDE`]² pixels.
 pub const MAX_IMAGE_ALLOC: u64 = (MAX_FRAME_SIDE * MAX_FRAME_SIDE * 4) as u64;
 
+/// Most the decoder may allocate before the pixels (bytes): the chunks ahead of them,
+/// such as a PNG's colour profile or text, are compressed and may expand a thousandfold
+/// (a 2 MB file with a 2 GiB profile). A camera's profile is a few KB; a larger one is
+/// dropped, and other chunks beyond it refuse the file.
+pub const MAX_IMAGE_HEADER_ALLOC: u64 = 16 << 20;
+
 /// Largest calibration YAML file (bytes). A full stereo calibration is about 3 KB.
 pub const MAX_CALIBRATION_FILE: u64 = 1 << 20;
 

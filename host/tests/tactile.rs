@@ -476,6 +476,75 @@ fn references_that_show_a_press_are_refused_with_the_place() {
     }
 }
 
+/// Reference frames given at reconstruction are compared with the model's background:
+/// one taken during a press is refused with the place (it made a phantom imprint in every
+/// frame), while fresh frames of flat skin and light that changed since calibration (what
+/// references are for) are taken.
+#[test]
+fn references_given_at_reconstruction_that_show_a_press_are_refused() {
+    let optics = optics();
+    let (model, _) = calibrated(&optics);
+    let new = |dx: &RgbImage, dy: &RgbImage| {
+        Reconstructor::new(
+            model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some((dx, dy).into()),
+        )
+    };
+    let scaled = |img: &RgbImage, gain: f32| {
+        let mut out = img.clone();
+        for v in out.iter_mut() {
+            *v = (f32::from(*v) * gain).round().min(255.0) as u8;
+        }
+        out
+    };
+    // A warm light through the skin over a corner (a lamp): it adds to the red strip's
+    // colour and takes from the blue's as a slope does, but one way only.
+    let warm = |img: &RgbImage| {
+        let mut out = img.clone();
+        let (w, h) = (img.width() as f32, img.height() as f32);
+        for (x, y, px) in out.enumerate_pixels_mut() {
+            let d2 = (x as f32 - 0.7 * w).powi(2) + (y as f32 - 0.3 * h).powi(2);
+            let glow = (-d2 / (2.0 * (w / 6.0).powi(2))).exp();
+            for (c, add) in [(0, 40.0), (1, 20.0)] {
+                px.0[c] = (f32::from(px.0[c]) + add * glow).round().min(255.0) as u8;
+            }
+        }
+        out
+    };
+    for frame in [501, 502, 503] {
+        let rest = render(&optics, &Scene::default(), frame);
+        new(&rest.dx, &rest.dy).expect("fresh flat skin is taken");
+        new(&warm(&rest.dx), &warm(&rest.dy)).expect("a warm light is taken");
+        for gain in [0.8, 1.2] {
+            let (dx, dy) = (scaled(&rest.dx, gain), scaled(&rest.dy, gain));
+            let mut rec = new(&dx, &dy).expect("light that changed is taken");
+            let r = rec.reconstruct(&dx, &dy).unwrap();
+            assert!(r.no_contact(), "{gain}");
+        }
+    }
+    let (w_mm, h_mm) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    // Two presses inside the frame, one centred on its left edge.
+    for (fx, fy, depth) in [(0.3, 0.6, 1.0), (0.75, 0.25, 0.4), (0.0, 0.5, 0.8)] {
+        let (cx, cy) = (fx * w_mm, fy * h_mm);
+        let pressed = render(&optics, &ball(cx, cy, depth), 600);
+        let err = new(&pressed.dx, &pressed.dy).err().expect("refused");
+        let ReconstructError::ReferencesShowPress { x, y, .. } = err else {
+            panic!("ball at {cx:.1}, {cy:.1} mm: {err}");
+        };
+        let off_mm = (x as f64 / optics.px_per_mm - cx).hypot(y as f64 / optics.px_per_mm - cy);
+        assert!(
+            off_mm < 1.5,
+            "named {x}, {y} px for a ball at {cx:.1}, {cy:.1} mm: {err}"
+        );
+        assert!(err.to_string().contains("take them again"), "{err}");
+    }
+}
+
 #[test]
 fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_warned() {
     let optics = optics();
@@ -1183,27 +1252,30 @@ fn pair_directories_set_aside_unpaired_and_unreadable_files() {
     let dir = std::env::temp_dir().join(format!("stereotac-pairs-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    assert!(matches!(load_pairs(&dir), Err(ImageError::Empty { .. })));
+    assert!(matches!(
+        load_pairs(&dir, None),
+        Err(ImageError::Empty { .. })
+    ));
     let img = RgbImage::new(4, 4);
     img.save(dir.join("a_dx.png")).unwrap();
-    let err = load_pairs(&dir).unwrap_err();
+    let err = load_pairs(&dir, None).unwrap_err();
     assert!(
         matches!(&err, ImageError::NoneReadable { first, .. } if matches!(**first, ImageError::Unpaired { .. })),
         "{err}"
     );
     std::fs::write(dir.join("a_dy.png"), b"not a png").unwrap();
-    let err = load_pairs(&dir).unwrap_err().to_string();
+    let err = load_pairs(&dir, None).unwrap_err().to_string();
     assert!(
         err.contains("none of its 1 pair(s) could be read") && err.contains("a_dy.png"),
         "{err}"
     );
     img.save(dir.join("a_dy.png")).unwrap();
-    let got = load_pairs(&dir).unwrap();
+    let got = load_pairs(&dir, None).unwrap();
     assert!(got.pairs.len() == 1 && got.set_aside.is_empty());
     assert!(got.pairs[0].dark.is_none());
     img.save(dir.join("a_dark.png")).unwrap();
     assert!(
-        load_pairs(&dir).unwrap().pairs[0].dark.is_some(),
+        load_pairs(&dir, None).unwrap().pairs[0].dark.is_some(),
         "NAME_dark.png goes with its pair"
     );
     // Beside the good pair: a dark frame alone, a damaged PNG, a grey frame.
@@ -1215,7 +1287,7 @@ fn pair_directories_set_aside_unpaired_and_unreadable_files() {
         .into_luma8()
         .save(dir.join("d_dy.png"))
         .unwrap();
-    let got = load_pairs(&dir).unwrap();
+    let got = load_pairs(&dir, None).unwrap();
     let names: Vec<&str> = got.pairs.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["a"]);
     let aside: Vec<(&str, String)> = got
@@ -1235,6 +1307,36 @@ fn pair_directories_set_aside_unpaired_and_unreadable_files() {
     assert!(
         aside[2].0 == "d" && aside[2].1.contains("d_dy.png"),
         "{aside:?}"
+    );
+    // A press of another size than most (a huge one, or a frame of another camera) is
+    // set aside from its header; against references of another size, every press is.
+    RgbImage::new(4, 4).save(dir.join("e_dx.png")).unwrap();
+    RgbImage::new(4, 4).save(dir.join("e_dy.png")).unwrap();
+    RgbImage::new(6000, 5).save(dir.join("f_dx.png")).unwrap();
+    RgbImage::new(6000, 5).save(dir.join("f_dy.png")).unwrap();
+    let got = load_pairs(&dir, None).unwrap();
+    let names: Vec<&str> = got.pairs.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["a", "e"]);
+    let (name, why) = got.set_aside.last().unwrap();
+    assert!(
+        name == "f"
+            && matches!(
+                why,
+                ImageError::Size {
+                    got: (6000, 5),
+                    want: (4, 4),
+                    ..
+                }
+            )
+            && why
+                .to_string()
+                .contains("f_dx.png: 6000×5 px, but most pairs' frames are 4×4"),
+        "{name}: {why}"
+    );
+    let err = load_pairs(&dir, Some((8, 8))).unwrap_err().to_string();
+    assert!(
+        err.contains("but the reference frames are 8×8 px; not decoded"),
+        "{err}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use image::RgbImage;
 
 use super::calibrate::CalibrationPair;
-use crate::image_file::{self, ImageFileError};
+use crate::image_file::{self, ImageFileError, Need};
 
 /// Why images could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -30,6 +30,21 @@ pub enum ImageError {
         path: PathBuf,
         /// The partner looked for.
         partner: String,
+    },
+    /// A file of another size than the frames it goes with: set aside undecoded.
+    #[error(
+        "{}: {}×{} px, but {against} are {}×{} px; not decoded",
+        path.display(), got.0, got.1, want.0, want.1
+    )]
+    Size {
+        /// The file.
+        path: PathBuf,
+        /// Its size, from its header.
+        got: (u32, u32),
+        /// The size wanted.
+        want: (u32, u32),
+        /// Whose size that is.
+        against: &'static str,
     },
     /// One reference frame given without the other.
     #[error("give both no-contact reference frames (dx and dy), or neither")]
@@ -88,8 +103,11 @@ pub fn load_references(
 /// Reads every `NAME_dx.png` / `NAME_dy.png` pair in `dir` (suffix case ignored), with
 /// its LEDs-off frame `NAME_dark.png` when there is one, sorted by name. A pair that
 /// cannot be read is set aside with the reason; an error when the folder cannot be
-/// listed, holds no pairs, or none can be read.
-pub fn load_pairs(dir: &Path) -> Result<FolderPairs, ImageError> {
+/// listed, holds no pairs, or none can be read. The files' headers are read first: a pair
+/// with a file of another size than `want` (the reference frames' size), or without it
+/// than most pairs' dx frames, is set aside undecoded (a folder of huge images costs
+/// their headers only, and one odd press costs that press).
+pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, ImageError> {
     let dir_error = |source| ImageError::Dir {
         path: dir.to_path_buf(),
         source,
@@ -115,6 +133,15 @@ pub fn load_pairs(dir: &Path) -> Result<FolderPairs, ImageError> {
         });
     }
     let count = found.len();
+    let (want, against) = match want {
+        Some(size) => (Some(size), "the reference frames"),
+        None => {
+            let dx_sizes = found
+                .values()
+                .filter_map(|[dx, _, _]| image_file::header(dx.as_deref()?, Need::Colour).ok());
+            (most_common(dx_sizes), "most pairs' frames")
+        }
+    };
     let mut out = FolderPairs {
         pairs: Vec::with_capacity(count),
         set_aside: Vec::new(),
@@ -122,6 +149,17 @@ pub fn load_pairs(dir: &Path) -> Result<FolderPairs, ImageError> {
     for (name, [dx, dy, dark]) in found {
         let pair = match (dx, dy) {
             (Some(dx), Some(dy)) => (|| {
+                for path in [Some(&dx), Some(&dy), dark.as_ref()].into_iter().flatten() {
+                    let got = image_file::header(path, Need::Colour)?;
+                    if let Some(want) = want.filter(|&w| w != got) {
+                        return Err(ImageError::Size {
+                            path: path.clone(),
+                            got,
+                            want,
+                            against,
+                        });
+                    }
+                }
                 Ok(CalibrationPair {
                     dx: load_rgb(&dx)?,
                     dy: load_rgb(&dy)?,
@@ -156,4 +194,17 @@ pub fn load_pairs(dir: &Path) -> Result<FolderPairs, ImageError> {
         });
     }
     Ok(out)
+}
+
+/// The value met most often (the first met among equals); `None` when there is none.
+fn most_common(values: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
+    let mut counts: Vec<((u32, u32), usize)> = Vec::new();
+    for v in values {
+        match counts.iter_mut().find(|(c, _)| *c == v) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((v, 1)),
+        }
+    }
+    let most = counts.iter().map(|(_, n)| *n).max()?;
+    counts.into_iter().find(|(_, n)| *n == most).map(|(v, _)| v)
 }

@@ -23,6 +23,7 @@ pub mod output;
 pub mod phase_check;
 pub mod poisson;
 pub mod reconstruct;
+pub mod reference_check;
 pub mod render;
 pub mod sanitize;
 pub mod skins;

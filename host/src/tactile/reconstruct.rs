@@ -24,6 +24,7 @@ use super::features::{Features, Inputs};
 use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light, validate};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
+use super::reference_check;
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
 use super::unread::UnreadFill;
 use crate::grid::Grid;
@@ -86,7 +87,8 @@ pub enum ReconstructError {
         "depth {depth_mm:.2} mm at pixel ({x}, {y}) is beyond the skin's thickness \
          ({skin_mm} mm, the model's `skin_thickness_mm`): nothing presses deeper than the \
          skin, so these frames do not fit this model (another sensor, other lighting, \
-         frames of another phase); if the skin is thicker, recalibrate with \
+         frames of another phase, mirrored or turned frames, red and blue swapped as BGR \
+         files are); if the skin is thicker, recalibrate with \
          --skin-thickness-mm"
     )]
     DepthBeyondSkin {
@@ -134,6 +136,25 @@ pub enum ReconstructError {
     LightChanged {
         /// Share of the frame read as contact (%).
         percent: f32,
+    },
+    /// Reference frames that show a press the calibration's references did not: every
+    /// frame read against them would show it as a phantom imprint.
+    #[error(
+        "the reference frames show a press near pixel ({x}, {y}) (a region of about \
+         {width}x{height} px) that the model's background (the calibration's references) \
+         does not: something touched the skin while they were taken, and every frame \
+         read against them would show it as an imprint; take them again with nothing \
+         touching the skin, or read without reference frames (the model's background)"
+    )]
+    ReferencesShowPress {
+        /// Centre column of the region.
+        x: usize,
+        /// Centre row of the region.
+        y: usize,
+        /// Region width (px, with the detection's margin).
+        width: usize,
+        /// Region height (px, with the detection's margin).
+        height: usize,
     },
     /// The model's stored ambient light does not cover its own frame size.
     #[error(
@@ -345,6 +366,14 @@ impl Reconstructor {
                     _ => (r.dx, r.dy),
                 };
                 phase_check::check_pair(dx, dy, &model.filter, "reference frames")?;
+                if let Some(r) = reference_check::press_in_references(dx, dy, &model, solver_kind) {
+                    return Err(ReconstructError::ReferencesShowPress {
+                        x: r.centre.0,
+                        y: r.centre.1,
+                        width: r.region.width,
+                        height: r.region.height,
+                    });
+                }
                 (
                     References {
                         dx: Reference::from_image(dx),

@@ -149,10 +149,14 @@ pub fn run(a: Args) -> Result<()> {
         .as_deref()
         .map(|dir| OutDir::prepare(dir, Replace::force_if(a.force)))
         .transpose()?;
+    // The references first: a folder's press of another size is set aside undecoded.
+    let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
+    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let (pairs, unreadable) = if a.dir.is_file() {
         (recorded_pairs(&a.dir)?, Vec::new())
     } else {
-        let folder = load_pairs(&a.dir).map_err(|e| {
+        let want = refs.as_ref().map(|(dx, _)| dx.dimensions());
+        let folder = load_pairs(&a.dir, want).map_err(|e| {
             let e = anyhow::Error::from(e);
             // A `record --png` folder: frames with an index, not named pairs.
             if a.dir.join("index.jsonl").is_file() {
@@ -194,8 +198,6 @@ pub fn run(a: Args) -> Result<()> {
     for (name, why) in &unreadable {
         eprintln!("warning: press {name} set aside: {why}");
     }
-    let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
-    let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let epochs = settings.mlp.epochs;
     let progress = bar(
         (pairs.len() + 2 * epochs) as u64,
