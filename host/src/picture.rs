@@ -71,7 +71,7 @@ impl RangeChoice {
                     .collect();
                 let from = format!("percentiles {lo}–{hi} of the data");
                 if v.is_empty() {
-                    (0.0, min_span, format!("{from} (no values: default)"))
+                    (0.0, min_span, format!("{from} (no values: none shown)"))
                 } else {
                     v.sort_unstable_by(f32::total_cmp);
                     let at = |p: f32| {
@@ -110,7 +110,9 @@ const CHAR_WIDTH: u32 = 6 * TEXT_SCALE;
 const LABEL_X: u32 = 22;
 
 /// `grid` in false colour over `range`, with the legend on the right: a colour bar from
-/// `lo` (bottom) to `hi` (top) and five labelled ticks, the unit on top.
+/// `lo` (bottom) to `hi` (top) and five labelled ticks, the unit on top; a grid without
+/// a value (nothing matched) says "none" under the unit instead (a bar would state a
+/// range of nothing).
 pub fn with_legend(grid: &Grid<f32>, range: &ColourRange) -> RgbImage {
     let (w, h) = (grid.width() as u32, grid.height() as u32);
     let span = range.hi - range.lo;
@@ -138,6 +140,11 @@ pub fn with_legend(grid: &Grid<f32>, range: &ColourRange) -> RgbImage {
         return img; // too small for a legend: the colours alone
     }
     let bar_x = w + 6;
+    if !grid.as_slice().iter().any(|v| v.is_finite()) {
+        draw_text(&mut img, bar_x, 3, range.unit);
+        draw_text(&mut img, bar_x, top, "none");
+        return img;
+    }
     for y in top..=bottom {
         let t = (bottom - y) as f32 / (bottom - top) as f32;
         for x in bar_x..bar_x + 12 {
@@ -155,6 +162,30 @@ pub fn with_legend(grid: &Grid<f32>, range: &ColourRange) -> RgbImage {
         draw_text(&mut img, w + LABEL_X, y.saturating_sub(glyph_h / 2), label);
     }
     img
+}
+
+/// When a range given by the user shows none of `grid`'s values (the picture `name` is
+/// one end colour, or black), the warning that says so, with the values' own span.
+pub fn none_within(range: &ColourRange, grid: &Grid<f32>, name: &str) -> Option<String> {
+    let (mut lo, mut hi, mut count) = (f32::INFINITY, f32::NEG_INFINITY, 0usize);
+    for &v in grid.as_slice().iter().filter(|v| v.is_finite()) {
+        if (range.lo..=range.hi).contains(&v) {
+            return None;
+        }
+        (lo, hi, count) = (lo.min(v), hi.max(v), count + 1);
+    }
+    let decimals = decimals_for(hi - lo).max(decimals_for(range.hi - range.lo));
+    let unit = range.unit;
+    Some(if count == 0 {
+        format!("{name}: there are no values to show in the range given")
+    } else {
+        format!(
+            "{name}: none of its {count} values ({lo:.decimals$}–{hi:.decimals$} {unit}) lies \
+             within the range given, {:.decimals$}–{:.decimals$} {unit}: the picture shows \
+             one end colour; give a range around the values, or `auto`",
+            range.lo, range.hi
+        )
+    })
 }
 
 /// The five tick labels of `range`, bottom to top.
@@ -237,6 +268,9 @@ fn glyph(c: char) -> Option<[u8; 7]> {
         'm' => [0x00, 0x00, 0x1a, 0x15, 0x15, 0x11, 0x11],
         'p' => [0x00, 0x00, 0x1e, 0x11, 0x1e, 0x10, 0x10],
         'x' => [0x00, 0x00, 0x11, 0x0a, 0x04, 0x0a, 0x11],
+        'n' => [0x00, 0x00, 0x16, 0x19, 0x11, 0x11, 0x11],
+        'o' => [0x00, 0x00, 0x0e, 0x11, 0x11, 0x11, 0x0e],
+        'e' => [0x00, 0x00, 0x0e, 0x11, 0x1f, 0x10, 0x0e],
         _ => return None,
     })
 }
@@ -303,6 +337,28 @@ mod tests {
         assert_eq!(with_legend(&tiny, &r).dimensions(), (3 + LEGEND_WIDTH, 3));
         let empty = Grid::filled(0, 0, 1.0f32);
         assert_eq!(with_legend(&empty, &r).width(), LEGEND_WIDTH);
+        // Nothing to show: no colour bar (it would state a range of nothing), the unit
+        // and "none" instead.
+        let nothing = Grid::filled(64, 96, f32::NAN);
+        let img = with_legend(&nothing, &RangeChoice::AUTO.resolve(&nothing, 1.0, "mm"));
+        let bar: Vec<[u8; 3]> = (0..96).map(|y| img.get_pixel(bar_x, y).0).collect();
+        assert!(!bar.contains(&colour_map(0.0)), "no bar");
+        let text = img.pixels().filter(|p| p.0 == [235, 235, 235]).count();
+        assert!(text > 50, "{text} text pixels");
+    }
+
+    #[test]
+    fn a_given_range_that_shows_no_value_is_said() {
+        let g = Grid::from_fn(8, 8, |x, _| 150.0 + x as f32 * 20.0);
+        let range = |lo, hi| RangeChoice::Fixed { lo, hi }.resolve(&g, 1.0, "mm");
+        assert_eq!(none_within(&range(100.0, 160.0), &g, "d.png"), None);
+        let w = none_within(&range(1000.0, 2000.0), &g, "d.png").unwrap();
+        assert!(
+            w.contains("none of its 64 values (150–290 mm)") && w.contains("1000–2000 mm"),
+            "{w}"
+        );
+        let nothing = Grid::filled(4, 4, f32::NAN);
+        assert!(none_within(&range(0.0, 1.0), &nothing, "d.png").is_some());
     }
 
     #[test]
@@ -329,7 +385,7 @@ mod tests {
 
     #[test]
     fn every_legend_character_has_a_glyph() {
-        for c in "0123456789.-mpx".chars() {
+        for c in "0123456789.-mpxnoe".chars() {
             assert!(glyph(c).is_some(), "{c}");
         }
         assert!(glyph('?').is_none());

@@ -244,6 +244,11 @@ fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
     let pairs = dir.join("pairs");
     let (ok, out, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs)]);
     assert!(ok, "{err}");
+    // A recording without a calibration or model: said, the pairs written all the same.
+    assert!(
+        err.contains("holds no stereo calibration") && err.contains("holds no tactile model"),
+        "{err}"
+    );
     let names: Vec<String> = std::fs::read_dir(&pairs)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -325,6 +330,13 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         path(&folder),
     ]);
     assert!(ok, "{err}");
+    // Presses for a calibration hold no model (said) and no stereo pairs (no calibration
+    // written, nor asked for).
+    assert!(err.contains("holds no tactile model"), "{err}");
+    assert!(
+        !folder.join("stereo_calibration.yaml").exists() && !err.contains("stereo calibration"),
+        "{err}"
+    );
     std::fs::write(folder.join("broken_dx.png"), b"\x89PNG\r\n\x1a\n cut").unwrap();
     std::fs::copy(folder.join("broken_dx.png"), folder.join("broken_dy.png")).unwrap();
     let report = dir.join("report.json");
@@ -395,6 +407,26 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
     let (ok, _, err) = again(true);
     assert!(ok, "{err}");
     let demo = out.join("demo.mcap");
+    // Its stereo pairs come with the calibration they were taken with, which `stereo`
+    // reads as it is.
+    let demo_pairs = dir.join("demo-pairs");
+    let (ok, text, err) = stereotac(&["export", path(&demo), "--pairs", path(&demo_pairs)]);
+    assert!(
+        ok && text.contains("with stereo_calibration.yaml"),
+        "{text}{err}"
+    );
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--calib",
+        path(&demo_pairs.join("stereo_calibration.yaml")),
+        "--left",
+        path(&demo_pairs.join("phase000000_left.png")),
+        "--right",
+        path(&demo_pairs.join("phase000000_right.png")),
+        "--out-dir",
+        path(&dir.join("demo-stereo")),
+    ]);
+    assert!(ok, "{err}");
     let process_demo =
         |model: &Path| stereotac(&["process", path(&demo), "--model", path(model), "--jsonl"]);
     let (ok, text, err) = process_demo(&model);

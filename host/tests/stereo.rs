@@ -69,6 +69,18 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
             .contains(&Value::from("mesh.ply"))
     );
     assert!(out.join("mesh.ply").is_file());
+    assert_eq!(
+        s["warnings"],
+        Value::Array(Vec::new()),
+        "the range shows the plane"
+    );
+    // A range that shows none of the depths is said (the picture is one colour).
+    let (_, s) = run("beyond", &["--colour-range", "1000,2000"]);
+    let warnings = s["warnings"].to_string();
+    assert!(
+        warnings.contains("depth_colour.png: none of its") && warnings.contains("1000–2000 mm"),
+        "{warnings}"
+    );
     // The matcher is chosen on the command line and named in the summary; both put the
     // plane's centre at 150 mm (the built-in capture is tilted: the median is near it).
     let (_, bm) = run("bm", &[]);
@@ -303,6 +315,45 @@ fn depths_outside_the_working_range_are_dropped_and_counted() {
             .fold((f32::MAX, f32::MIN), |(a, b), &d| (a.min(d), b.max(d)))
     );
     assert_eq!(s["stats"]["valid"].as_u64().unwrap() as usize, valid.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A blank pair (a covered lens, the light off) is said to be blank by either matcher:
+/// semi-global matching finds its best matches at the range's end there, and used to
+/// advise a wider range, which cannot help.
+#[test]
+fn a_blank_pair_is_said_to_have_no_texture_by_either_matcher() {
+    let dir = temp_dir("stereo-blank");
+    let (ok, _, err) = stereotac(&[
+        "stereo",
+        "--synthetic",
+        "200",
+        "--out-dir",
+        dir.join("syn").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let grey = dir.join("grey.png");
+    image::GrayImage::from_pixel(640, 480, image::Luma([128]))
+        .save(&grey)
+        .unwrap();
+    let calib = dir.join("syn").join("input_calibration.yaml");
+    for matcher in ["bm", "sgm"] {
+        let out = dir.join(matcher);
+        let (ok, _, err) = stereo_from_files(&calib, &grey, &grey, &out, &["--matcher", matcher]);
+        assert!(ok, "{matcher}: {err}");
+        assert!(
+            err.contains("almost no texture") && !err.contains("widen"),
+            "{matcher}: {err}"
+        );
+        let (ok, _, err) = stereo_from_files(
+            &calib,
+            &grey,
+            &grey,
+            &out,
+            &["--matcher", matcher, "--force", "--strict"],
+        );
+        assert!(!ok && err.contains("almost no texture"), "{matcher}: {err}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

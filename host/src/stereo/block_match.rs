@@ -316,6 +316,11 @@ pub struct MatchStats {
     /// rounded up to whole blocks of disparities, runs a little past it), dropped by the
     /// pipeline: what it writes lies within the range asked for.
     pub outside_range: usize,
+    /// Pixels whose window in the left view has too little texture to match (block
+    /// matching's texture measure, whichever matcher ran): not a separate outcome (with
+    /// block matching these are the `low_texture` ones), but what says a pair is blank.
+    /// Semi-global matching counts them only for a result almost without depth.
+    pub flat: usize,
 }
 
 impl MatchStats {
@@ -340,6 +345,7 @@ impl MatchStats {
         self.left_right += o.left_right;
         self.speckle += o.speckle;
         self.outside_range += o.outside_range;
+        self.flat += o.flat;
         self
     }
 }

@@ -39,6 +39,17 @@ pub enum CalibError {
         /// The field.
         field: String,
     },
+    /// No image size in any of the forms read (OpenCV's own stereo sample writes none).
+    #[error(
+        "{file}: no image size: add `image_width: W` and `image_height: H` (or \
+         `image_size: [W, H]`), the size in pixels of the images the cameras were \
+         calibrated with (the rectification is made for that size; OpenCV's stereo_calib \
+         sample does not write it)"
+    )]
+    NoImageSize {
+        /// Which file.
+        file: String,
+    },
     /// A field is present but unusable.
     #[error("{file}: `{field}`: {why}")]
     Invalid {
@@ -509,9 +520,8 @@ impl<'a> Fields<'a> {
             }
         }
         let Some(&(first, size)) = found.first() else {
-            return Err(CalibError::Missing {
+            return Err(CalibError::NoImageSize {
                 file: self.file.into(),
-                field: "image_width/image_height".into(),
             });
         };
         if let Some(&(other, (w, h))) = found.iter().find(|(_, s)| *s != size) {
@@ -1321,6 +1331,20 @@ pub(crate) mod tests {
         );
         let e = StereoCalibration::from_opencv_yaml("c.yaml", "K1: [1, 2\n").unwrap_err();
         assert!(matches!(e, CalibError::Yaml { .. }), "{e}");
+        // OpenCV's stereo sample writes no image size: the hint says how to add one.
+        let sizeless: String = good
+            .lines()
+            .filter(|l| !l.starts_with("image_"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        assert_ne!(sizeless, good);
+        let e = StereoCalibration::from_opencv_yaml("c.yaml", &sizeless).unwrap_err();
+        assert!(
+            matches!(e, CalibError::NoImageSize { .. })
+                && e.to_string()
+                    .contains("add `image_width: W` and `image_height: H`"),
+            "{e}"
+        );
     }
 
     /// Camera matrices and lens models no camera has are refused naming the camera, the

@@ -5,7 +5,9 @@
 use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
+use super::prefilter;
 use super::sgm::{Paths, SemiGlobalMatcher, SgmParams};
+use super::warnings::MIN_VALID_FRACTION;
 use crate::grid::Grid;
 
 /// Which matcher.
@@ -95,8 +97,22 @@ impl Matcher {
     /// Matches a rectified pair.
     pub fn compute(&self, left: &Grid<u8>, right: &Grid<u8>) -> Result<DisparityMap, MatchError> {
         match self {
-            Self::Block(m) => m.compute(left, right),
-            Self::SemiGlobal(m) => m.compute(left, right),
+            Self::Block(m) => {
+                let mut out = m.compute(left, right)?;
+                out.stats.flat = out.stats.low_texture;
+                Ok(out)
+            }
+            Self::SemiGlobal(m) => {
+                let mut out = m.compute(left, right)?;
+                // Aggregation gives even a blank pair a best match (at a range's end), so
+                // only the texture can tell a blank view from a scene out of range: measured
+                // when almost nothing matched (one pass over the left view).
+                let pixels = left.as_slice().len() as f64;
+                if (out.stats.valid as f64) < MIN_VALID_FRACTION * pixels {
+                    out.stats.flat = flat_pixels(left, m.params().refine_window as usize);
+                }
+                Ok(out)
+            }
         }
     }
 
@@ -146,6 +162,19 @@ impl Matcher {
         let (lo, hi) = self.disparity_range();
         hi - lo + 1
     }
+}
+
+/// Pixels of `image` whose `window`-sided window has less texture than block matching's
+/// default threshold (its default prefilter and texture measure).
+fn flat_pixels(image: &Grid<u8>, window: usize) -> usize {
+    let d = BlockMatchParams::default();
+    let response = prefilter::x_sobel(image, d.prefilter_cap);
+    let texture = prefilter::texture(&response, d.prefilter_cap, window.max(1));
+    texture
+        .as_slice()
+        .iter()
+        .filter(|&&t| t < d.texture_threshold)
+        .count()
 }
 
 #[cfg(test)]

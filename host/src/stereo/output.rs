@@ -192,6 +192,12 @@ pub fn write_outputs(
         depth: depth_choice.resolve(&frame.depth_mm, 1.0, "mm"),
         disparity: disparity_choice.resolve(&frame.disparity, 1.0, "px"),
     };
+    let given_range_warning = match options.colour_range {
+        PictureRange::DepthMm(..) => {
+            picture::none_within(&colour_ranges.depth, &frame.depth_mm, "depth_colour.png")
+        }
+        PictureRange::Auto | PictureRange::Searched => None,
+    };
     picture::write_png(
         &dir.join("depth_colour.png"),
         &frame.depth_mm,
@@ -259,6 +265,7 @@ pub fn write_outputs(
                 config.far_mm,
             ))
             .chain((beyond_png16 > 0).then(|| depth16_warning(beyond_png16, depths.len())))
+            .chain(given_range_warning)
             .collect(),
     };
     let path = dir.join("summary.json");

@@ -1,4 +1,5 @@
-//! What a stereo result should make its user look twice at: almost nothing matched, many
+//! What a stereo result should make its user look twice at: almost nothing matched (and
+//! whether the view is blank, when nothing else is worth saying), many
 //! best matches at the ends of the disparity range (the scene is nearer than `--near-mm`
 //! or beyond `--far-mm`) or past them (dropped: outside the working range), depths
 //! crowding the range's ends. Each warning says what was
@@ -11,6 +12,9 @@ pub const MIN_VALID_FRACTION: f64 = 0.05;
 /// Share of the searched pixels whose best match lay at the range's end, above which the
 /// scene likely lies outside the working range.
 pub const MAX_RANGE_EDGE_FRACTION: f64 = 0.10;
+/// Share of pixels with a flat matching window from which an almost empty result is put
+/// down to a blank view (and only that is said).
+pub const MIN_FLAT_FRACTION: f64 = 0.5;
 /// Share of valid depths within 2 % of the range's ends above which the range likely
 /// cuts the scene.
 pub const MAX_AT_LIMIT_FRACTION: f64 = 0.20;
@@ -27,6 +31,18 @@ pub fn of(
     let mut out = Vec::new();
     let pixels = pixels.max(1) as f64;
     let valid = depths.len() as f64 / pixels;
+    let flat = stats.flat as f64 / pixels;
+    if valid < MIN_VALID_FRACTION && flat >= MIN_FLAT_FRACTION {
+        // A blank view: every other hint (the range, the calibration) would mislead.
+        out.push(format!(
+            "only {:.1}% of pixels have a depth: the left view has almost no texture ({:.0}% \
+             of its pixels have a flat matching window): a blank, uniform or out-of-focus \
+             view, a covered lens or no light; a wider --near-mm/--far-mm will not help",
+            100.0 * valid,
+            100.0 * flat
+        ));
+        return out;
+    }
     if valid < MIN_VALID_FRACTION {
         out.push(format!(
             "only {:.1}% of pixels have a depth (below {:.0}%): too little texture ({} pixels), \
@@ -34,7 +50,7 @@ pub fn of(
              another rig",
             100.0 * valid,
             100.0 * MIN_VALID_FRACTION,
-            stats.low_texture
+            stats.flat
         ));
     }
     let edge = stats.range_edge as f64 / pixels;
@@ -80,7 +96,8 @@ mod tests {
     #[test]
     fn empty_cut_and_healthy_results() {
         let stats = MatchStats {
-            low_texture: 900,
+            low_texture: 400,
+            flat: 400,
             range_edge: 5,
             ..Default::default()
         };
@@ -88,7 +105,10 @@ mod tests {
         assert!(of(&stats, &healthy, 1000, 50.0, 400.0).is_empty());
         let w = of(&stats, &healthy[..20], 1000, 50.0, 400.0);
         assert_eq!(w.len(), 1);
-        assert!(w[0].contains("only 2.0%") && w[0].contains("900"), "{w:?}");
+        assert!(
+            w[0].contains("only 2.0%") && w[0].contains("(400 pixels)"),
+            "{w:?}"
+        );
         let cut = MatchStats {
             range_edge: 300,
             ..stats
@@ -116,5 +136,20 @@ mod tests {
             !of(&stats, &[], 0, 50.0, 400.0).is_empty(),
             "nothing at all warns"
         );
+        // A blank pair under semi-global matching: best matches at the range's end, but
+        // the view is flat, and only that is said.
+        let blank = MatchStats {
+            range_edge: 850,
+            flat: 990,
+            ..Default::default()
+        };
+        let w = of(&blank, &[], 1000, 50.0, 400.0);
+        assert!(
+            w.len() == 1 && w[0].contains("no texture (99%") && w[0].contains("will not help"),
+            "{w:?}"
+        );
+        // Texture there, nothing matched: the range and the calibration are the suspects.
+        let w = of(&MatchStats { flat: 100, ..blank }, &[], 1000, 50.0, 400.0);
+        assert!(w.iter().any(|w| w.contains("widen the range")), "{w:?}");
     }
 }

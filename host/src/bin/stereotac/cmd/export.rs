@@ -1,7 +1,10 @@
 //! `stereotac export`: a recording's pairs as image files, for people who want files:
 //! camera 0's dx/dy pairs as `NAME_dx.png` / `NAME_dy.png` (what `calibrate` and
 //! `reconstruct` read) and dark stereo pairs as `NAME_left.png` / `NAME_right.png`
-//! (what `stereo` reads), NAME being the phase index of the pair's first frame.
+//! (what `stereo` reads), NAME being the phase index of the pair's first frame; with
+//! them, what the recording holds to read them: its stereo calibration
+//! (`stereo_calibration.yaml`, for `stereo --calib`) and its tactile model
+//! (`tactile_model.json`, for `reconstruct --model`).
 
 use std::path::{Path, PathBuf};
 use stereotac::out_dir::{OutDir, Replace};
@@ -9,6 +12,9 @@ use stereotac::out_dir::{OutDir, Replace};
 use anyhow::{Context, Result, bail};
 use image::RgbImage;
 use stereotac::live::replay::{RecordedPair, pairs};
+use stereotac::recording::{reader, topics};
+use stereotac::stereo::calibration::StereoCalibration;
+use stereotac::tactile::model::TactileModel;
 
 use crate::progress::spinner;
 
@@ -67,12 +73,77 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
+    let mut with = Vec::new();
+    for (attachment, wanted, what) in [
+        (
+            topics::CALIBRATION_ATTACHMENT,
+            stereo > 0,
+            "stereo calibration",
+        ),
+        (topics::MODEL_ATTACHMENT, gradient > 0, "tactile model"),
+    ] {
+        if wanted && write_attachment(&a.recording, &a.pairs, attachment, what)? {
+            with.push(attachment);
+        }
+    }
     out.keep();
     println!(
-        "wrote {gradient} dx/dy pairs and {stereo} stereo pairs to {}",
-        a.pairs.display()
+        "wrote {gradient} dx/dy pairs and {stereo} stereo pairs to {}{}",
+        a.pairs.display(),
+        if with.is_empty() {
+            String::new()
+        } else {
+            format!(", with {}", with.join(" and "))
+        }
     );
     Ok(())
+}
+
+/// Writes the recording's `attachment` (its `what`) into `dir` when the recording holds
+/// one that reads: the exported pairs are of no use without it. Says why when it is not
+/// written; `true` when it is (or the same file is already there).
+fn write_attachment(recording: &Path, dir: &Path, attachment: &str, what: &str) -> Result<bool> {
+    let header = reader::header(recording)
+        .with_context(|| format!("reading {}'s attachments", recording.display()))?;
+    let rec = recording.display();
+    let Some(bytes) = header.attachments.get(attachment) else {
+        let needs = match attachment {
+            topics::CALIBRATION_ATTACHMENT => "`stereo` on these pairs needs --calib of this rig",
+            _ => "`reconstruct` on these pairs needs --model of this sensor",
+        };
+        eprintln!("note: {rec} holds no {what}: {needs}");
+        return Ok(false);
+    };
+    let name = format!("{rec} attachment {attachment}");
+    let reads = match attachment {
+        topics::CALIBRATION_ATTACHMENT => {
+            StereoCalibration::from_opencv_yaml(&name, &String::from_utf8_lossy(bytes))
+                .map(|_| ())
+                .map_err(anyhow::Error::from)
+        }
+        _ => TactileModel::from_json(&name, bytes)
+            .map(|_| ())
+            .map_err(anyhow::Error::from),
+    };
+    if let Err(e) = reads {
+        eprintln!("warning: {what} not written: {e:#}");
+        return Ok(false);
+    }
+    let path = dir.join(attachment);
+    if path.exists() {
+        // Two recordings of one rig exported into one folder hold the same file.
+        if std::fs::read(&path).is_ok_and(|there| &there == bytes) {
+            return Ok(true);
+        }
+        eprintln!(
+            "warning: {what} not written: {} already holds another (files are never \
+             overwritten: export into a new directory)",
+            path.display()
+        );
+        return Ok(false);
+    }
+    std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+    Ok(true)
 }
 
 /// Writes `img` as PNG to a file that must not exist yet.
