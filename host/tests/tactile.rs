@@ -869,7 +869,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 28] = [
+    let cases: [(&str, Damage); 31] = [
         ("dx.lut.gain_negative", |m| {
             m["dx"]["lut"]["gain_negative"]
                 .as_array_mut()
@@ -957,6 +957,30 @@ fn model_files_round_trip_and_refuse_other_versions() {
             m["dy"]["mlp"]["layers"] = serde_json::json!([])
         }),
         ("background.width/height", |m| m["height"] = 100.into()),
+        // Tables and networks that read slopes the wrong way round, or not at all
+        // (raised or flat imprints with exit 0).
+        ("dx.lut.table", |m| {
+            for v in m["dx"]["lut"]["table"].as_array_mut().unwrap() {
+                *v = (-v.as_f64().unwrap()).into();
+            }
+        }),
+        ("dy.lut.table", |m| {
+            for v in m["dy"]["lut"]["table"].as_array_mut().unwrap() {
+                *v = 0.into();
+            }
+        }),
+        ("dx.mlp", |m| {
+            let last = m["dx"]["mlp"]["layers"]
+                .as_array_mut()
+                .unwrap()
+                .last_mut()
+                .unwrap();
+            for key in ["weights", "bias"] {
+                for v in last[key].as_array_mut().unwrap() {
+                    *v = 0.into();
+                }
+            }
+        }),
     ];
     // Damage that is not JSON for a model (a key gone, a NaN typed into a table, text
     // where a number goes) names where it is.

@@ -161,10 +161,91 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
             check_light(light).map_err(|(f, why)| (format!("{axis}.light.{f}"), why))?;
         }
     }
+    for (axis, model, planes, along_x) in [
+        ("dx", &m.dx, &m.background.dx, true),
+        ("dy", &m.dy, &m.background.dy, false),
+    ] {
+        let side = red_side(planes, m.background.width, m.background.height, along_x);
+        check_direction(side, |f, o| model.lut.eval_batch(f, o))
+            .map_err(|why| (format!("{axis}.lut.table"), why))?;
+        check_direction(side, |f, o| model.mlp.eval_batch(f, o))
+            .map_err(|why| (format!("{axis}.mlp"), why))?;
+    }
     if let Some(photometric) = &m.photometric {
         check_photometric(photometric).map_err(|(f, why)| (format!("photometric.{f}"), why))?;
     }
     Ok(())
+}
+
+/// How far from flat skin's colour [`check_direction`] reads (normalised colour: a gentle
+/// slope's).
+const DIRECTION_PROBE: f32 = 0.15;
+/// Least change of the background's red-minus-blue light from one end of an axis to the
+/// other (8-bit levels) that says on which side the red strip is.
+const MIN_SIDE_CHANGE: f32 = 8.0;
+
+/// On which side of an axis the background (flat skin) has the red strip's light: `1.0`
+/// on the + side (right for dx, `along_x`; bottom for dy), as the sensor is built; `-1.0`
+/// on the − side (strips mounted the other way round, or a camera that gives blue for
+/// red); `0.0` when the two ends differ too little to say. The mean red-minus-blue
+/// light of the last third of the blocks along the axis against the first third's.
+fn red_side(planes: &[[f32; 3]], width: usize, height: usize, along_x: bool) -> f32 {
+    let (mut first, mut last, mut n_first, mut n_last) = (0.0f32, 0.0f32, 0usize, 0usize);
+    let length = if along_x { width } else { height };
+    for (i, [rg, bg, _]) in planes.iter().enumerate() {
+        let at = if along_x {
+            i % width.max(1)
+        } else {
+            i / width.max(1)
+        };
+        if 3 * at < length {
+            (first, n_first) = (first + rg - bg, n_first + 1);
+        } else if 3 * at >= 2 * length {
+            (last, n_last) = (last + rg - bg, n_last + 1);
+        }
+    }
+    if n_first == 0 || n_last == 0 {
+        return 0.0;
+    }
+    let change = last / n_last as f32 - first / n_first as f32;
+    if change.abs() < MIN_SIDE_CHANGE {
+        0.0
+    } else {
+        change.signum()
+    }
+}
+
+/// A gradient model must read a slope's direction as the strips give it. Where the red
+/// strip's light is brighter than on flat skin and the blue's darker, the skin faces the
+/// red strip; on the side `red_side` names (`1.0`: the + side), that is a slope of that
+/// sign (depth grows towards the strip), and the other way round one of the other sign.
+/// A table or perceptron edited by hand (negated, zeroed), or made for another sensor,
+/// reads them the other way or not at all: imprints come out raised or flat with no other
+/// sign of it. Read at the frame's centre; with `red_side` 0 only opposite signs are
+/// asked.
+fn check_direction(red_side: f32, eval: impl Fn(&[[f32; 4]], &mut [f32])) -> Result<(), String> {
+    let d = DIRECTION_PROBE;
+    let mut slopes = [0.0f32; 2];
+    eval(
+        &[[1.0 + d, 1.0 - d, 0.5, 0.5], [1.0 - d, 1.0 + d, 0.5, 0.5]],
+        &mut slopes,
+    );
+    let [towards_red, towards_blue] = slopes;
+    let opposite = towards_red * towards_blue < 0.0;
+    if opposite && towards_red * red_side >= 0.0 {
+        return Ok(());
+    }
+    let side = match red_side {
+        s if s > 0.0 => "positive (the background has the red strip on the + side)",
+        s if s < 0.0 => "negative (the background has the red strip on the − side)",
+        _ => "of one sign",
+    };
+    Err(format!(
+        "reads slope {towards_red:.3} where the red strip's light is {d} above flat skin's and \
+         the blue's {d} below, and {towards_blue:.3} the other way round: a calibrated \
+         model reads the first {side} and the second of the other sign; the file was \
+         edited or damaged, or mixes two calibrations; recalibrate"
+    ))
 }
 
 fn check_photometric(p: &PhotometricModel) -> Result<(), (String, String)> {
