@@ -73,6 +73,9 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
+    // The attachments come with the header: read once, for both.
+    let header = reader::header(&a.recording)
+        .with_context(|| format!("reading {}'s attachments", a.recording.display()))?;
     let mut with = Vec::new();
     for (attachment, wanted, what) in [
         (
@@ -82,7 +85,7 @@ pub fn run(a: Args) -> Result<()> {
         ),
         (topics::MODEL_ATTACHMENT, gradient > 0, "tactile model"),
     ] {
-        if wanted && write_attachment(&a.recording, &a.pairs, attachment, what)? {
+        if wanted && write_attachment(&a.recording, &header, &a.pairs, attachment, what)? {
             with.push(attachment);
         }
     }
@@ -99,12 +102,16 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// Writes the recording's `attachment` (its `what`) into `dir` when the recording holds
-/// one that reads: the exported pairs are of no use without it. Says why when it is not
-/// written; `true` when it is (or the same file is already there).
-fn write_attachment(recording: &Path, dir: &Path, attachment: &str, what: &str) -> Result<bool> {
-    let header = reader::header(recording)
-        .with_context(|| format!("reading {}'s attachments", recording.display()))?;
+/// Writes `recording`'s `attachment` (its `what`, from its `header`) into `dir` when the
+/// recording holds one that reads: the exported pairs are of no use without it. Says why
+/// when it is not written; `true` when it is (or the same file is already there).
+fn write_attachment(
+    recording: &Path,
+    header: &reader::RecordingHeader,
+    dir: &Path,
+    attachment: &str,
+    what: &str,
+) -> Result<bool> {
     let rec = recording.display();
     let Some(bytes) = header.attachments.get(attachment) else {
         let needs = match attachment {
