@@ -58,7 +58,8 @@ impl PyStereoRig {
     /// matching) or "sgm" (semi-global), the spatial filter on, holes up to `fill_holes`
     /// px filled, outliers removed when `outliers` is true (the defaults of
     /// `stereotac stereo`); `block_size` is the matching window's side (odd: block
-    /// matching's blocks, semi-global matching's refinement window); `sgm_paths` (3, 4, 5 or 8; 8 when not given) are the paths
+    /// matching's blocks, semi-global matching's refinement window; 9 for `bm`, 11 for
+    /// `sgm` when not given); `sgm_paths` (3, 4, 5 or 8; 8 when not given) are the paths
     /// semi-global matching aggregates along, refused with block matching (they would be
     /// ignored). Keys of a file that its format does not have are warned about.
     #[staticmethod]
@@ -106,7 +107,7 @@ impl PyStereoRig {
             near_mm: near_mm.unwrap_or(d.near_mm),
             far_mm: far_mm.unwrap_or(d.far_mm),
             rectify_scale: scale.unwrap_or(d.rectify_scale),
-            block_size: block_size.unwrap_or(d.block_size),
+            block_size,
             matcher,
             sgm_paths,
             spatial: if spatial { d.spatial } else { None },

@@ -32,6 +32,16 @@ impl MatcherKind {
             MatcherKind::Sgm => "sgm",
         }
     }
+
+    /// The matching window (side, px) this matcher takes when none is given: block
+    /// matching's blocks (9, as OpenCV's StereoBM sample) or semi-global matching's
+    /// refinement window ([`SgmParams::refine_window`], 11).
+    pub fn default_window(self) -> u32 {
+        match self {
+            MatcherKind::Bm => BlockMatchParams::default().block_size,
+            MatcherKind::Sgm => SgmParams::default().refine_window,
+        }
+    }
 }
 
 /// "bm" or "sgm" ([`MatcherKind::name`]).

@@ -34,7 +34,9 @@ pub struct StereoConfig {
     /// Matching window side (odd): block matching's blocks (3..=31 with the default
     /// pre-filter), semi-global matching's refinement window (3..=31; larger averages
     /// more noise on smooth surfaces and blurs small depth steps over more columns).
-    pub block_size: u32,
+    /// `None`: the matcher's own ([`MatcherKind::default_window`]: 9 for `bm`, 11 for
+    /// `sgm`).
+    pub block_size: Option<u32>,
     /// Matcher uniqueness ratio, percent.
     pub uniqueness_ratio: u32,
     /// Matcher texture threshold.
@@ -58,7 +60,7 @@ impl Default for StereoConfig {
             far_mm: 600.0,
             matcher: MatcherKind::Bm,
             sgm_paths: SgmParams::default().paths,
-            block_size: m.block_size,
+            block_size: None,
             uniqueness_ratio: m.uniqueness_ratio,
             texture_threshold: m.texture_threshold,
             spatial: Some(SpatialFilter::default()),
@@ -218,7 +220,7 @@ impl StereoPipeline {
     pub fn new(calib: &StereoCalibration, config: StereoConfig) -> Result<Self, StereoError> {
         let rectification = Rectification::bouguet(calib, config.rectify_scale)?;
         let params = BlockMatchParams {
-            block_size: config.block_size,
+            block_size: config.block_size.unwrap_or(config.matcher.default_window()),
             uniqueness_ratio: config.uniqueness_ratio,
             texture_threshold: config.texture_threshold,
             ..BlockMatchParams::for_depth_range(
@@ -385,6 +387,28 @@ fn keep_within_range(disparity: &mut Grid<f32>, fb: f64, near_mm: f64, far_mm: f
 mod tests {
     use super::*;
     use crate::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+
+    /// No block size given: each matcher takes its own window (block matching 9,
+    /// semi-global matching's refinement 11); one given is taken by either.
+    #[test]
+    fn each_matcher_takes_its_own_window_unless_one_is_given() {
+        let calib = StereoRig::sensor().calibration();
+        let window = |matcher, block_size| {
+            let config = StereoConfig {
+                matcher,
+                block_size,
+                ..StereoConfig::default()
+            };
+            StereoPipeline::new(&calib, config)
+                .unwrap()
+                .matcher()
+                .window()
+        };
+        assert_eq!(window(MatcherKind::Bm, None), 9);
+        assert_eq!(window(MatcherKind::Sgm, None), 11);
+        assert_eq!(window(MatcherKind::Bm, Some(13)), 13);
+        assert_eq!(window(MatcherKind::Sgm, Some(7)), 7);
+    }
 
     #[test]
     fn a_plane_comes_out_at_its_depth() {

@@ -143,9 +143,9 @@ pub struct PipelineArgs {
     pub scale: f64,
     /// Matching window side (odd): block matching's blocks; semi-global matching's
     /// sub-pixel refinement window (3..=31; larger: less noise on smooth surfaces, small
-    /// depth steps blurred over more columns).
-    #[arg(long, default_value_t = StereoConfig::default().block_size)]
-    pub block_size: u32,
+    /// depth steps blurred over more columns) [default: 9 with bm, 11 with sgm].
+    #[arg(long)]
+    pub block_size: Option<u32>,
     /// Disparity matcher: `bm` (block matching, fastest) or `sgm` (semi-global: census
     /// costs along 8 paths and sub-pixel refinement; fewer wrong pixels on slanted and
     /// weakly textured surfaces, several times block matching's time).
@@ -177,7 +177,7 @@ impl Default for PipelineArgs {
             near_mm: c.near_mm,
             far_mm: c.far_mm,
             scale: c.rectify_scale,
-            block_size: c.block_size,
+            block_size: None,
             matcher: MatcherKind::Bm,
             sgm_paths: None,
         }

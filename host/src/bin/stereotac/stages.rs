@@ -244,7 +244,12 @@ impl StereoSetup {
                     ("near_mm".into(), c.near_mm.to_string()),
                     ("far_mm".into(), c.far_mm.to_string()),
                     ("scale".into(), c.rectify_scale.to_string()),
-                    ("block_size".into(), c.block_size.to_string()),
+                    (
+                        "block_size".into(),
+                        c.block_size
+                            .unwrap_or(c.matcher.default_window())
+                            .to_string(),
+                    ),
                     ("matcher".into(), c.matcher.name().into()),
                     ("sgm_paths".into(), c.sgm_paths.count().to_string()),
                 ]),
@@ -285,7 +290,7 @@ pub fn stereo_settings(entries: Option<&BTreeMap<String, String>>) -> Result<Pip
         a.scale = v;
     }
     if let Some(v) = get("block_size")? {
-        a.block_size = v as u32;
+        a.block_size = Some(v as u32);
     }
     // Recordings made before these entries matched with the default: block matching.
     if let Some(v) = entries.get("matcher") {

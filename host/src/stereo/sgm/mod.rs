@@ -136,9 +136,12 @@ pub struct SgmParams {
     /// steps from the aggregated-cost estimate). Aggregated census costs place the
     /// minimum only to about 0.15 px.
     pub refine: bool,
-    /// Side of the refinement's square window (odd, 3..=31; default 9). Larger windows
+    /// Side of the refinement's square window (odd, 3..=31; default 11). Larger windows
     /// average more noise on smooth surfaces and blur small depth steps over more
-    /// columns.
+    /// columns. The default is the smallest that keeps `stereo-eval`'s unfiltered RMS
+    /// error under 0.3 % from 100 to 300 mm behind the hazy skin (ten frames a
+    /// distance, 2026-11-28: 9×9 up to 0.346 %, 11×11 up to 0.279 %, 13×13 up to
+    /// 0.236 %); a 0.5 px depth step spreads over about as many columns as the window.
     pub refine_window: u32,
 }
 
@@ -156,7 +159,7 @@ impl Default for SgmParams {
             speckle_range: 1.0,
             subpixel: SubpixelFit::Equiangular,
             refine: true,
-            refine_window: 9,
+            refine_window: 11,
         }
     }
 }
