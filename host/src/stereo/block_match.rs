@@ -319,7 +319,9 @@ pub struct MatchStats {
     /// Pixels whose window in the left view has too little texture to match (block
     /// matching's texture measure, whichever matcher ran): not a separate outcome (with
     /// block matching these are the `low_texture` ones), but what says a pair is blank.
-    /// Semi-global matching counts them only for a result almost without depth.
+    /// With semi-global matching the pipeline counts them only for a result left almost
+    /// without depth (after the working range and the filters: as the warnings count);
+    /// `SemiGlobalMatcher` and `Matcher` alone leave 0.
     pub flat: usize,
 }
 

@@ -7,7 +7,6 @@ use serde::Serialize;
 use super::block_match::{BlockMatchParams, BlockMatcher, DisparityMap, Kernel, MatchError};
 use super::prefilter;
 use super::sgm::{Paths, SemiGlobalMatcher, SgmParams};
-use super::warnings::MIN_VALID_FRACTION;
 use crate::grid::Grid;
 
 /// Which matcher.
@@ -112,17 +111,7 @@ impl Matcher {
                 out.stats.flat = out.stats.low_texture;
                 Ok(out)
             }
-            Self::SemiGlobal(m) => {
-                let mut out = m.compute(left, right)?;
-                // Aggregation gives even a blank pair a best match (at a range's end), so
-                // only the texture can tell a blank view from a scene out of range: measured
-                // when almost nothing matched (one pass over the left view).
-                let pixels = left.as_slice().len() as f64;
-                if (out.stats.valid as f64) < MIN_VALID_FRACTION * pixels {
-                    out.stats.flat = flat_pixels(left, m.params().refine_window as usize);
-                }
-                Ok(out)
-            }
+            Self::SemiGlobal(m) => m.compute(left, right),
         }
     }
 
@@ -174,12 +163,13 @@ impl Matcher {
     }
 }
 
-/// Pixels of `image` whose `window`-sided window has less texture than block matching's
-/// default threshold (its default prefilter and texture measure).
-fn flat_pixels(image: &Grid<u8>, window: usize) -> usize {
+/// Pixels of `image` whose window has less texture than block matching's default
+/// threshold (its default prefilter, window and texture measure: the threshold is a sum
+/// over that window, so the window is block matching's whatever the matcher's is).
+pub(super) fn flat_pixels(image: &Grid<u8>) -> usize {
     let d = BlockMatchParams::default();
     let response = prefilter::x_sobel(image, d.prefilter_cap);
-    let texture = prefilter::texture(&response, d.prefilter_cap, window.max(1));
+    let texture = prefilter::texture(&response, d.prefilter_cap, d.block_size as usize);
     texture
         .as_slice()
         .iter()

@@ -8,12 +8,13 @@ use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, MatchError, MatchStats};
 use super::calibration::StereoCalibration;
-use super::matcher::{Matcher, MatcherKind};
+use super::matcher::{Matcher, MatcherKind, flat_pixels};
 use super::outliers::{OutlierParams, grid_inliers};
 use super::postfilter::{HoleFill, SpatialFilter, TemporalFilter, TemporalParams};
 use super::rectify::{Rectification, RectifyError, RemapSizeError, RemapTable};
 use super::reproject::{PointCloud, depth_from_disparity, reproject};
 use super::sgm::{Paths, SgmParams};
+use super::warnings::MIN_VALID_FRACTION;
 use crate::grid::Grid;
 
 /// How the pipeline runs. [`Default`] suits the sensor: depths 5–60 cm, the matcher's
@@ -344,6 +345,16 @@ impl StereoPipeline {
             }
             cloud.retain(&keep);
         }
+        // Aggregation gives even a blank pair a best match (at a range's end), so only the
+        // texture can tell a blank view from a scene out of range: semi-global matching's
+        // flat pixels are counted (one pass over the left view) when almost no depth is
+        // left, counted as the warnings count it, after the range and the filters.
+        if self.matcher.kind() == MatcherKind::Sgm {
+            let valid = depth_mm.as_slice().iter().filter(|v| v.is_finite()).count();
+            if (valid as f64) < MIN_VALID_FRACTION * depth_mm.as_slice().len() as f64 {
+                stats.flat = flat_pixels(&left);
+            }
+        }
         let t_outliers = Instant::now();
         let ms = crate::timing::ms_between;
         let timings = StereoTimings {
@@ -387,6 +398,34 @@ fn keep_within_range(disparity: &mut Grid<f32>, fb: f64, near_mm: f64, far_mm: f
 mod tests {
     use super::*;
     use crate::stereo::synthetic::{Membrane, Plane, StereoRig, render_pair};
+
+    /// One lens covered (a blank left view, the right one faint noise) under semi-global
+    /// matching: the pipeline counts the flat pixels (the matcher alone does not) once
+    /// almost no depth is left, and the result is said to be a blank view, not a range
+    /// to widen.
+    #[test]
+    fn a_covered_lens_is_said_to_be_blank_under_semi_global_matching() {
+        let rig = StereoRig::sensor();
+        let mut rng = crate::rng::Rng::new(5);
+        let mut noisy = || {
+            Grid::from_fn(rig.width, rig.height, |_, _| {
+                (128.0 + (rng.uniform() - 0.5) * 6.0).round() as u8
+            })
+        };
+        let (l, r) = (Grid::filled(rig.width, rig.height, 128u8), noisy());
+        let config = StereoConfig {
+            matcher: MatcherKind::Sgm,
+            ..StereoConfig::default()
+        };
+        let mut p = StereoPipeline::new(&rig.calibration(), config).unwrap();
+        let f = p.process(&l, &r).unwrap();
+        let w = f.warnings(&config);
+        assert!(
+            w.len() == 1 && w[0].contains("almost no texture") && !w[0].contains("widen"),
+            "{w:?} (stats {:?})",
+            f.stats
+        );
+    }
 
     /// No block size given: each matcher takes its own window (block matching 9,
     /// semi-global matching's refinement 11); one given is taken by either.

@@ -170,40 +170,59 @@ pub fn picture_range(depth_mm: &Grid<f32>, choice: Option<RangeChoice>) -> Colou
     }
 }
 
-/// `summary.json`: the summary and the picture's range.
+/// `summary.json`: the summary, the picture's range and the warnings.
 #[derive(Serialize)]
 struct SummaryFile<'a> {
     #[serde(flatten)]
     summary: &'a Summary,
     /// The range `depth_colour.png` shows (also in its legend).
     colour_range: &'a ColourRange,
+    /// What the outputs should make their reader look twice at.
+    warnings: &'a [String],
+}
+
+/// What [`write_all`] wrote: the summary, and what the outputs should make their reader
+/// look twice at (also in `summary.json`).
+#[derive(Debug, Clone)]
+pub struct Written {
+    /// The reconstruction's summary.
+    pub summary: Summary,
+    /// Warnings: a given colour range that shows none of the depths.
+    pub warnings: Vec<String>,
 }
 
 /// Writes every output into `dir` (created if missing): `depth.npy`, `depth16.png`,
 /// `depth_colour.png` (over `range`, see [`picture_range`]), `depth.ply`,
-/// `summary.json`. Returns the summary.
+/// `summary.json`. Returns the summary and the warnings (a given `range` that shows none
+/// of the depths).
 pub fn write_all(
     dir: &Path,
     r: &Reconstruction,
     px_per_mm: f64,
     range: Option<RangeChoice>,
-) -> Result<Summary, OutputError> {
+) -> Result<Written, OutputError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let summary = Summary::of(r, px_per_mm);
     write_npy(&dir.join("depth.npy"), &r.depth_mm)?;
     write_depth_png16(&dir.join("depth16.png"), &r.depth_mm)?;
     let colour_range = picture_range(&r.depth_mm, range);
     picture::write_png(&dir.join("depth_colour.png"), &r.depth_mm, &colour_range)?;
+    // The automatic range always shows the depths; a given one may miss them all.
+    let warnings: Vec<String> = range
+        .and_then(|_| picture::none_within(&colour_range, &r.depth_mm, "depth_colour.png"))
+        .into_iter()
+        .collect();
     write_ply(&dir.join("depth.ply"), &r.depth_mm, px_per_mm)?;
     let json_path = dir.join("summary.json");
     let file = SummaryFile {
         summary: &summary,
         colour_range: &colour_range,
+        warnings: &warnings,
     };
     let json = serde_json::to_vec_pretty(&file).map_err(|e| OutputError::Io {
         path: json_path.clone(),
         source: std::io::Error::other(e),
     })?;
     std::fs::write(&json_path, json).map_err(io(&json_path))?;
-    Ok(summary)
+    Ok(Written { summary, warnings })
 }

@@ -73,9 +73,17 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
-    // The attachments come with the header: read once, for both.
+    // The attachments come with the header: read once, for both. The pairs are written
+    // already; a header that does not read costs the attachments, not the export.
     let header = reader::header(&a.recording)
-        .with_context(|| format!("reading {}'s attachments", a.recording.display()))?;
+        .map_err(|e| {
+            eprintln!(
+                "warning: {}: its attachments (stereo calibration, tactile model) could not \
+                 be read, the pairs are written without them: {e}",
+                a.recording.display()
+            )
+        })
+        .ok();
     let mut with = Vec::new();
     for (attachment, wanted, what) in [
         (
@@ -85,7 +93,10 @@ pub fn run(a: Args) -> Result<()> {
         ),
         (topics::MODEL_ATTACHMENT, gradient > 0, "tactile model"),
     ] {
-        if wanted && write_attachment(&a.recording, &header, &a.pairs, attachment, what)? {
+        let Some(header) = header.as_ref().filter(|_| wanted) else {
+            continue;
+        };
+        if write_attachment(&a.recording, header, &a.pairs, attachment, what)? {
             with.push(attachment);
         }
     }
@@ -149,7 +160,14 @@ fn write_attachment(
         );
         return Ok(false);
     }
-    std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+    // Created new, as the pairs are: a file that appeared since is not replaced.
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&path)
+        .with_context(|| format!("{}: cannot create it", path.display()))?;
+    std::io::Write::write_all(&mut file, bytes)
+        .with_context(|| format!("writing {}", path.display()))?;
     Ok(true)
 }
 

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use stereotac::out_dir::{OutDir, Replace};
-use stereotac::picture::{self, RangeChoice};
+use stereotac::picture::RangeChoice;
 use stereotac::tactile::ambient::{AmbientSource, PhaseFrames};
 use stereotac::tactile::images::{load_references, load_rgb};
 use stereotac::tactile::model::{ModelKind, TactileModel};
@@ -109,13 +109,11 @@ pub fn run(a: Args) -> Result<()> {
     }
     // `auto` is the tactile default (percentiles of a mostly flat map would show nothing).
     let range = a.colour_range.filter(|c| *c != RangeChoice::AUTO);
-    let summary = output::write_all(out.path(), &r, px_per_mm, range)?;
-    if range.is_some() {
-        let shown = output::picture_range(&r.depth_mm, range);
-        if let Some(w) = picture::none_within(&shown, &r.depth_mm, "depth_colour.png") {
-            eprintln!("warning: {w}");
-        }
+    let written = output::write_all(out.path(), &r, px_per_mm, range)?;
+    for w in &written.warnings {
+        eprintln!("warning: {w}");
     }
+    let summary = written.summary;
     let mesh = out.path().join("depth_mesh.ply");
     if a.mesh {
         output::write_mesh(&mesh, &r.depth_mm, px_per_mm)?;
