@@ -17,6 +17,11 @@ pub const MAX_IMAGE_ALLOC: u64 = (MAX_FRAME_SIDE * MAX_FRAME_SIDE * 4) as u64;
 /// dropped, and other chunks beyond it refuse the file.
 pub const MAX_IMAGE_HEADER_ALLOC: u64 = 16 << 20;
 
+/// Most the frames of one tactile calibration folder may take decoded (bytes, 8-bit
+/// RGB): 30 presses of 4K frames with their LEDs-off frames take about 2.2 GB, of
+/// 640×480 frames 83 MB.
+pub const MAX_CALIBRATION_FRAMES: u64 = 4 << 30;
+
 /// Largest calibration YAML file (bytes). A full stereo calibration is about 3 KB.
 pub const MAX_CALIBRATION_FILE: u64 = 1 << 20;
 

@@ -1242,6 +1242,14 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
         (Some(0.0), Some(2.0))
     );
     assert_eq!(s["colour_range"]["from"], "given");
+    assert_eq!(s["warnings"], serde_json::json!([]), "{s}");
+    // A given range that shows none of the depths is said in summary.json.
+    let (_, off, _) = run(&ball(10.0, 8.0, 1.0), "off", &["--colour-range", "5,9"]);
+    let warnings = off["warnings"].as_array().unwrap();
+    assert!(
+        warnings.len() == 1 && warnings[0].as_str().unwrap().contains("depth_colour.png"),
+        "{off}"
+    );
     // A range from below zero is a value, not a flag (it said "unexpected argument").
     let (_, below, _) = run(
         &ball(10.0, 8.0, 1.0),
@@ -1356,6 +1364,21 @@ fn pair_directories_set_aside_unpaired_and_unreadable_files() {
                 .to_string()
                 .contains("f_dx.png: 6000×5 px, but most pairs' frames are 4×4"),
         "{name}: {why}"
+    );
+    // As many of another size as of the most common one: no size is most pairs', and
+    // which are the presses is not guessed.
+    for name in ["g", "h"] {
+        for phase in ["dx", "dy"] {
+            RgbImage::new(6000, 5)
+                .save(dir.join(format!("{name}_{phase}.png")))
+                .unwrap();
+        }
+    }
+    let err = load_pairs(&dir, None).unwrap_err();
+    assert!(
+        matches!(&err, ImageError::MixedSizes { sizes, .. } if sizes.len() == 2)
+            && err.to_string().contains("4×4 px (3), 6000×5 px (3)"),
+        "{err}"
     );
     let err = load_pairs(&dir, Some((8, 8))).unwrap_err().to_string();
     assert!(
@@ -1645,4 +1668,116 @@ fn saturation_is_judged_press_by_press_on_the_raw_frames() {
         differs,
         "the frames minus their LEDs-off light would give other shares"
     );
+}
+
+/// A sensor built the other way round (every frame mirrored left to right: the red strip
+/// on the other side) calibrates, its model file loads, and a ball reads as a dip of
+/// its depth. Presses mirrored against references that are not are refused (their
+/// light departs from the references' all over: caught before the model's own check,
+/// `CalibrationError::ModelFailsCheck`, which no crafted input here reaches).
+#[test]
+fn a_mirrored_sensor_calibrates_and_mirrored_presses_alone_are_refused() {
+    let optics = optics();
+    let s = settings(&optics);
+    let flip = image::imageops::flip_horizontal::<RgbImage>;
+    let pairs = ball_presses(&optics, 10, 6.0, 11);
+    let mirrored: Vec<CalibrationPair> = pairs
+        .iter()
+        .map(|p| CalibrationPair {
+            dx: flip(&p.dx),
+            dy: flip(&p.dy),
+            ..p.clone()
+        })
+        .collect();
+    let refs = reference_frames(&optics);
+    let flipped = (flip(&refs.0), flip(&refs.1));
+    let cal = calibrate(&mirrored, Some((&flipped.0, &flipped.1).into()), &s, |_| {}).unwrap();
+    let model = TactileModel::from_json("mirrored.json", &cal.model.to_json()).unwrap();
+    let scene = ball(10.0, 8.0, 1.0);
+    let pair = render(&optics, &scene, 3);
+    let mut rec = reconstructor(&model, &flipped, ModelKind::Lut, SolverKind::Dct);
+    let r = rec.reconstruct(&flip(&pair.dx), &flip(&pair.dy)).unwrap();
+    let peak = r.depth_mm.as_slice().iter().fold(0.0f32, |a, &d| a.max(d));
+    assert!(
+        (0.8..1.2).contains(&peak),
+        "mirrored sensor: peak {peak} mm"
+    );
+    let err = calibrate(&mirrored, Some((&refs.0, &refs.1).into()), &s, |_| {}).unwrap_err();
+    assert!(
+        matches!(err, CalibrationError::SharedDeparture { .. }),
+        "{err}"
+    );
+}
+
+/// A PNG of `w`×`h` RGB pixels that holds its header and no pixels: what a folder's
+/// sizing reads, cheap to write whatever the size.
+fn png_header_only(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 == 1 {
+                    (crc >> 1) ^ 0xedb8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+    let chunk = |kind: &[u8], data: &[u8]| {
+        let mut c = (data.len() as u32).to_be_bytes().to_vec();
+        let body: Vec<u8> = kind.iter().chain(data).copied().collect();
+        c.extend(&body);
+        c.extend(crc32(&body).to_be_bytes());
+        c
+    };
+    let mut ihdr = w.to_be_bytes().to_vec();
+    ihdr.extend(h.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    png.extend(chunk(b"IHDR", &ihdr));
+    // The pixels' chunk begins (an empty zlib stream): readers want to reach it.
+    png.extend(chunk(
+        b"IDAT",
+        &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01],
+    ));
+    png.extend(chunk(b"IEND", &[]));
+    png
+}
+
+/// A folder whose frames would take more memory decoded than a calibration may (12
+/// presses of 8000×8000 frames: 4.6 GB) is refused from the headers, before any frame
+/// is decoded, saying what it would take; presses of that size against small reference
+/// frames are set aside undecoded as before.
+#[test]
+fn a_folder_of_huge_frames_is_refused_before_decoding() {
+    let dir = std::env::temp_dir().join(format!("stereotac-huge-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let huge = png_header_only(8000, 8000);
+    for k in 0..12 {
+        for phase in ["dx", "dy"] {
+            std::fs::write(dir.join(format!("p{k}_{phase}.png")), &huge).unwrap();
+        }
+    }
+    let err = load_pairs(&dir, None).unwrap_err();
+    assert!(
+        matches!(
+            &err,
+            ImageError::TooMuch {
+                frames: 24,
+                size: (8000, 8000),
+                ..
+            }
+        ) && err.to_string().contains("would take 4.6 GB decoded"),
+        "{err}"
+    );
+    let err = load_pairs(&dir, Some((64, 48))).unwrap_err();
+    assert!(
+        matches!(&err, ImageError::NoneReadable { first, .. } if matches!(**first, ImageError::Size { .. })),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }

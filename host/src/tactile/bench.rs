@@ -163,7 +163,7 @@ pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
                         solver,
                         Some((&refs.0, &refs.1).into()),
                     )
-                    .expect("sizes match by construction");
+                    .expect("the built-in model takes its own reference frames");
                     let mut runs = Vec::with_capacity(config.repeats);
                     let mut last = None;
                     for _ in 0..config.repeats.max(1) {
@@ -240,7 +240,7 @@ fn disk_statistics(
         for solver in SolverKind::ALL {
             let mut rec =
                 Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into()))
-                    .expect("sizes match by construction");
+                    .expect("the built-in model takes its own reference frames");
             let mut readings = Vec::with_capacity(placements);
             for (i, (scene, truth)) in scenes.iter().enumerate() {
                 let pair = render(optics, scene, 100 + i as u64);

@@ -33,7 +33,8 @@ pub enum ImageError {
     },
     /// A file of another size than the frames it goes with: set aside undecoded.
     #[error(
-        "{}: {}×{} px, but {against} are {}×{} px; not decoded",
+        "{}: {}×{} px, but {against} are {}×{} px; not decoded: give every frame from this \
+         sensor's camera at one resolution",
         path.display(), got.0, got.1, want.0, want.1
     )]
     Size {
@@ -45,6 +46,41 @@ pub enum ImageError {
         want: (u32, u32),
         /// Whose size that is.
         against: &'static str,
+    },
+    /// Without reference frames the pairs' size is the one most pairs have; no size is.
+    #[error(
+        "{}: the pairs' dx frames come in {}, none more often than the others: give \
+         frames of one camera at one resolution (or reference frames, whose size then \
+         decides)",
+        path.display(),
+        sizes.iter().map(|((w, h), n)| format!("{w}×{h} px ({n})")).collect::<Vec<_>>().join(", ")
+    )]
+    MixedSizes {
+        /// Directory.
+        path: PathBuf,
+        /// Each size met, with how many dx frames have it.
+        sizes: Vec<((u32, u32), usize)>,
+    },
+    /// The folder's frames of the size taken would need more memory decoded than
+    /// [`crate::limits::MAX_CALIBRATION_FRAMES`]: refused before any is decoded.
+    #[error(
+        "{}: its {frames} frames of {}×{} px would take {:.1} GB decoded (at most {:.1} GB): \
+         calibrate from fewer presses (30 are plenty) or smaller frames",
+        path.display(),
+        size.0,
+        size.1,
+        *bytes as f64 / 1e9,
+        crate::limits::MAX_CALIBRATION_FRAMES as f64 / 1e9
+    )]
+    TooMuch {
+        /// Directory.
+        path: PathBuf,
+        /// Frames found (dx, dy and LEDs-off frames of every pair).
+        frames: usize,
+        /// Their size.
+        size: (u32, u32),
+        /// What they would take decoded.
+        bytes: u64,
     },
     /// One reference frame given without the other.
     #[error("give both no-contact reference frames (dx and dy), or neither")]
@@ -139,9 +175,27 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
             let dx_sizes = found
                 .values()
                 .filter_map(|[dx, _, _]| image_file::header(dx.as_deref()?, Need::Colour).ok());
-            (most_common(dx_sizes), "most pairs' frames")
+            let size = most_common(dx_sizes).map_err(|sizes| ImageError::MixedSizes {
+                path: dir.to_path_buf(),
+                sizes,
+            })?;
+            (size, "most pairs' frames")
         }
     };
+    if let Some(size) = want {
+        // Every frame counted at the size taken: at least what decoding costs (frames of
+        // another size are set aside undecoded).
+        let frames = found.values().flatten().filter(|f| f.is_some()).count();
+        let bytes = frames as u64 * u64::from(size.0) * u64::from(size.1) * 3;
+        if bytes > crate::limits::MAX_CALIBRATION_FRAMES {
+            return Err(ImageError::TooMuch {
+                path: dir.to_path_buf(),
+                frames,
+                size,
+                bytes,
+            });
+        }
+    }
     let mut out = FolderPairs {
         pairs: Vec::with_capacity(count),
         set_aside: Vec::new(),
@@ -196,8 +250,12 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
     Ok(out)
 }
 
-/// The value met most often (the first met among equals); `None` when there is none.
-fn most_common(values: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
+/// The value met more often than any other (`None` when there is none); when two or
+/// more are met most often, every value with its count.
+#[allow(clippy::type_complexity)]
+fn most_common(
+    values: impl Iterator<Item = (u32, u32)>,
+) -> Result<Option<(u32, u32)>, Vec<((u32, u32), usize)>> {
     let mut counts: Vec<((u32, u32), usize)> = Vec::new();
     for v in values {
         match counts.iter_mut().find(|(c, _)| *c == v) {
@@ -205,6 +263,11 @@ fn most_common(values: impl Iterator<Item = (u32, u32)>) -> Option<(u32, u32)> {
             None => counts.push((v, 1)),
         }
     }
-    let most = counts.iter().map(|(_, n)| *n).max()?;
-    counts.into_iter().find(|(_, n)| *n == most).map(|(v, _)| v)
+    let Some(most) = counts.iter().map(|(_, n)| *n).max() else {
+        return Ok(None);
+    };
+    match counts.iter().filter(|(_, n)| *n == most).count() {
+        1 => Ok(counts.into_iter().find(|(_, n)| *n == most).map(|(v, _)| v)),
+        _ => Err(counts),
+    }
 }

@@ -62,7 +62,7 @@ pub enum ReconstructError {
     #[error(transparent)]
     FramePair(PhaseImageError),
     /// The model has a field that cannot be right (see [`super::model::validate`]).
-    #[error("the model's `{field}`: {why}")]
+    #[error("the model's `{field}`: {why}; recalibrate, or restore the model file")]
     InvalidModel {
         /// The field.
         field: String,

@@ -270,6 +270,20 @@ pub enum CalibrationError {
     /// Invalid settings.
     #[error("invalid setting: {0}")]
     Settings(String),
+    /// The model the presses gave fails the check every model file gets on loading
+    /// ([`crate::tactile::model::validate::check`]): saved, it would be refused at once.
+    #[error(
+        "the calibrated model's `{field}`: {why}. The presses did not teach it the slopes' \
+         direction: check that the dx and dy frames are not swapped, that all frames are \
+         this sensor's with its LEDs in their places, and that the presses are deep enough \
+         to show slopes; then calibrate again"
+    )]
+    ModelFailsCheck {
+        /// The field.
+        field: String,
+        /// What is wrong with it.
+        why: String,
+    },
     /// The references (given, or the median of the presses) do not look like this
     /// sensor's dx and dy phases.
     #[error(transparent)]
@@ -826,6 +840,8 @@ pub fn calibrate(
         photometric: Some(photometric),
         fit: fit_report,
     };
+    crate::tactile::model::validate::check(&model)
+        .map_err(|(field, why)| CalibrationError::ModelFailsCheck { field, why })?;
     let mut report = CalibrationReport::new(
         &model,
         &presses,

@@ -243,8 +243,7 @@ fn check_direction(red_side: f32, eval: impl Fn(&[[f32; 4]], &mut [f32])) -> Res
     Err(format!(
         "reads slope {towards_red:.3} where the red strip's light is {d} above flat skin's and \
          the blue's {d} below, and {towards_blue:.3} the other way round: a calibrated \
-         model reads the first {side} and the second of the other sign; the file was \
-         edited or damaged, or mixes two calibrations; recalibrate"
+         model reads the first {side} and the second of the other sign"
     ))
 }
 
