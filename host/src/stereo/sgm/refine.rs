@@ -708,6 +708,24 @@ mod tests {
         }
     }
 
+    /// `start` refined with the default window by every kernel this CPU has.
+    fn refined_by_each_kernel(
+        l: &Grid<u8>,
+        r: &Grid<u8>,
+        start: &Grid<f32>,
+    ) -> Vec<(Kernel, Grid<f32>)> {
+        [Kernel::Portable, Kernel::Avx2]
+            .into_iter()
+            .filter(|k| k.is_available())
+            .map(|kernel| {
+                let mut d = start.clone();
+                let planes = &mut RefinePlanes::default();
+                refine(kernel, (l, r), REFINE_RADIUS, &mut d, planes);
+                (kernel, d)
+            })
+            .collect()
+    }
+
     /// Analytic: on a brightness ramp `L(x) = 2x + 10`, `R(x) = 2(x + 23.5) + 10` the
     /// linear interpolant is exact, so every step lands on 23.5 from estimates that
     /// scatter by ±0.3 px and round to 23 or 24 (holes among them), on either kernel.
@@ -721,18 +739,7 @@ mod tests {
             u if u < 0.1 => f32::NAN,
             u => 23.2 + u as f32 * 0.6,
         });
-        for kernel in [Kernel::Portable, Kernel::Avx2]
-            .into_iter()
-            .filter(|k| k.is_available())
-        {
-            let mut d = start.clone();
-            refine(
-                kernel,
-                (&l, &r),
-                REFINE_RADIUS,
-                &mut d,
-                &mut RefinePlanes::default(),
-            );
+        for (kernel, d) in refined_by_each_kernel(&l, &r, &start) {
             for y in 0..h {
                 for x in 0..w {
                     let (v, s) = (d.get(x, y), start.get(x, y));
@@ -775,18 +782,7 @@ mod tests {
         let inside = |x: usize, y: usize, patch: &dyn Fn(usize, usize) -> bool| {
             patch(x - r4, y - r4) && patch(x + r4, y + r4)
         };
-        for kernel in [Kernel::Portable, Kernel::Avx2]
-            .into_iter()
-            .filter(|k| k.is_available())
-        {
-            let mut d = start.clone();
-            refine(
-                kernel,
-                (&l, &r),
-                REFINE_RADIUS,
-                &mut d,
-                &mut RefinePlanes::default(),
-            );
+        for (kernel, d) in refined_by_each_kernel(&l, &r, &start) {
             let (mut corrected, mut kept) = (0, 0);
             for y in r4..h - r4 {
                 for x in r4..w - r4 {
