@@ -102,8 +102,17 @@ fn pictures_state_their_range_and_meshes_stop_at_depth_steps() {
         median(&bm)
     );
     assert!(sgm["fill_rate"].as_f64().unwrap() >= bm["fill_rate"].as_f64().unwrap() - 0.01);
-    let (_, three) = run("sgm3", &["--matcher", "sgm", "--sgm-paths", "3"]);
+    // Each matcher's own window unless one is given.
+    assert_eq!(
+        (bm["window_px"].as_u64(), sgm["window_px"].as_u64()),
+        (Some(9), Some(11))
+    );
+    let (_, three) = run(
+        "sgm3",
+        &["--matcher", "sgm", "--sgm-paths", "3", "--block-size", "7"],
+    );
     assert_eq!(three["sgm_paths"].as_u64(), Some(3));
+    assert_eq!(three["window_px"].as_u64(), Some(7));
     // Paths without semi-global matching would be ignored: refused.
     let (ok, _, err) = stereotac(&[
         "stereo",

@@ -1250,6 +1250,25 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
         warnings.len() == 1 && warnings[0].as_str().unwrap().contains("depth_colour.png"),
         "{off}"
     );
+    // So is an LEDs-off frame the model cannot use (calibrated without them).
+    let dark = dir.join("dark.png");
+    RgbImage::new(optics.width as u32, optics.height as u32)
+        .save(&dark)
+        .unwrap();
+    let (_, unused, _) = run(
+        &ball(10.0, 8.0, 1.0),
+        "unused",
+        &["--dark", dark.to_str().unwrap()],
+    );
+    let warnings = unused["warnings"].as_array().unwrap();
+    assert!(
+        warnings.len() == 1
+            && warnings[0]
+                .as_str()
+                .unwrap()
+                .contains("dark.png not used: the model"),
+        "{unused}"
+    );
     // A range from below zero is a value, not a flag (it said "unexpected argument").
     let (_, below, _) = run(
         &ball(10.0, 8.0, 1.0),

@@ -190,6 +190,13 @@ impl PyStereoRig {
         self.pipeline.matcher().sgm_paths().map(Paths::count)
     }
 
+    /// Side of the matching window (px): block matching's blocks, semi-global matching's
+    /// refinement window (`block_size`, or 9 for `bm` and 11 for `sgm`).
+    #[getter]
+    fn window_px(&self) -> u32 {
+        self.pipeline.matcher().window()
+    }
+
     /// Disparities searched (px), first and last.
     #[getter]
     fn disparity_range_px(&self) -> (i64, i64) {

@@ -115,6 +115,9 @@ class StereoRig:
     disparity_range_px: Tuple[int, int]
     sgm_paths: Optional[int]
     """Paths semi-global matching aggregates along (None with block matching)."""
+    window_px: int
+    """Matching window side: block matching's blocks, semi-global matching's refinement
+    window (block_size, or 9 for bm and 11 for sgm)."""
     @staticmethod
     def load(
         source: Union[_Path, Tuple[_Path, _Path]],

@@ -74,6 +74,10 @@ def test_semi_global_paths(stereo_capture):
     right = stereotac.load_grey(stereo_capture / "input_right.png")
     assert stereotac.StereoRig.load(calib).sgm_paths is None
     assert stereotac.StereoRig.load(calib, matcher="sgm").sgm_paths == 8
+    # Each matcher's own window unless one is given.
+    assert stereotac.StereoRig.load(calib).window_px == 9
+    assert stereotac.StereoRig.load(calib, matcher="sgm").window_px == 11
+    assert stereotac.StereoRig.load(calib, matcher="sgm", block_size=7).window_px == 7
     medians = []
     for paths in (3, 8):
         rig = stereotac.StereoRig.load(calib, matcher="sgm", sgm_paths=paths)

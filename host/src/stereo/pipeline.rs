@@ -52,6 +52,14 @@ pub struct StereoConfig {
     pub outliers: Option<OutlierParams>,
 }
 
+impl StereoConfig {
+    /// The matching window side this configuration gives: `block_size`, or the matcher's
+    /// own when none is given.
+    pub fn window(&self) -> u32 {
+        self.block_size.unwrap_or(self.matcher.default_window())
+    }
+}
+
 impl Default for StereoConfig {
     fn default() -> Self {
         let m = BlockMatchParams::default();
@@ -221,7 +229,7 @@ impl StereoPipeline {
     pub fn new(calib: &StereoCalibration, config: StereoConfig) -> Result<Self, StereoError> {
         let rectification = Rectification::bouguet(calib, config.rectify_scale)?;
         let params = BlockMatchParams {
-            block_size: config.block_size.unwrap_or(config.matcher.default_window()),
+            block_size: config.window(),
             uniqueness_ratio: config.uniqueness_ratio,
             texture_threshold: config.texture_threshold,
             ..BlockMatchParams::for_depth_range(
@@ -254,7 +262,12 @@ impl StereoPipeline {
         }
         let matcher = Matcher::new(config.matcher, params, config.sgm_paths)?;
         Ok(Self {
-            config,
+            // The window resolved: what the configuration reads back (and serialises)
+            // is the one in use.
+            config: StereoConfig {
+                block_size: Some(params.block_size),
+                ..config
+            },
             maps: rectification.maps(calib),
             rectification,
             matcher,

@@ -75,7 +75,7 @@ pub enum ImageError {
     TooMuch {
         /// Directory.
         path: PathBuf,
-        /// Frames found (dx, dy and LEDs-off frames of every pair).
+        /// Frames of the complete pairs (dx, dy and their LEDs-off frames).
         frames: usize,
         /// Their size.
         size: (u32, u32),
@@ -183,9 +183,13 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
         }
     };
     if let Some(size) = want {
-        // Every frame counted at the size taken: at least what decoding costs (frames of
-        // another size are set aside undecoded).
-        let frames = found.values().flatten().filter(|f| f.is_some()).count();
+        // Every complete pair's frames counted at the size taken: at least what decoding
+        // costs (frames of another size are set aside undecoded).
+        let frames: usize = found
+            .values()
+            .filter(|[dx, dy, _]| dx.is_some() && dy.is_some())
+            .map(|[_, _, dark]| 2 + usize::from(dark.is_some()))
+            .sum();
         let bytes = frames as u64 * u64::from(size.0) * u64::from(size.1) * 3;
         if bytes > crate::limits::MAX_CALIBRATION_FRAMES {
             return Err(ImageError::TooMuch {

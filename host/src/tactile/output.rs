@@ -170,36 +170,30 @@ pub fn picture_range(depth_mm: &Grid<f32>, choice: Option<RangeChoice>) -> Colou
     }
 }
 
-/// `summary.json`: the summary, the picture's range and the warnings.
-#[derive(Serialize)]
-struct SummaryFile<'a> {
-    #[serde(flatten)]
-    summary: &'a Summary,
-    /// The range `depth_colour.png` shows (also in its legend).
-    colour_range: &'a ColourRange,
-    /// What the outputs should make their reader look twice at.
-    warnings: &'a [String],
-}
-
-/// What [`write_all`] wrote: the summary, and what the outputs should make their reader
-/// look twice at (also in `summary.json`).
-#[derive(Debug, Clone)]
+/// What [`write_all`] wrote, as `summary.json` holds it: the summary, the picture's range
+/// and what the outputs should make their reader look twice at.
+#[derive(Debug, Clone, Serialize)]
 pub struct Written {
     /// The reconstruction's summary.
+    #[serde(flatten)]
     pub summary: Summary,
-    /// Warnings: a given colour range that shows none of the depths.
+    /// The range `depth_colour.png` shows (also in its legend).
+    pub colour_range: ColourRange,
+    /// Warnings: the caller's (`earlier`), then a given colour range that shows none of
+    /// the depths.
     pub warnings: Vec<String>,
 }
 
 /// Writes every output into `dir` (created if missing): `depth.npy`, `depth16.png`,
 /// `depth_colour.png` (over `range`, see [`picture_range`]), `depth.ply`,
-/// `summary.json`. Returns the summary and the warnings (a given `range` that shows none
-/// of the depths).
+/// `summary.json` (with the `earlier` warnings and a given `range` that shows none of the
+/// depths). Returns what `summary.json` holds.
 pub fn write_all(
     dir: &Path,
     r: &Reconstruction,
     px_per_mm: f64,
     range: Option<RangeChoice>,
+    earlier: Vec<String>,
 ) -> Result<Written, OutputError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let summary = Summary::of(r, px_per_mm);
@@ -208,21 +202,21 @@ pub fn write_all(
     let colour_range = picture_range(&r.depth_mm, range);
     picture::write_png(&dir.join("depth_colour.png"), &r.depth_mm, &colour_range)?;
     // The automatic range always shows the depths; a given one may miss them all.
-    let warnings: Vec<String> = range
-        .and_then(|_| picture::none_within(&colour_range, &r.depth_mm, "depth_colour.png"))
-        .into_iter()
-        .collect();
+    let mut warnings = earlier;
+    warnings.extend(
+        range.and_then(|_| picture::none_within(&colour_range, &r.depth_mm, "depth_colour.png")),
+    );
     write_ply(&dir.join("depth.ply"), &r.depth_mm, px_per_mm)?;
     let json_path = dir.join("summary.json");
-    let file = SummaryFile {
-        summary: &summary,
-        colour_range: &colour_range,
-        warnings: &warnings,
+    let file = Written {
+        summary,
+        colour_range,
+        warnings,
     };
     let json = serde_json::to_vec_pretty(&file).map_err(|e| OutputError::Io {
         path: json_path.clone(),
         source: std::io::Error::other(e),
     })?;
     std::fs::write(&json_path, json).map_err(io(&json_path))?;
-    Ok(Written { summary, warnings })
+    Ok(file)
 }

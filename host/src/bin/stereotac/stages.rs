@@ -244,12 +244,7 @@ impl StereoSetup {
                     ("near_mm".into(), c.near_mm.to_string()),
                     ("far_mm".into(), c.far_mm.to_string()),
                     ("scale".into(), c.rectify_scale.to_string()),
-                    (
-                        "block_size".into(),
-                        c.block_size
-                            .unwrap_or(c.matcher.default_window())
-                            .to_string(),
-                    ),
+                    ("block_size".into(), c.window().to_string()),
                     ("matcher".into(), c.matcher.name().into()),
                     ("sgm_paths".into(), c.sgm_paths.count().to_string()),
                 ]),
@@ -342,6 +337,13 @@ mod tests {
             (c.matcher, c.sgm_paths, c.near_mm),
             (MatcherKind::Sgm, Paths::Three, 80.0)
         );
+        // No window entry: the matcher's own; a recorded one is kept (recordings made
+        // before semi-global matching's default became 11 say 9).
+        assert_eq!(c.window(), 11);
+        let mut nine = entries("sgm", "8");
+        nine.insert("block_size".into(), "9".into());
+        let c = stereo_settings(Some(&nine)).unwrap().config().unwrap();
+        assert_eq!(c.window(), 9);
         // Block matching: the paths entry (written for every recording) is not an error.
         let bm = stereo_settings(Some(&entries("bm", "8"))).unwrap();
         assert_eq!(bm.config().unwrap().matcher, MatcherKind::Bm);

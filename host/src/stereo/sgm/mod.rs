@@ -2118,10 +2118,10 @@ mod tests {
             assert!(n > 2500, "{side}×{side}: {n} pixels");
             (sum / f64::from(n)).sqrt()
         };
-        let (small, default, large) = (rms(3), rms(9), rms(15));
+        let (small, middle, large) = (rms(3), rms(9), rms(15));
         assert!(
-            small > default && default > large,
-            "RMS (px) 3×3 {small:.4}, 9×9 {default:.4}, 15×15 {large:.4}"
+            small > middle && middle > large,
+            "RMS (px) 3×3 {small:.4}, 9×9 {middle:.4}, 15×15 {large:.4}"
         );
     }
 

@@ -59,7 +59,7 @@ impl RefineTerm {
     fn reads(x: usize, d: f32, w: usize) -> Option<(usize, i32)> {
         let b = d.ceil();
         let i = x as f32 - b;
-        // Matched disparities are below 4096 and a step stays within a pixel of one, so
+        // Matched disparities are below 4096 and a step stays within 1.5 px of one, so
         // the bound on `b` only guards the 31 bits (255²·8192 + 255² < 2³¹).
         (i >= 0.0 && i + 1.0 < w as f32 && b.abs() <= 8192.0).then_some((i as usize, b as i32))
     }
@@ -103,7 +103,8 @@ impl RefineTerm {
 /// integer terms, slid down the columns and along the rows (rows in bands of
 /// [`REFINE_BAND`] taken in order, bands in parallel; each band makes the terms of its
 /// window's rows as it slides and keeps them in a ring, about 23 kB a row of 640 for a
-/// 9×9 window: they stay in the cache instead of making a frame-sized plane).
+/// 9×9 window, 28 kB for 11×11: they stay in the cache instead of making a frame-sized
+/// plane; the times below are for 9×9).
 /// Where every pixel of a window has the same estimate this is the classic Lucas–Kanade step with
 /// the interpolant's slope. The previous refinement read each window at its centre's
 /// estimate, so every pixel needed window sums of its own; these terms are shared
@@ -524,7 +525,8 @@ mod tests {
     use super::*;
     use crate::stereo::sgm::tests::shifted_pair;
 
-    /// The default window's radius (9×9).
+    /// The tests' window radius (9×9; semi-global matching's default is 11×11, and
+    /// the window side is a parameter the sums do not depend on otherwise).
     const REFINE_RADIUS: usize = 4;
 
     /// The definition of [`refine`]: every window's sums from all its pixels' terms at
@@ -708,7 +710,7 @@ mod tests {
         }
     }
 
-    /// `start` refined with the default window by every kernel this CPU has.
+    /// `start` refined with the tests' window by every kernel this CPU has.
     fn refined_by_each_kernel(
         l: &Grid<u8>,
         r: &Grid<u8>,

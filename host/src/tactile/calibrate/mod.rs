@@ -273,10 +273,10 @@ pub enum CalibrationError {
     /// The model the presses gave fails the check every model file gets on loading
     /// ([`crate::tactile::model::validate::check`]): saved, it would be refused at once.
     #[error(
-        "the calibrated model's `{field}`: {why}. The presses did not teach it the slopes' \
-         direction: check that the dx and dy frames are not swapped, that all frames are \
-         this sensor's with its LEDs in their places, and that the presses are deep enough \
-         to show slopes; then calibrate again"
+        "the calibrated model's `{field}`: {why}. The presses did not make a model that \
+         reads: check that the dx and dy frames are not swapped, that all frames are this \
+         sensor's with its LEDs in their places, and that the presses are deep enough to \
+         show slopes; then calibrate again"
     )]
     ModelFailsCheck {
         /// The field.

@@ -320,7 +320,7 @@ fn tactile(out: &Path, mode: Mode) -> Result<()> {
             .truth(optics.width, optics.height, optics.px_per_mm)
             .depth;
         let e = errors(&r.depth_mm, &truth);
-        output::write_all(&out.join(name), &r, px_per_mm, None)?;
+        output::write_all(&out.join(name), &r, px_per_mm, None, Vec::new())?;
         println!(
             "{:<11} {:>10} {:>10} | {:>9.3} {:>9.3} {:>9.4} | {:>8.2}",
             name,

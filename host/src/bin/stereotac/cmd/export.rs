@@ -73,8 +73,11 @@ pub fn run(a: Args) -> Result<()> {
             a.recording.display()
         );
     }
-    // The attachments come with the header: read once, for both. The pairs are written
-    // already; a header that does not read costs the attachments, not the export.
+    // The pairs are written: from here on nothing takes them back.
+    out.keep();
+    // The attachments come with the header: read once, for both. A header that does not
+    // read, or an attachment that cannot be written, costs that attachment, not the
+    // export.
     let header = reader::header(&a.recording)
         .map_err(|e| {
             eprintln!(
@@ -96,11 +99,10 @@ pub fn run(a: Args) -> Result<()> {
         let Some(header) = header.as_ref().filter(|_| wanted) else {
             continue;
         };
-        if write_attachment(&a.recording, header, &a.pairs, attachment, what)? {
+        if write_attachment(&a.recording, header, &a.pairs, attachment, what) {
             with.push(attachment);
         }
     }
-    out.keep();
     println!(
         "wrote {gradient} dx/dy pairs and {stereo} stereo pairs to {}{}",
         a.pairs.display(),
@@ -115,14 +117,15 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Writes `recording`'s `attachment` (its `what`, from its `header`) into `dir` when the
 /// recording holds one that reads: the exported pairs are of no use without it. Says why
-/// when it is not written; `true` when it is (or the same file is already there).
+/// when it is not written (a file that cannot be written is a warning too: the pairs
+/// are written already); `true` when it is (or the same file is already there).
 fn write_attachment(
     recording: &Path,
     header: &reader::RecordingHeader,
     dir: &Path,
     attachment: &str,
     what: &str,
-) -> Result<bool> {
+) -> bool {
     let rec = recording.display();
     let Some(bytes) = header.attachments.get(attachment) else {
         let needs = match attachment {
@@ -130,7 +133,7 @@ fn write_attachment(
             _ => "`reconstruct` on these pairs needs --model of this sensor",
         };
         eprintln!("note: {rec} holds no {what}: {needs}");
-        return Ok(false);
+        return false;
     };
     let name = format!("{rec} attachment {attachment}");
     let reads = match attachment {
@@ -145,30 +148,37 @@ fn write_attachment(
     };
     if let Err(e) = reads {
         eprintln!("warning: {what} not written: {e:#}");
-        return Ok(false);
+        return false;
     }
     let path = dir.join(attachment);
     if path.exists() {
         // Two recordings of one rig exported into one folder hold the same file.
         if std::fs::read(&path).is_ok_and(|there| &there == bytes) {
-            return Ok(true);
+            return true;
         }
         eprintln!(
             "warning: {what} not written: {} already holds another (files are never \
              overwritten: export into a new directory)",
             path.display()
         );
-        return Ok(false);
+        return false;
     }
     // Created new, as the pairs are: a file that appeared since is not replaced.
-    let mut file = std::fs::OpenOptions::new()
+    let created = std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
-        .open(&path)
-        .with_context(|| format!("{}: cannot create it", path.display()))?;
-    std::io::Write::write_all(&mut file, bytes)
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(true)
+        .open(&path);
+    let written = created.and_then(|mut file| {
+        std::io::Write::write_all(&mut file, bytes).inspect_err(|_| {
+            // A short file would pass for the attachment in a later export.
+            let _ = std::fs::remove_file(&path);
+        })
+    });
+    if let Err(e) = written {
+        eprintln!("warning: {what} not written: {}: {e}", path.display());
+        return false;
+    }
+    true
 }
 
 /// Writes `img` as PNG to a file that must not exist yet.

@@ -73,12 +73,15 @@ pub fn run(a: Args) -> Result<()> {
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let (dx, dy) = (load_rgb(&a.dx)?, load_rgb(&a.dy)?);
     let dark = a.dark.as_deref().map(load_rgb).transpose()?;
+    // Said at the end (and in summary.json), with the outputs' own.
+    let mut warnings = Vec::new();
     for path in [&a.dark, &a.ref_dark].into_iter().flatten() {
         if model.ambient.is_none() {
-            eprintln!(
-                "warning: {} not used: the model was calibrated without LEDs-off frames (calibrate with NAME_dark.png files to use them)",
+            warnings.push(format!(
+                "{} not used: the model was calibrated without LEDs-off frames (calibrate \
+                 with NAME_dark.png files to use them)",
                 path.display()
-            );
+            ));
         }
     }
     let mut rec = Reconstructor::new(
@@ -100,20 +103,19 @@ pub fn run(a: Args) -> Result<()> {
         .and_then(|r| r.require_lit())
         .with_context(|| format!("{} / {}: nothing written", a.dx.display(), a.dy.display()))?;
     if let (Some(path), AmbientSource::CalibrationDarkRefused) = (&a.dark, r.ambient) {
-        eprintln!(
-            "warning: {} not used: it is brighter than the lit frames in more than 5 % of its \
-             values, so it is not their LEDs-off frame (another exposure, gain or camera); \
-             the calibration's ambient light was removed instead",
+        warnings.push(format!(
+            "{} not used: it is brighter than the lit frames in more than 5 % of its values, \
+             so it is not their LEDs-off frame (another exposure, gain or camera); the \
+             calibration's ambient light was removed instead",
             path.display()
-        );
+        ));
     }
     // `auto` is the tactile default (percentiles of a mostly flat map would show nothing).
     let range = a.colour_range.filter(|c| *c != RangeChoice::AUTO);
-    let written = output::write_all(out.path(), &r, px_per_mm, range)?;
+    let written = output::write_all(out.path(), &r, px_per_mm, range, warnings)?;
     for w in &written.warnings {
         eprintln!("warning: {w}");
     }
-    let summary = written.summary;
     let mesh = out.path().join("depth_mesh.ply");
     if a.mesh {
         output::write_mesh(&mesh, &r.depth_mm, px_per_mm)?;
@@ -124,8 +126,10 @@ pub fn run(a: Args) -> Result<()> {
             .with_context(|| format!("removing the earlier run's {}", mesh.display()))?;
     }
     out.keep();
+    let summary = &written.summary;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        // What summary.json holds.
+        println!("{}", serde_json::to_string_pretty(&written)?);
     } else if summary.no_contact {
         println!(
             "no contact ({:.2} ms); outputs in {}",

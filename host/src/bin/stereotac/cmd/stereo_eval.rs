@@ -91,7 +91,7 @@ pub fn run(a: Args) -> Result<()> {
             MatcherKind::Sgm => format!("sgm, {} paths", config.sgm_paths.count()),
             kind => kind.name().to_string(),
         };
-        let b = config.block_size.unwrap_or(config.matcher.default_window());
+        let b = config.window();
         println!("matcher {matcher}, window {b}×{b}");
         println!(
             "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
