@@ -40,6 +40,8 @@ use super::speckle::filter_speckles;
 use crate::grid::Grid;
 use refine::{RefinePlanes, refine};
 
+#[cfg(target_arch = "x86_64")]
+mod byte_paths;
 mod refine;
 
 /// Census window radius: 7×7, 48 comparisons.
@@ -373,18 +375,30 @@ impl SemiGlobalMatcher {
                 CostSource::Volume(&v.cost[..cells])
             };
             let out = &mut disparity;
+            let into = |sums| SweepVolumes {
+                sums: Some(sums),
+                read_by_sink: None,
+            };
             match second {
                 None => {
                     let mut sink = |y: usize, sum: &[u16]| {
                         stats = stats.add(run_select(kernel, s, p, sum, None, out.row_mut(y)));
                     };
-                    run_sweep(kernel, s, p, costs, first, None, &mut sink);
+                    run_sweep(
+                        kernel,
+                        s,
+                        p,
+                        costs,
+                        first,
+                        SweepVolumes::default(),
+                        &mut sink,
+                    );
                 }
                 Some(second) if volumes == 2 => {
                     let (a, b) = (&mut v.first[..cells], &mut v.second[..cells]);
                     rayon::join(
-                        || run_sweep(kernel, s, p, costs, first, Some(a), &mut |_, _| {}),
-                        || run_sweep(kernel, s, p, costs, second, Some(b), &mut |_, _| {}),
+                        || run_sweep(kernel, s, p, costs, first, into(a), &mut |_, _| {}),
+                        || run_sweep(kernel, s, p, costs, second, into(b), &mut |_, _| {}),
                     );
                     let (a, b) = (&v.first[..cells], &v.second[..cells]);
                     stats = a
@@ -396,14 +410,18 @@ impl SemiGlobalMatcher {
                 }
                 Some(second) => {
                     let a = &mut v.first[..cells];
-                    run_sweep(kernel, s, p, costs, first, Some(a), &mut |_, _| {});
+                    run_sweep(kernel, s, p, costs, first, into(a), &mut |_, _| {});
                     let a = &v.first[..cells];
                     let mut sink = |y: usize, sum: &[u16]| {
                         let other = &a[y * row_cells..][..row_cells];
                         let row = out.row_mut(y);
                         stats = stats.add(run_select(kernel, s, p, sum, Some(other), row));
                     };
-                    run_sweep(kernel, s, p, costs, second, None, &mut sink);
+                    let volumes = SweepVolumes {
+                        sums: None,
+                        read_by_sink: Some(a),
+                    };
+                    run_sweep(kernel, s, p, costs, second, volumes, &mut sink);
                 }
             }
             v.census = [cl.into_vec(), cr.into_vec()];
@@ -782,6 +800,16 @@ enum CostSource<'a> {
     Volume(&'a [u8]),
 }
 
+/// The volumes a sweep writes or helps to read, beyond its own rows.
+#[derive(Default)]
+struct SweepVolumes<'a> {
+    /// The sums, written into this volume (`[y][x][k]`); without it into a row of the
+    /// sweep's own, handed to the sink.
+    sums: Option<&'a mut [u16]>,
+    /// A volume the sink reads the same row of: fetched into the cache a row ahead.
+    read_by_sink: Option<&'a [u16]>,
+}
+
 /// What a sweep hands each finished row to: its row number and the row's sums.
 type RowSink<'a> = &'a mut dyn FnMut(usize, &[u16]);
 
@@ -792,7 +820,7 @@ fn run_sweep(
     p: &SgmParams,
     costs: CostSource<'_>,
     sweep: Sweep,
-    volume: Option<&mut [u16]>,
+    volumes: SweepVolumes<'_>,
     sink: RowSink<'_>,
 ) {
     let narrow = fits_a_byte(p);
@@ -801,17 +829,17 @@ fn run_sweep(
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
         return unsafe {
             if narrow {
-                sweep_avx2::<u8>(s, p, costs, sweep, volume, sink)
+                sweep_avx2::<u8>(s, p, costs, sweep, volumes, sink)
             } else {
-                sweep_avx2::<u16>(s, p, costs, sweep, volume, sink)
+                sweep_avx2::<u16>(s, p, costs, sweep, volumes, sink)
             }
         };
     }
     let _ = kernel;
     if narrow {
-        sweep_rows::<u8>(s, p, costs, sweep, volume, sink)
+        sweep_rows::<u8, false>(s, p, costs, sweep, volumes, sink)
     } else {
-        sweep_rows::<u16>(s, p, costs, sweep, volume, sink)
+        sweep_rows::<u16, false>(s, p, costs, sweep, volumes, sink)
     }
 }
 
@@ -822,25 +850,32 @@ fn sweep_avx2<T: Lane>(
     p: &SgmParams,
     costs: CostSource<'_>,
     sweep: Sweep,
-    volume: Option<&mut [u16]>,
+    volumes: SweepVolumes<'_>,
     sink: RowSink<'_>,
 ) {
-    sweep_rows::<T>(s, p, costs, sweep, volume, sink)
+    sweep_rows::<T, true>(s, p, costs, sweep, volumes, sink)
 }
 
 /// Follows `sweep`'s paths over every row: each row's census costs (from `source`), then
 /// the sum over the sweep's paths of every pixel's path costs (`[x][k]`; the first path
 /// writes, the others add), into that row of `volume` when one is given, else into a row
-/// of its own; then `sink(y, sums)`.
+/// of its own; then `sink(y, sums)`. `AVX2`: the caller runs with AVX2 enabled, and
+/// byte lanes at a multiple of 32 disparities step the pixels where no path starts
+/// with [`byte_paths::step_paths`].
 #[inline(always)]
-fn sweep_rows<T: Lane>(
+#[allow(unsafe_code)]
+fn sweep_rows<T: Lane, const AVX2: bool>(
     s: &Shape,
     p: &SgmParams,
     source: CostSource<'_>,
     sweep: Sweep,
-    mut volume: Option<&mut [u16]>,
+    volumes: SweepVolumes<'_>,
     sink: RowSink<'_>,
 ) {
+    let SweepVolumes {
+        sums: mut volume,
+        read_by_sink,
+    } = volumes;
     let (w, h, nd) = (s.w, s.h, s.nd);
     let stride = nd + 2;
     let used = sweep.from_row_before;
@@ -849,6 +884,8 @@ fn sweep_rows<T: Lane>(
     let mut prev: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
     let mut cur: Vec<PathRow<T>> = (0..used).map(|_| PathRow::new(w, nd)).collect();
     let mut along = AlongRow::<T>::new(nd);
+    #[cfg(target_arch = "x86_64")]
+    let bytes = AVX2 && T::IS_BYTE && nd.is_multiple_of(32);
     let mut made = match source {
         CostSource::Census(..) => vec![0u8; w * nd],
         CostSource::Volume(_) => Vec::new(),
@@ -867,6 +904,25 @@ fn sweep_rows<T: Lane>(
             }
             CostSource::Volume(v) => &v[y * w * nd..][..w * nd],
         };
+        // The next row's parts of the volumes, fetched into the cache a pixel at a time
+        // as this row is swept (a volume row, 40–80 kB, read when it is needed waits on
+        // memory).
+        #[cfg(target_arch = "x86_64")]
+        let next_row = (i + 1 < h).then(|| if sweep.upward { y - 1 } else { y + 1 });
+        #[cfg(target_arch = "x86_64")]
+        let prefetch: [Option<(*const u8, usize)>; 3] = match next_row {
+            Some(n) if AVX2 => [
+                match source {
+                    CostSource::Volume(v) => Some((v[n * w * nd..].as_ptr(), nd)),
+                    CostSource::Census(..) => None,
+                },
+                volume
+                    .as_deref()
+                    .map(|v| (v[n * w * nd..].as_ptr().cast::<u8>(), 2 * nd)),
+                read_by_sink.map(|v| (v[n * w * nd..].as_ptr().cast::<u8>(), 2 * nd)),
+            ],
+            _ => [None; 3],
+        };
         let sum: &mut [u16] = match volume.as_deref_mut() {
             Some(v) => &mut v[y * w * nd..][..w * nd],
             None => &mut own,
@@ -880,6 +936,37 @@ fn sweep_rows<T: Lane>(
             };
             let c = &cost[x * nd..][..nd];
             let out_sum = &mut sum[x * nd..][..nd];
+            #[cfg(target_arch = "x86_64")]
+            for &(base, len) in prefetch.iter().flatten() {
+                let mut at = x * len;
+                while at < (x + 1) * len {
+                    // SAFETY: `base` starts a row of `w` pixels of `bytes` each inside
+                    // its volume; a prefetch reads nothing.
+                    unsafe {
+                        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                            base.add(at).cast(),
+                        )
+                    };
+                    at += 64;
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
+            if bytes && i > 0 && j > 0 {
+                if let (Some(b), Some(a)) = (behind, ahead) {
+                    // SAFETY: `bytes` needs AVX2, which the caller enabled.
+                    unsafe {
+                        interior_bytes(c, &mut along, (&prev, &mut cur), [x, b, a], pen, out_sum)
+                    };
+                    continue;
+                }
+                if used == 1 {
+                    // SAFETY: as above.
+                    unsafe {
+                        interior_bytes(c, &mut along, (&prev, &mut cur), [x, x, x], pen, out_sum)
+                    };
+                    continue;
+                }
+            }
             // From the row before: straight, then the diagonals from the column behind
             // and the one ahead.
             let sources = [Some(x), behind, ahead];
@@ -913,6 +1000,12 @@ fn sweep_rows<T: Lane>(
                 let x = if sweep.upward { j } else { w - 1 - j };
                 let c = &cost[x * nd..][..nd];
                 let out_sum = &mut sum[x * nd..][..nd];
+                #[cfg(target_arch = "x86_64")]
+                if bytes && j > 0 {
+                    // SAFETY: `bytes` needs AVX2, which the caller enabled.
+                    unsafe { along_bytes(c, &mut along, pen, out_sum) };
+                    continue;
+                }
                 along.pixel::<false>(j == 0, c, pen, out_sum);
             }
         }
@@ -930,6 +1023,8 @@ trait Lane: Copy + Ord {
     /// Larger than any path cost.
     const MAX: Self;
     const ZERO: Self;
+    /// Byte lanes: [`Lane::bytes`] and [`Lane::bytes_mut`] give the values.
+    const IS_BYTE: bool;
     /// A census cost.
     fn of_cost(c: u8) -> Self;
     /// A penalty (`p1` or `p2`), which fits when the type was chosen for it.
@@ -945,12 +1040,17 @@ trait Lane: Copy + Ord {
     fn add_clamped(self, o: Self) -> Self;
     /// A difference that stays non-negative by the bounds above (wrapping, as `add`).
     fn sub(self, o: Self) -> Self;
+    /// The values as bytes, for byte lanes; `None` for wider ones.
+    fn bytes(v: &[Self]) -> Option<&[u8]>;
+    /// As [`Lane::bytes`], to write.
+    fn bytes_mut(v: &mut [Self]) -> Option<&mut [u8]>;
 }
 
 impl Lane for u8 {
     const PAD: Self = u8::MAX;
     const MAX: Self = u8::MAX;
     const ZERO: Self = 0;
+    const IS_BYTE: bool = true;
     #[inline(always)]
     fn of_cost(c: u8) -> Self {
         c
@@ -975,12 +1075,21 @@ impl Lane for u8 {
     fn sub(self, o: Self) -> Self {
         self.wrapping_sub(o)
     }
+    #[inline(always)]
+    fn bytes(v: &[Self]) -> Option<&[u8]> {
+        Some(v)
+    }
+    #[inline(always)]
+    fn bytes_mut(v: &mut [Self]) -> Option<&mut [u8]> {
+        Some(v)
+    }
 }
 
 impl Lane for u16 {
     const PAD: Self = 0x3fff;
     const MAX: Self = u16::MAX;
     const ZERO: Self = 0;
+    const IS_BYTE: bool = false;
     #[inline(always)]
     fn of_cost(c: u8) -> Self {
         u16::from(c)
@@ -1004,6 +1113,14 @@ impl Lane for u16 {
     #[inline(always)]
     fn sub(self, o: Self) -> Self {
         self.wrapping_sub(o)
+    }
+    #[inline(always)]
+    fn bytes(_: &[Self]) -> Option<&[u8]> {
+        None
+    }
+    #[inline(always)]
+    fn bytes_mut(_: &mut [Self]) -> Option<&mut [u8]> {
+        None
     }
 }
 
@@ -1213,6 +1330,108 @@ fn step<T: Lane, const SET: bool>(
     least
 }
 
+/// Byte lanes' values ([`Lane::bytes`]); called where the lanes are known to be bytes.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn bytes<T: Lane>(v: &[T]) -> &[u8] {
+    T::bytes(v).expect("byte lanes")
+}
+
+/// As [`bytes`], to write.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn bytes_mut<T: Lane>(v: &mut [T]) -> &mut [u8] {
+    T::bytes_mut(v).expect("byte lanes")
+}
+
+/// Steps every path of a pixel where none starts (not in the sweep's first row or
+/// column, and with the diagonals not in its last column) in one run of
+/// [`byte_paths::step_paths`]: the path along the row from `along`, and path `r` from
+/// the row before from `rows.0[r]` at column `from[r]` into `rows.1[r]` at column
+/// `from[0]`. Writes the sums.
+///
+/// # Safety
+/// The CPU has AVX2; `T` is a byte lane and the disparities a multiple of 32.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(unsafe_code)]
+unsafe fn interior_bytes<T: Lane>(
+    c: &[u8],
+    along: &mut AlongRow<T>,
+    rows: (&[PathRow<T>], &mut [PathRow<T>]),
+    from: [usize; 3],
+    pen: Penalties<T>,
+    sum: &mut [u16],
+) {
+    let (prev, cur) = rows;
+    let nd = c.len();
+    let stride = nd + 2;
+    let x = from[0];
+    let (p1, p2) = (pen.p1.widen() as u8, pen.p2.widen() as u8);
+    let source = |r: usize| {
+        let row = &prev[r];
+        (
+            bytes(&row.cost[from[r] * stride..][..stride]),
+            row.min[from[r]].widen() as u8,
+        )
+    };
+    let along_from = (bytes(&along.prev), along.min.widen() as u8);
+    let next = bytes_mut(&mut along.next[1..=nd]);
+    let at = x * stride + 1;
+    match cur {
+        [c0] => {
+            let out = [next, bytes_mut(&mut c0.cost[at..][..nd])];
+            // SAFETY: AVX2, by this function's contract.
+            let m = unsafe {
+                byte_paths::step_paths::<2, false>(c, [along_from, source(0)], p1, p2, out, sum)
+            };
+            along.min = T::of_cost(m[0]);
+            c0.min[x] = T::of_cost(m[1]);
+        }
+        [c0, c1, c2] => {
+            let out = [
+                next,
+                bytes_mut(&mut c0.cost[at..][..nd]),
+                bytes_mut(&mut c1.cost[at..][..nd]),
+                bytes_mut(&mut c2.cost[at..][..nd]),
+            ];
+            let from = [along_from, source(0), source(1), source(2)];
+            // SAFETY: AVX2, by this function's contract.
+            let m = unsafe { byte_paths::step_paths::<4, false>(c, from, p1, p2, out, sum) };
+            along.min = T::of_cost(m[0]);
+            c0.min[x] = T::of_cost(m[1]);
+            c1.min[x] = T::of_cost(m[2]);
+            c2.min[x] = T::of_cost(m[3]);
+        }
+        _ => unreachable!("1 or 3 paths from the row before"),
+    }
+    std::mem::swap(&mut along.prev, &mut along.next);
+}
+
+/// The next pixel along the row, not its first, with [`byte_paths::step_paths`]: adds
+/// its path costs to `sum`.
+///
+/// # Safety
+/// As [`interior_bytes`].
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(unsafe_code)]
+unsafe fn along_bytes<T: Lane>(
+    c: &[u8],
+    along: &mut AlongRow<T>,
+    pen: Penalties<T>,
+    sum: &mut [u16],
+) {
+    let nd = c.len();
+    let (p1, p2) = (pen.p1.widen() as u8, pen.p2.widen() as u8);
+    let from = [(bytes(&along.prev), along.min.widen() as u8)];
+    let out = [bytes_mut(&mut along.next[1..=nd])];
+    // SAFETY: AVX2, by this function's contract.
+    let [m] = unsafe { byte_paths::step_paths::<1, true>(c, from, p1, p2, out, sum) };
+    along.min = T::of_cost(m);
+    std::mem::swap(&mut along.prev, &mut along.next);
+}
+
 #[allow(unsafe_code)]
 fn run_select(
     kernel: Kernel,
@@ -1222,9 +1441,19 @@ fn run_select(
     other: Option<&[u16]>,
     out: &mut [f32],
 ) -> MatchStats {
+    let wide = |out: &mut [f32]| {
+        select_with::<u32>(kernel, s, p, sum, other, out, 16)
+            .expect("32-bit packing holds every sum (at most 8 · (48 + 1024))")
+    };
     match Packing::of(s, p) {
-        Packing::Narrow(shift) => select_with::<u16>(kernel, s, p, sum, other, out, shift),
-        Packing::Wide => select_with::<u32>(kernel, s, p, sum, other, out, 16),
+        Packing::Narrow(shift) => {
+            select_with::<u16>(kernel, s, p, sum, other, out, shift).unwrap_or_else(|| {
+                // A clamped cost decided somewhere in the row: again, exactly.
+                out.fill(f32::NAN);
+                wide(out)
+            })
+        }
+        Packing::Wide => wide(out),
     }
 }
 
@@ -1238,7 +1467,7 @@ fn select_with<P: Packed>(
     other: Option<&[u16]>,
     out: &mut [f32],
     shift: u32,
-) -> MatchStats {
+) -> Option<MatchStats> {
     #[cfg(target_arch = "x86_64")]
     if kernel == Kernel::Avx2 && crate::cpu::avx2_bmi() {
         // SAFETY: AVX2, BMI1/2, POPCNT and LZCNT were detected just above.
@@ -1257,14 +1486,17 @@ fn select_avx2<P: Packed>(
     other: Option<&[u16]>,
     out: &mut [f32],
     shift: u32,
-) -> MatchStats {
+) -> Option<MatchStats> {
     select::<P>(s, p, sum, other, out, shift)
 }
 
 /// How [`select`] packs a candidate's aggregated cost and index into one integer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Packing {
-    /// `cost << shift | k` in 16 bits: every sum and index fit (twice the lanes).
+    /// `cost << shift | k` in 16 bits (twice the lanes), costs above `u16::MAX >> shift`
+    /// clamped to it. A row where a clamped cost would decide (a pixel's least cost, or
+    /// a right column's best match in the left–right check) is selected again, wide:
+    /// every result is the wide one.
     Narrow(u32),
     /// `cost << 16 | k` in 32 bits.
     Wide,
@@ -1272,12 +1504,16 @@ enum Packing {
 
 impl Packing {
     /// Narrow when the largest sum (every path at its bound, `CENSUS_BITS + p2`) shifted
-    /// past the largest index still fits 16 bits: at the default penalties 3, 4 and 5
-    /// paths at 64 disparities, 8 paths at 32 or fewer.
+    /// past the largest index fits 16 bits, or when the clamp is at least twice the
+    /// largest census cost summed over the paths (a least cost that high is a pixel
+    /// matched nowhere: rare enough that a second selection costs nothing). At the
+    /// default penalties: 3, 4 and 5 paths up to 128 disparities, 8 paths up to 64.
     fn of(s: &Shape, p: &SgmParams) -> Self {
         let shift = usize::BITS - (s.nd - 1).leading_zeros();
-        let largest_sum = p.paths.count() as u64 * (u64::from(CENSUS_BITS) + u64::from(p.p2));
-        if largest_sum << shift <= u64::from(u16::MAX) {
+        let paths = p.paths.count() as u64;
+        let largest_sum = paths * (u64::from(CENSUS_BITS) + u64::from(p.p2));
+        let clamp = u64::from(u16::MAX) >> shift;
+        if largest_sum <= clamp || clamp >= 2 * paths * u64::from(CENSUS_BITS) {
             Packing::Narrow(shift)
         } else {
             Packing::Wide
@@ -1290,6 +1526,8 @@ impl Packing {
 trait Packed: Copy + Ord {
     /// No smaller than any packed candidate.
     const MAX: Self;
+    /// The largest cost a packing holds: larger ones are clamped to it.
+    fn largest_cost(shift: u32) -> u16;
     fn pack(cost: u16, k: u16, shift: u32) -> Self;
     fn cost(self, shift: u32) -> u16;
     fn index(self, shift: u32) -> usize;
@@ -1298,12 +1536,12 @@ trait Packed: Copy + Ord {
 impl Packed for u16 {
     const MAX: Self = u16::MAX;
     #[inline(always)]
+    fn largest_cost(shift: u32) -> u16 {
+        u16::MAX >> shift
+    }
+    #[inline(always)]
     fn pack(cost: u16, k: u16, shift: u32) -> Self {
-        debug_assert!(
-            u32::from(cost) << shift <= 0xffff,
-            "{cost} << {shift}: Packing::of"
-        );
-        (cost << shift) | k
+        (cost.min(Self::largest_cost(shift)) << shift) | k
     }
     #[inline(always)]
     fn cost(self, shift: u32) -> u16 {
@@ -1317,6 +1555,10 @@ impl Packed for u16 {
 
 impl Packed for u32 {
     const MAX: Self = u32::MAX;
+    #[inline(always)]
+    fn largest_cost(_: u32) -> u16 {
+        u16::MAX
+    }
     #[inline(always)]
     fn pack(cost: u16, k: u16, shift: u32) -> Self {
         (u32::from(cost) << shift) | u32::from(k)
@@ -1333,7 +1575,8 @@ impl Packed for u32 {
 
 /// One row's disparities from its aggregated sums (`sum`, plus `other` when the paths
 /// were summed in two volumes): winner takes all, uniqueness, sub-pixel fit, left–right
-/// check. Candidates are packed as `P` with the index in the low `shift` bits.
+/// check. Candidates are packed as `P` with the index in the low `shift` bits; `None`
+/// (with `out` part written) where a clamped cost would decide ([`Packing::Narrow`]).
 #[inline(always)]
 fn select<P: Packed>(
     s: &Shape,
@@ -1342,7 +1585,8 @@ fn select<P: Packed>(
     other: Option<&[u16]>,
     out: &mut [f32],
     shift: u32,
-) -> MatchStats {
+) -> Option<MatchStats> {
+    let clamp = P::largest_cost(shift);
     let (w, nd) = (s.w, s.nd);
     let mut stats = MatchStats::default();
     let mut total = vec![0u16; nd];
@@ -1386,6 +1630,9 @@ fn select<P: Packed>(
             continue; // candidates off the right image: the invalid band
         }
         let (best, k) = (least.cost(shift), least.index(shift));
+        if best == clamp {
+            return None;
+        }
         // Not unique: another candidate, not next to the best, within the ratio. A best
         // cost of 0 tied elsewhere counts as not unique (OpenCV's strict test keeps it).
         let limit = (u32::from(best) * 100).saturating_sub(1) / (100 - p.uniqueness_ratio);
@@ -1415,14 +1662,18 @@ fn select<P: Packed>(
                 continue;
             }
             let xr = x - s.d_min - usize::from(k);
-            let right_k = right[w - 1 - xr].index(shift);
+            let from_right = right[w - 1 - xr];
+            if from_right.cost(shift) == clamp {
+                return None;
+            }
+            let right_k = from_right.index(shift);
             if right_k.abs_diff(usize::from(k)) > max_diff as usize {
                 out[x] = f32::NAN;
                 stats.left_right += 1;
             }
         }
     }
-    stats
+    Some(stats)
 }
 
 #[cfg(test)]
@@ -1614,7 +1865,7 @@ mod tests {
                 p,
                 CostSource::Census(left, right, kernel),
                 first,
-                None,
+                SweepVolumes::default(),
                 &mut add,
             ),
             Some(second) => {
@@ -1624,18 +1875,44 @@ mod tests {
                 }
                 let costs = CostSource::Volume(&volume);
                 let mut sums = vec![0u16; row_cells * s.h];
-                run_sweep(kernel, &s, p, costs, first, Some(&mut sums), &mut |_, _| {});
+                run_sweep(
+                    kernel,
+                    &s,
+                    p,
+                    costs,
+                    first,
+                    SweepVolumes {
+                        sums: Some(&mut sums),
+                        read_by_sink: None,
+                    },
+                    &mut |_, _| {},
+                );
                 for (y, row) in sums.chunks_exact(row_cells).enumerate() {
                     add(y, row);
                 }
                 if side_by_side {
                     let mut own = vec![0u16; row_cells * s.h];
-                    run_sweep(kernel, &s, p, costs, second, Some(&mut own), &mut |_, _| {});
+                    run_sweep(
+                        kernel,
+                        &s,
+                        p,
+                        costs,
+                        second,
+                        SweepVolumes {
+                            sums: Some(&mut own),
+                            read_by_sink: None,
+                        },
+                        &mut |_, _| {},
+                    );
                     for (y, row) in own.chunks_exact(row_cells).enumerate() {
                         add(y, row);
                     }
                 } else {
-                    run_sweep(kernel, &s, p, costs, second, None, &mut add);
+                    let volumes = SweepVolumes {
+                        sums: None,
+                        read_by_sink: Some(&sums),
+                    };
+                    run_sweep(kernel, &s, p, costs, second, volumes, &mut add);
                 }
             }
         }
@@ -1751,11 +2028,7 @@ mod tests {
     #[test]
     fn the_sweeps_sum_each_path_as_defined() {
         let (l, r) = shifted_pair(75, 23, |x, y| 9.0 + 0.1 * x as f32 - 0.2 * y as f32);
-        let (cl, cr) = (
-            census(Kernel::Portable, &l, View::Left, Vec::new()),
-            // Padding nd + d_min = 16 + 3: every run of candidates inside.
-            census(Kernel::Portable, &r, View::Right { pad: 19 }, Vec::new()),
-        );
+        let cl = census(Kernel::Portable, &l, View::Left, Vec::new());
         let along_and_down = [(1, 0), (-1, 0), (0, 1)];
         let straight = [(1, 0), (-1, 0), (0, 1), (0, -1)];
         let from_above = [(1, 0), (-1, 0), (0, 1), (1, 1), (-1, 1)];
@@ -1775,16 +2048,24 @@ mod tests {
             (Paths::Five, &from_above[..]),
             (Paths::Eight, &every[..]),
         ] {
-            // p2 = 103: the largest with byte lanes; 104 and 300: 16-bit lanes.
-            for (p1, p2) in [(8, 96), (30, 103), (8, 104), (40, 300)] {
+            // p2 = 103: the largest with byte lanes; 104 and 300: 16-bit lanes. 32
+            // disparities: byte lanes with the AVX2 kernel take the pixels where no path
+            // starts (byte_paths).
+            let cases = [(8, 96, 16), (30, 103, 16), (8, 104, 16), (40, 300, 16)]
+                .into_iter()
+                .chain([(8, 96, 32), (30, 103, 32), (8, 104, 32)]);
+            for (p1, p2, nd) in cases {
                 let p = SgmParams {
                     min_disparity: 3,
-                    num_disparities: 16,
+                    num_disparities: nd,
                     paths,
                     p1,
                     p2,
                     ..SgmParams::default()
                 };
+                // Padding nd + d_min: every run of candidates inside.
+                let pad = nd as usize + 3;
+                let cr = census(Kernel::Portable, &r, View::Right { pad }, Vec::new());
                 assert_eq!(fits_a_byte(&p), p2 <= 103);
                 let expected = aggregated_by_definition(&cl, &cr, &p, directions);
                 for kernel in [Kernel::Portable, Kernel::Avx2]
@@ -1796,7 +2077,8 @@ mod tests {
                         let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
                         assert_eq!(
                             first_miss, None,
-                            "{paths:?} {kernel:?} p1 {p1} p2 {p2} side by side {side_by_side}"
+                            "{paths:?} {kernel:?} p1 {p1} p2 {p2} {nd} d, side by side \
+                             {side_by_side}"
                         );
                     }
                 }
@@ -1811,7 +2093,7 @@ mod tests {
     #[test]
     fn narrow_and_wide_packing_select_the_same() {
         let shape = |nd| Shape {
-            w: 120,
+            w: 200,
             h: 1,
             nd,
             d_min: 2,
@@ -1829,12 +2111,17 @@ mod tests {
             Packing::of(&shape(64), &at(Paths::Five, 64)),
             Packing::Narrow(6)
         );
+        // Clamped at 1023 and 511: a second selection where that decides.
         assert_eq!(
             Packing::of(&shape(64), &at(Paths::Eight, 64)),
-            Packing::Wide
+            Packing::Narrow(6)
         );
         assert_eq!(
             Packing::of(&shape(128), &at(Paths::Five, 128)),
+            Packing::Narrow(7)
+        );
+        assert_eq!(
+            Packing::of(&shape(128), &at(Paths::Eight, 128)),
             Packing::Wide
         );
         assert_eq!(
@@ -1848,6 +2135,8 @@ mod tests {
             (Paths::Five, 64),
             (Paths::Three, 48),
             (Paths::Eight, 32),
+            (Paths::Eight, 64),
+            (Paths::Five, 128),
         ];
         for (paths, nd) in narrow {
             let (s, p) = (shape(nd), at(paths, nd));
@@ -1855,12 +2144,16 @@ mod tests {
                 panic!("{paths:?} {nd}: narrow expected");
             };
             let largest = paths.count() as u16 * (u16::from(CENSUS_BITS) + p.p2);
+            let clamped = largest > u16::MAX >> shift;
             let mut draw = |n: u64| (rng.next_u64() % n) as u16;
             let mut valid = 0;
+            let mut again = 0;
             for round in 0..50 {
                 // Each pixel: a clear minimum at a random candidate over costs from the
                 // top half; in odd rounds the costs take few values (ties), and every
-                // fourth pixel's minimum is tied with another candidate.
+                // fourth pixel's minimum is tied with another candidate. Where the
+                // packing clamps, every tenth round has one pixel whose least cost is
+                // clamped.
                 let mut sum = vec![0u16; s.w * nd];
                 for cell in sum.chunks_exact_mut(nd) {
                     for c in cell.iter_mut() {
@@ -1876,10 +2169,18 @@ mod tests {
                         cell[usize::from(draw(nd as u64))] = cell[k];
                     }
                 }
+                if clamped && round % 10 == 0 {
+                    let x = s.w - 1 - usize::from(draw(4));
+                    sum[x * nd..][..nd].fill(largest - 1);
+                }
                 let mut narrow = vec![f32::NAN; s.w];
                 let mut wide = vec![f32::NAN; s.w];
-                let a = select::<u16>(&s, &p, &sum, None, &mut narrow, shift);
-                let b = select::<u32>(&s, &p, &sum, None, &mut wide, 16);
+                if select::<u16>(&s, &p, &sum, None, &mut narrow, shift).is_none() {
+                    again += 1;
+                }
+                narrow.fill(f32::NAN);
+                let a = run_select(Kernel::Portable, &s, &p, &sum, None, &mut narrow);
+                let b = select::<u32>(&s, &p, &sum, None, &mut wide, 16).unwrap();
                 assert_eq!(a, b, "{paths:?} {nd} round {round}");
                 let same = narrow
                     .iter()
@@ -1888,8 +2189,14 @@ mod tests {
                 assert!(same, "{paths:?} {nd} round {round}");
                 valid += narrow.iter().filter(|v| v.is_finite()).count();
             }
-            // The comparison covers chosen disparities, not only refusals.
-            assert!(valid > 50 * (120 - nd) / 4, "{paths:?} {nd}: {valid}");
+            // The comparison covers chosen disparities, not only refusals, and the
+            // second selection where the packing clamps (not only there).
+            assert!(valid > 50 * (s.w - nd) / 4, "{paths:?} {nd}: {valid}");
+            if clamped {
+                assert!((5..50).contains(&again), "{paths:?} {nd}: {again} again");
+            } else {
+                assert_eq!(again, 0, "{paths:?} {nd}");
+            }
         }
     }
 

@@ -101,7 +101,7 @@ impl RefineTerm {
 /// expands every pixel's `R(x − D)` around that pixel's own current estimate
 /// ([`RefineTerm`]), so a window's update is a ratio of two box sums of per-pixel
 /// integer terms, slid down the columns and along the rows (rows in bands of
-/// [`REFINE_BAND`] taken in order, bands in parallel; each band makes the terms of its
+/// [`band_rows`] taken in order, bands in parallel; each band makes the terms of its
 /// window's rows as it slides and keeps them in a ring, about 23 kB a row of 640 for a
 /// 9×9 window, 28 kB for 11×11: they stay in the cache instead of making a frame-sized
 /// plane; the times below are for 9×9).
@@ -151,6 +151,7 @@ pub(super) fn refine(
     // Pixels still taking steps: 1; those that stopped keep their starting estimate.
     live.clear();
     live.resize(w * h, 1);
+    let band = band_rows(h, rayon::current_num_threads());
     for _ in 0..REFINE_STEPS {
         // Every window reads its pixels' terms at the previous step's estimates.
         before.clear();
@@ -164,12 +165,10 @@ pub(super) fn refine(
         };
         disparity
             .as_mut_slice()
-            .par_chunks_mut(w * REFINE_BAND)
-            .zip(live.par_chunks_mut(w * REFINE_BAND))
+            .par_chunks_mut(w * band)
+            .zip(live.par_chunks_mut(w * band))
             .enumerate()
-            .for_each(|(band, (rows, live))| {
-                run_refine_band(kernel, &step, band * REFINE_BAND, rows, live)
-            });
+            .for_each(|(i, (rows, live))| run_refine_band(kernel, &step, i * band, rows, live));
     }
 }
 
@@ -220,6 +219,13 @@ impl Step<'_> {
 /// `radius` rows above its first and below its last once more (an eighth more terms
 /// with a 9×9 window).
 const REFINE_BAND: usize = 64;
+
+/// Rows a band takes: two bands a thread (some room to even out the threads' loads),
+/// at least [`REFINE_BAND`]. Fewer bands make fewer rows' terms twice: on one thread at
+/// 640×480, two bands instead of eight.
+fn band_rows(h: usize, threads: usize) -> usize {
+    h.div_ceil(2 * threads.max(1)).max(REFINE_BAND)
+}
 
 /// One row's [`RefineTerm`]s as planes: `g`, the moment and `g·q` (zero where a pixel
 /// has no terms).
