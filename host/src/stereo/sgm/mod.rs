@@ -2178,15 +2178,28 @@ mod tests {
                 if select::<u16>(&s, &p, &sum, None, &mut narrow, shift).is_none() {
                     again += 1;
                 }
-                narrow.fill(f32::NAN);
-                let a = run_select(Kernel::Portable, &s, &p, &sum, None, &mut narrow);
                 let b = select::<u32>(&s, &p, &sum, None, &mut wide, 16).unwrap();
-                assert_eq!(a, b, "{paths:?} {nd} round {round}");
-                let same = narrow
-                    .iter()
-                    .zip(&wide)
-                    .all(|(x, y)| x.to_bits() == y.to_bits());
-                assert!(same, "{paths:?} {nd} round {round}");
+                // The sums whole, and split in two volumes (as two sweeps leave them).
+                let first: Vec<u16> = sum.iter().map(|&v| v / 3).collect();
+                let second: Vec<u16> = sum.iter().zip(&first).map(|(v, f)| v - f).collect();
+                let kernels = [Kernel::Portable, Kernel::Avx2];
+                for kernel in kernels.into_iter().filter(|k| k.is_available()) {
+                    for split in [false, true] {
+                        narrow.fill(f32::NAN);
+                        let a = if split {
+                            run_select(kernel, &s, &p, &first, Some(&second), &mut narrow)
+                        } else {
+                            run_select(kernel, &s, &p, &sum, None, &mut narrow)
+                        };
+                        let case = format!("{paths:?} {nd} round {round} {kernel:?} {split}");
+                        assert_eq!(a, b, "{case}");
+                        let same = narrow
+                            .iter()
+                            .zip(&wide)
+                            .all(|(x, y)| x.to_bits() == y.to_bits());
+                        assert!(same, "{case}");
+                    }
+                }
                 valid += narrow.iter().filter(|v| v.is_finite()).count();
             }
             // The comparison covers chosen disparities, not only refusals, and the
