@@ -1396,7 +1396,9 @@ fn pair_directories_set_aside_unpaired_and_unreadable_files() {
     let err = load_pairs(&dir, None).unwrap_err();
     assert!(
         matches!(&err, ImageError::MixedSizes { sizes, .. } if sizes.len() == 2)
-            && err.to_string().contains("4×4 px (3), 6000×5 px (3)"),
+            && err
+                .to_string()
+                .contains("4×4 px (3, e.g. a_dx.png), 6000×5 px (3, e.g. f_dx.png)"),
         "{err}"
     );
     let err = load_pairs(&dir, Some((8, 8))).unwrap_err().to_string();

@@ -53,13 +53,21 @@ pub enum ImageError {
          frames of one camera at one resolution (or reference frames, whose size then \
          decides)",
         path.display(),
-        sizes.iter().map(|((w, h), n)| format!("{w}×{h} px ({n})")).collect::<Vec<_>>().join(", ")
+        sizes
+            .iter()
+            .map(|((w, h), n, first)| {
+                let name = first.file_name().unwrap_or_default().to_string_lossy();
+                format!("{w}×{h} px ({n}, e.g. {name})")
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
     )]
     MixedSizes {
         /// Directory.
         path: PathBuf,
-        /// Each size met, with how many dx frames have it.
-        sizes: Vec<((u32, u32), usize)>,
+        /// Each size met, with how many dx frames have it and the first of them (by
+        /// name).
+        sizes: Vec<((u32, u32), usize, PathBuf)>,
     },
     /// The folder's frames of the size taken would need more memory decoded than
     /// [`crate::limits::MAX_CALIBRATION_FRAMES`]: refused before any is decoded.
@@ -172,9 +180,10 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
     let (want, against) = match want {
         Some(size) => (Some(size), "the reference frames"),
         None => {
-            let dx_sizes = found
-                .values()
-                .filter_map(|[dx, _, _]| image_file::header(dx.as_deref()?, Need::Colour).ok());
+            let dx_sizes = found.values().filter_map(|[dx, _, _]| {
+                let dx = dx.as_deref()?;
+                Some((image_file::header(dx, Need::Colour).ok()?, dx.to_path_buf()))
+            });
             let size = most_common(dx_sizes).map_err(|sizes| ImageError::MixedSizes {
                 path: dir.to_path_buf(),
                 sizes,
@@ -257,21 +266,24 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
 /// The value met more often than any other (`None` when there is none); when two or
 /// more are met most often, every value with its count.
 #[allow(clippy::type_complexity)]
-fn most_common(
-    values: impl Iterator<Item = (u32, u32)>,
-) -> Result<Option<(u32, u32)>, Vec<((u32, u32), usize)>> {
-    let mut counts: Vec<((u32, u32), usize)> = Vec::new();
-    for v in values {
-        match counts.iter_mut().find(|(c, _)| *c == v) {
-            Some((_, n)) => *n += 1,
-            None => counts.push((v, 1)),
+fn most_common<T>(
+    values: impl Iterator<Item = ((u32, u32), T)>,
+) -> Result<Option<(u32, u32)>, Vec<((u32, u32), usize, T)>> {
+    let mut counts: Vec<((u32, u32), usize, T)> = Vec::new();
+    for (v, first) in values {
+        match counts.iter_mut().find(|(c, _, _)| *c == v) {
+            Some((_, n, _)) => *n += 1,
+            None => counts.push((v, 1, first)),
         }
     }
-    let Some(most) = counts.iter().map(|(_, n)| *n).max() else {
+    let Some(most) = counts.iter().map(|(_, n, _)| *n).max() else {
         return Ok(None);
     };
-    match counts.iter().filter(|(_, n)| *n == most).count() {
-        1 => Ok(counts.into_iter().find(|(_, n)| *n == most).map(|(v, _)| v)),
+    match counts.iter().filter(|(_, n, _)| *n == most).count() {
+        1 => Ok(counts
+            .into_iter()
+            .find(|(_, n, _)| *n == most)
+            .map(|(v, _, _)| v)),
         _ => Err(counts),
     }
 }
