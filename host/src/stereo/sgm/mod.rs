@@ -876,6 +876,9 @@ fn sweep_rows<T: Lane, const AVX2: bool>(
         sums: mut volume,
         read_by_sink,
     } = volumes;
+    // Only prefetched, where that is an instruction.
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = read_by_sink;
     let (w, h, nd) = (s.w, s.h, s.nd);
     let stride = nd + 2;
     let used = sweep.from_row_before;
@@ -940,8 +943,9 @@ fn sweep_rows<T: Lane, const AVX2: bool>(
             for &(base, len) in prefetch.iter().flatten() {
                 let mut at = x * len;
                 while at < (x + 1) * len {
-                    // SAFETY: `base` starts a row of `w` pixels of `bytes` each inside
-                    // its volume; a prefetch reads nothing.
+                    // SAFETY: `base` starts a row of `w` pixels of `len` bytes each
+                    // inside its volume (taken by checked slicing), and `at` stays in
+                    // pixel x's part of it; a prefetch reads and writes nothing.
                     unsafe {
                         std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
                             base.add(at).cast(),
@@ -1023,7 +1027,9 @@ trait Lane: Copy + Ord {
     /// Larger than any path cost.
     const MAX: Self;
     const ZERO: Self;
-    /// Byte lanes: [`Lane::bytes`] and [`Lane::bytes_mut`] give the values.
+    /// Byte lanes: [`Lane::bytes`] and [`Lane::bytes_mut`] give the values (read by
+    /// the AVX2 path steps only).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     const IS_BYTE: bool;
     /// A census cost.
     fn of_cost(c: u8) -> Self;
@@ -1041,8 +1047,10 @@ trait Lane: Copy + Ord {
     /// A difference that stays non-negative by the bounds above (wrapping, as `add`).
     fn sub(self, o: Self) -> Self;
     /// The values as bytes, for byte lanes; `None` for wider ones.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     fn bytes(v: &[Self]) -> Option<&[u8]>;
     /// As [`Lane::bytes`], to write.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     fn bytes_mut(v: &mut [Self]) -> Option<&mut [u8]>;
 }
 
@@ -1432,6 +1440,9 @@ unsafe fn along_bytes<T: Lane>(
     std::mem::swap(&mut along.prev, &mut along.next);
 }
 
+/// Selects a row's disparities (`out`, which comes in all NaN: a row selected again is
+/// reset to that) from its sums (`sum`, plus `other` when the paths were summed in two
+/// volumes), packed as [`Packing::of`] says.
 #[allow(unsafe_code)]
 fn run_select(
     kernel: Kernel,
@@ -1494,9 +1505,10 @@ fn select_avx2<P: Packed>(
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Packing {
     /// `cost << shift | k` in 16 bits (twice the lanes), costs above `u16::MAX >> shift`
-    /// clamped to it. A row where a clamped cost would decide (a pixel's least cost, or
-    /// a right column's best match in the left–right check) is selected again, wide:
-    /// every result is the wide one.
+    /// clamped to it. A row where a clamped cost would decide (a pixel's least cost) is
+    /// selected again, wide: every result is the wide one. (A right column's best match
+    /// in the left–right check is then never clamped: its candidates include the best
+    /// of the pixel that reads it.)
     Narrow(u32),
     /// `cost << 16 | k` in 32 bits.
     Wide,
@@ -1504,16 +1516,19 @@ enum Packing {
 
 impl Packing {
     /// Narrow when the largest sum (every path at its bound, `CENSUS_BITS + p2`) shifted
-    /// past the largest index fits 16 bits, or when the clamp is at least twice the
-    /// largest census cost summed over the paths (a least cost that high is a pixel
-    /// matched nowhere: rare enough that a second selection costs nothing). At the
+    /// past the largest index fits 16 bits, or, with byte lanes ([`fits_a_byte`]: `p2`
+    /// at most 103), when the clamp is at least twice the largest census cost summed
+    /// over the paths (a least cost that high is a pixel matched nowhere: rare enough
+    /// that a second selection costs nothing; with larger penalties paths from opposite
+    /// sides of an occlusion could each carry hundreds at every candidate). At the
     /// default penalties: 3, 4 and 5 paths up to 128 disparities, 8 paths up to 64.
     fn of(s: &Shape, p: &SgmParams) -> Self {
         let shift = usize::BITS - (s.nd - 1).leading_zeros();
         let paths = p.paths.count() as u64;
         let largest_sum = paths * (u64::from(CENSUS_BITS) + u64::from(p.p2));
         let clamp = u64::from(u16::MAX) >> shift;
-        if largest_sum <= clamp || clamp >= 2 * paths * u64::from(CENSUS_BITS) {
+        let rare = fits_a_byte(p) && clamp >= 2 * paths * u64::from(CENSUS_BITS);
+        if largest_sum <= clamp || rare {
             Packing::Narrow(shift)
         } else {
             Packing::Wide
@@ -1663,9 +1678,9 @@ fn select<P: Packed>(
             }
             let xr = x - s.d_min - usize::from(k);
             let from_right = right[w - 1 - xr];
-            if from_right.cost(shift) == clamp {
-                return None;
-            }
+            // That right column's candidates include this pixel's best, whose cost is
+            // below the clamp: so is the column's best.
+            debug_assert!(from_right.cost(shift) < clamp);
             let right_k = from_right.index(shift);
             if right_k.abs_diff(usize::from(k)) > max_diff as usize {
                 out[x] = f32::NAN;
@@ -2086,10 +2101,12 @@ mod tests {
         }
     }
 
-    /// Selection packs candidates in 16 bits where every sum and index fit (3 and 5
-    /// paths at the default penalties and 64 disparities) and in 32 otherwise; both give
-    /// the same disparities and counts, bit for bit, on sums up to the bound (ties
-    /// included: sums drawn from a few values).
+    /// Selection packs candidates in 16 bits where every sum and index fit (3, 4 and 5
+    /// paths at the default penalties and 64 disparities), or where the costs clamped
+    /// at 1023 or 511 rarely decide (8 paths at 64, 5 at 128; a row where one does is
+    /// selected again in 32 bits), and in 32 otherwise; all give the same disparities
+    /// and counts, bit for bit, on sums up to the bound (ties included: sums drawn from
+    /// a few values), from one sum volume or two, with each kernel.
     #[test]
     fn narrow_and_wide_packing_select_the_same() {
         let shape = |nd| Shape {
@@ -2124,6 +2141,12 @@ mod tests {
             Packing::of(&shape(128), &at(Paths::Eight, 128)),
             Packing::Wide
         );
+        // Not with 16-bit path costs (p2 over 103).
+        let large_p2 = SgmParams {
+            p2: 104,
+            ..at(Paths::Eight, 64)
+        };
+        assert_eq!(Packing::of(&shape(64), &large_p2), Packing::Wide);
         assert_eq!(
             Packing::of(&shape(32), &at(Paths::Eight, 32)),
             Packing::Narrow(5)

@@ -214,10 +214,10 @@ impl Step<'_> {
     }
 }
 
-/// Rows [`refine`] takes in order on one thread, so the window's column sums slide down
-/// from the row above; bands run in parallel. Each band makes the terms of the
-/// `radius` rows above its first and below its last once more (an eighth more terms
-/// with a 9×9 window).
+/// The fewest rows of a band ([`band_rows`]): a band's rows are taken in order on one
+/// thread, so the window's column sums slide down from the row above; bands run in
+/// parallel. Each band makes the terms of the `radius` rows above its first and below
+/// its last once more (an eighth more terms for bands of 64 rows and a 9×9 window).
 const REFINE_BAND: usize = 64;
 
 /// Rows a band takes: two bands a thread (some room to even out the threads' loads),
