@@ -183,14 +183,17 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
     // StereoSGBM runs before and after them, and the faster of its two medians is the
     // reference: a slow spell of a shared machine that falls on one of its runs does
     // not flatter the ratios.
-    let sgbm = OpenCvMatcher::Sgbm { block: 5 };
     let mut sgbm_runs = Vec::new();
-    if options.opencv && opencv_skipped.is_none() {
-        match run_opencv(&left, &right, &truth, &params, sgbm, repeats) {
-            Ok(cv) => sgbm_runs.push(cv),
-            Err(why) => opencv_skipped = Some(why),
+    let mut time_sgbm = |opencv_skipped: &mut Option<String>| {
+        if options.opencv && opencv_skipped.is_none() {
+            let sgbm = OpenCvMatcher::Sgbm { block: 5 };
+            match run_opencv(&left, &right, &truth, &params, sgbm, repeats) {
+                Ok(cv) => sgbm_runs.push(cv),
+                Err(why) => *opencv_skipped = Some(why),
+            }
         }
-    }
+    };
+    time_sgbm(&mut opencv_skipped);
     let mut sgm_ms = Vec::new();
     for (paths, refine, threads, pool) in [
         (Paths::Eight, true, 1, &one),
@@ -235,12 +238,7 @@ pub fn run(options: BenchOptions, mut step: impl FnMut()) -> Result<BenchReport,
             sgm_ms.push((paths, refine, ms));
         }
     }
-    if options.opencv && opencv_skipped.is_none() {
-        match run_opencv(&left, &right, &truth, &params, sgbm, repeats) {
-            Ok(cv) => sgbm_runs.push(cv),
-            Err(why) => opencv_skipped = Some(why),
-        }
-    }
+    time_sgbm(&mut opencv_skipped);
     let reference = match &sgbm_runs[..] {
         [before, after] => Some((
             if after.median_ms < before.median_ms {

@@ -145,25 +145,13 @@ mod tests {
                     let mut want_sum = start.clone();
                     let mut want_min = [0u8; 4];
                     for r in 0..4 {
-                        want_min[r] = if r == 0 && round % 2 == 0 {
-                            step::<u8, true>(
-                                &cost,
-                                &sources[r].0,
-                                sources[r].1,
-                                pen,
-                                &mut want_out[r],
-                                &mut want_sum,
-                            )
+                        let step = if r == 0 && round % 2 == 0 {
+                            step::<u8, true>
                         } else {
-                            step::<u8, false>(
-                                &cost,
-                                &sources[r].0,
-                                sources[r].1,
-                                pen,
-                                &mut want_out[r],
-                                &mut want_sum,
-                            )
+                            step::<u8, false>
                         };
+                        let (prev, min) = (&sources[r].0, sources[r].1);
+                        want_min[r] = step(&cost, prev, min, pen, &mut want_out[r], &mut want_sum);
                     }
                     let mut got_out = vec![vec![0u8; nd]; 4];
                     let mut got_sum = start.clone();

@@ -375,10 +375,7 @@ impl SemiGlobalMatcher {
                 CostSource::Volume(&v.cost[..cells])
             };
             let out = &mut disparity;
-            let into = |sums| SweepVolumes {
-                sums: Some(sums),
-                read_by_sink: None,
-            };
+            let writing = SweepVolumes::writing;
             match second {
                 None => {
                     let mut sink = |y: usize, sum: &[u16]| {
@@ -397,8 +394,8 @@ impl SemiGlobalMatcher {
                 Some(second) if volumes == 2 => {
                     let (a, b) = (&mut v.first[..cells], &mut v.second[..cells]);
                     rayon::join(
-                        || run_sweep(kernel, s, p, costs, first, into(a), &mut |_, _| {}),
-                        || run_sweep(kernel, s, p, costs, second, into(b), &mut |_, _| {}),
+                        || run_sweep(kernel, s, p, costs, first, writing(a), &mut |_, _| {}),
+                        || run_sweep(kernel, s, p, costs, second, writing(b), &mut |_, _| {}),
                     );
                     let (a, b) = (&v.first[..cells], &v.second[..cells]);
                     stats = a
@@ -410,7 +407,7 @@ impl SemiGlobalMatcher {
                 }
                 Some(second) => {
                     let a = &mut v.first[..cells];
-                    run_sweep(kernel, s, p, costs, first, into(a), &mut |_, _| {});
+                    run_sweep(kernel, s, p, costs, first, writing(a), &mut |_, _| {});
                     let a = &v.first[..cells];
                     let mut sink = |y: usize, sum: &[u16]| {
                         let other = &a[y * row_cells..][..row_cells];
@@ -808,6 +805,16 @@ struct SweepVolumes<'a> {
     sums: Option<&'a mut [u16]>,
     /// A volume the sink reads the same row of: fetched into the cache a row ahead.
     read_by_sink: Option<&'a [u16]>,
+}
+
+impl<'a> SweepVolumes<'a> {
+    /// The sums written into `sums`, nothing read by the sink.
+    fn writing(sums: &'a mut [u16]) -> Self {
+        Self {
+            sums: Some(sums),
+            read_by_sink: None,
+        }
+    }
 }
 
 /// What a sweep hands each finished row to: its row number and the row's sums.
@@ -1896,10 +1903,7 @@ mod tests {
                     p,
                     costs,
                     first,
-                    SweepVolumes {
-                        sums: Some(&mut sums),
-                        read_by_sink: None,
-                    },
+                    SweepVolumes::writing(&mut sums),
                     &mut |_, _| {},
                 );
                 for (y, row) in sums.chunks_exact(row_cells).enumerate() {
@@ -1913,10 +1917,7 @@ mod tests {
                         p,
                         costs,
                         second,
-                        SweepVolumes {
-                            sums: Some(&mut own),
-                            read_by_sink: None,
-                        },
+                        SweepVolumes::writing(&mut own),
                         &mut |_, _| {},
                     );
                     for (y, row) in own.chunks_exact(row_cells).enumerate() {
