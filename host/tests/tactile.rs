@@ -137,6 +137,121 @@ fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
     );
 }
 
+/// Presses of a second, smaller ball (each tagged with its diameter) teach the table
+/// the steep slopes the calibration ball cannot make: the 1.6 wall that the 6 mm ball's
+/// table reads short reads deeper, and each press's depth comes from its own ball.
+#[test]
+fn presses_of_a_second_smaller_ball_teach_the_table_steep_walls() {
+    let optics = optics();
+    let refs = reference_frames(&optics);
+    let (w, h) = (
+        optics.width as f64 / optics.px_per_mm,
+        optics.height as f64 / optics.px_per_mm,
+    );
+    // Ten presses of a ball, spread over the frame, `depths` deep.
+    let presses = |diameter: f64, depths: (f64, f64), name: &str, ball: Option<f64>| {
+        (0..10)
+            .map(|k| {
+                let t = k as f64 / 10.0;
+                let depth = depths.0 + (depths.1 - depths.0) * t;
+                let scene = Scene {
+                    shapes: vec![Shape::Ball {
+                        cx: 2.0 + (w - 4.0) * ((t * 7.3 + 0.05) % 1.0),
+                        cy: 2.0 + (h - 4.0) * ((t * 3.7 + 0.05) % 1.0),
+                        diameter,
+                        depth,
+                    }],
+                };
+                let pair = render(&optics, &scene, 2000 + k as u64 + 100 * diameter as u64);
+                (
+                    CalibrationPair {
+                        name: format!("{name}{k:02}"),
+                        dx: pair.dx,
+                        dy: pair.dy,
+                        dark: None,
+                        ball_diameter_mm: ball,
+                    },
+                    depth,
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    // The 6 mm ball pressed at most 0.9 mm deep makes slopes up to about 1.
+    let (mut pairs, _): (Vec<CalibrationPair>, Vec<f64>) =
+        presses(6.0, (0.6, 0.9), "large", None).into_iter().unzip();
+    let one_ball = calibrate(
+        &pairs,
+        Some((&refs.0, &refs.1).into()),
+        &settings(&optics),
+        |_| {},
+    )
+    .unwrap();
+    let (small, depths): (Vec<CalibrationPair>, Vec<f64>) =
+        presses(4.0, (0.8, 1.1), "small", Some(4.0))
+            .into_iter()
+            .unzip();
+    pairs.extend(small);
+    let two_balls = calibrate(
+        &pairs,
+        Some((&refs.0, &refs.1).into()),
+        &settings(&optics),
+        |_| {},
+    )
+    .unwrap();
+    // Each small press's depth from its own ball (a 6 mm ball would make its circle a
+    // press about half as deep).
+    for p in two_balls
+        .presses
+        .iter()
+        .filter(|p| p.name.starts_with("small"))
+    {
+        let k: usize = p.name[5..].parse().unwrap();
+        assert_eq!(p.ball_diameter_mm, 4.0);
+        assert!(
+            (p.depth_mm - depths[k]).abs() < 0.15,
+            "{}: {:.3} mm, pressed {:.3}",
+            p.name,
+            p.depth_mm,
+            depths[k]
+        );
+    }
+    assert!(two_balls.presses.len() >= 18, "{:?}", two_balls.rejected);
+    assert!(
+        two_balls.report.max_slope[0] > 1.3,
+        "{:?}",
+        two_balls.report.max_slope
+    );
+    let scene = disk(1.6);
+    let read = |model: &TactileModel| {
+        reading(
+            &optics,
+            model,
+            &refs,
+            ModelKind::Lut,
+            SolverKind::Dct,
+            &scene,
+        )
+    };
+    let (one, two) = (read(&one_ball.model), read(&two_balls.model));
+    // Measured: 0.63 and 0.88 mm.
+    assert!(one < 0.75, "one ball: {one:.3} mm of 1.000");
+    assert!(
+        two > 0.85 && two < 1.05,
+        "two balls: {two:.3} mm of 1.000 (one ball {one:.3})"
+    );
+    // A ball diameter that is not a number is refused, naming the press.
+    pairs[12].ball_diameter_mm = Some(f64::NAN);
+    let err = calibrate(
+        &pairs,
+        Some((&refs.0, &refs.1).into()),
+        &settings(&optics),
+        |_| {},
+    )
+    .unwrap_err();
+    assert!(matches!(err, CalibrationError::Settings(_)), "{err}");
+    assert!(err.to_string().contains("small02"), "{err}");
+}
+
 /// A stretch of a flat-bottomed disk's wall overexposed in the dx phase (a wall facing a
 /// strip saturates): its blocks say nothing, and left out of the contact they opened
 /// the ring around the disk's flat middle, which then read 0 mm (found on a held-out
@@ -564,6 +679,7 @@ fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_
             dx: good[0].dx.clone(),
             dy: black,
             dark: None,
+            ball_diameter_mm: None,
         },
     );
     mixed.push(CalibrationPair {
@@ -571,12 +687,14 @@ fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_
         dx: good[1].dy.clone(),
         dy: good[1].dx.clone(),
         dark: None,
+        ball_diameter_mm: None,
     });
     mixed.push(CalibrationPair {
         name: "dx twice".into(),
         dx: good[2].dx.clone(),
         dy: good[2].dx.clone(),
         dark: None,
+        ball_diameter_mm: None,
     });
     let with_bad = calibrate(&mixed, refs(), &s, |_| {}).unwrap();
     assert_eq!(
@@ -641,6 +759,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         dx: flat.dx.clone(),
         dy: flat.dy.clone(),
         dark: None,
+        ball_diameter_mm: None,
     };
     for (ppm, ball) in [(1e9, 6.0), (15.0, f64::INFINITY), (0.0, 6.0)] {
         let bad = CalibrationSettings {
@@ -689,6 +808,7 @@ fn calibration_rejects_bad_input_with_clear_errors() {
             dx,
             dy,
             dark: None,
+            ball_diameter_mm: None,
         };
         let err = calibrate(
             std::slice::from_ref(&bad),
@@ -1419,6 +1539,7 @@ fn press_with_dark(k: u64, (dx, dy, dark): (RgbImage, RgbImage, RgbImage)) -> Ca
         dx,
         dy,
         dark: Some(dark),
+        ball_diameter_mm: None,
     }
 }
 

@@ -471,6 +471,7 @@ pub fn calibrate<'py>(
                 dx: f.dx,
                 dy: f.dy,
                 dark: f.dark,
+                ball_diameter_mm: None,
             })
         })
         .collect::<PyResult<Vec<_>>>()?;

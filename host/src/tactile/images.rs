@@ -232,6 +232,7 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
                     dy: load_rgb(&dy)?,
                     dark: dark.as_deref().map(load_rgb).transpose()?,
                     name: name.clone(),
+                    ball_diameter_mm: None,
                 })
             })(),
             (Some(path), None) => Err(ImageError::Unpaired {

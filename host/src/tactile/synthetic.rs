@@ -43,6 +43,7 @@ pub fn ball_presses(
                 dx: pair.dx,
                 dy: pair.dy,
                 dark: None,
+                ball_diameter_mm: None,
             }
         })
         .collect()

@@ -51,6 +51,8 @@ pub struct PressFit {
     pub overridden: bool,
     /// RMS distance of the outline pixels from the circle (px).
     pub fit_rms_px: f64,
+    /// Diameter of the ball the press was made with (mm).
+    pub ball_diameter_mm: f64,
     /// Fraction of the contact's pixels at or near clipping (a channel at or above the
     /// colour filter's `saturation`) in the camera's raw dx and dy frames: their colour
     /// says nothing reliable about the slope. (The filter refuses them on raw frames; with
@@ -74,6 +76,8 @@ pub enum Rejection {
         contact_px: f64,
         /// Largest plausible contact radius (px).
         max_px: f64,
+        /// Diameter of the ball given for the press (mm).
+        ball_mm: f64,
     },
     /// The contact is too small to teach anything (under 3 px or 0.02 mm deep).
     TooSmall {
@@ -110,9 +114,13 @@ impl fmt::Display for Rejection {
                 f,
                 "no contact found (no region departs from flat skin by more than {threshold:.3}): is the ball pressed in, are the reference frames right?"
             ),
-            Rejection::TooLarge { contact_px, max_px } => write!(
+            Rejection::TooLarge {
+                contact_px,
+                max_px,
+                ball_mm,
+            } => write!(
                 f,
-                "contact radius {contact_px:.1} px is larger than a ball of this size can make ({max_px:.1} px at 0.6 of its radius deep): wrong --ball-diameter-mm or --px-per-mm, or light spreading beyond the imprint"
+                "contact radius {contact_px:.1} px is larger than a {ball_mm} mm ball can make ({max_px:.1} px at 0.6 of its radius deep): wrong ball diameter (--ball-diameter-mm, or --with-ball for this press's folder) or --px-per-mm, or light spreading beyond the imprint"
             ),
             Rejection::TooSmall { contact_px } => write!(
                 f,
@@ -230,6 +238,10 @@ pub struct CalibrationPair {
     pub dy: RgbImage,
     /// The LEDs-off frame exposed with them, if any (see [`crate::tactile::ambient`]).
     pub dark: Option<RgbImage>,
+    /// Diameter of the ball this press was made with (mm) when it is not
+    /// [`CalibrationSettings::ball_diameter_mm`]: presses of a smaller ball teach the
+    /// steeper slopes a larger one cannot make (see [`calibrate`]).
+    pub ball_diameter_mm: Option<f64>,
 }
 
 /// Why calibration failed.
@@ -396,6 +408,15 @@ pub fn calibrate(
 ) -> Result<Calibration, CalibrationError> {
     let first = pairs.first().ok_or(CalibrationError::NoPairs)?;
     settings.check()?;
+    if let Some((name, d)) = pairs.iter().find_map(|p| {
+        p.ball_diameter_mm
+            .filter(|d| !(d.is_finite() && *d > 0.0 && *d <= 1000.0))
+            .map(|d| (&p.name, d))
+    }) {
+        return Err(CalibrationError::Settings(format!(
+            "press {name}: its ball diameter (mm) must be a finite number above 0 and up to 1000, got {d}"
+        )));
+    }
     let want = first.dx.dimensions();
     let check = |name: &str, img: &RgbImage| {
         if img.dimensions() == want {
@@ -471,9 +492,9 @@ pub fn calibrate(
         dy: Reference::from_image(&ref_dy),
     };
     let (w, h) = (want.0 as usize, want.1 as usize);
-    let ball_px = settings.ball_diameter_mm / 2.0 * settings.px_per_mm;
-    let max_contact_px =
-        ball_px * (1.0 - (1.0 - MAX_DEPTH_OF_RADIUS) * (1.0 - MAX_DEPTH_OF_RADIUS)).sqrt();
+    let ball_mm =
+        |pair: &CalibrationPair| pair.ball_diameter_mm.unwrap_or(settings.ball_diameter_mm);
+    let ball_px_of = |pair: &CalibrationPair| ball_mm(pair) / 2.0 * settings.px_per_mm;
 
     // A press with a frame without LED light, or its phases swapped, is set aside first,
     // saying so: its colours would otherwise count in the flat skin's noise below, and
@@ -665,10 +686,14 @@ pub fn calibrate(
                 continue;
             }
         };
+        let ball_px = ball_px_of(pair);
+        let max_contact_px =
+            ball_px * (1.0 - (1.0 - MAX_DEPTH_OF_RADIUS) * (1.0 - MAX_DEPTH_OF_RADIUS)).sqrt();
         let reason = if !(circle.r.is_finite() && circle.r <= max_contact_px) {
             Some(Rejection::TooLarge {
                 contact_px: circle.r,
                 max_px: max_contact_px,
+                ball_mm: ball_mm(pair),
             })
         } else if circle.r < 3.0
             || ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt()
@@ -711,6 +736,7 @@ pub fn calibrate(
             depth_mm,
             overridden,
             fit_rms_px,
+            ball_diameter_mm: ball_mm(pair),
             saturated: saturated_in_contact(&raw_pairs[index], &circle, settings.filter.saturation),
         });
         used.push(pair);
@@ -729,7 +755,10 @@ pub fn calibrate(
     let (per_pair, joint): (Vec<[Vec<Sample>; 2]>, Vec<Vec<JointSample>>) = used
         .iter()
         .zip(&presses)
-        .map(|(pair, press)| samples(pair, &refs, &settings.filter, press.circle, ball_px, w, h))
+        .map(|(pair, press)| {
+            let ball_px = ball_px_of(pair);
+            samples(pair, &refs, &settings.filter, press.circle, ball_px, w, h)
+        })
         .unzip();
 
     // Hold out every fifth press for validation when there are enough.
@@ -929,6 +958,7 @@ fn led_light(pairs: &[CalibrationPair], references: Option<PhaseFrames<'_>>) -> 
             dx,
             dy,
             dark: None,
+            ball_diameter_mm: p.ball_diameter_mm,
         });
     }
     let mut darks: Vec<&RgbImage> = pairs.iter().filter_map(|p| p.dark.as_ref()).collect();
@@ -1073,6 +1103,7 @@ mod tests {
             dx,
             dy,
             dark: None,
+            ball_diameter_mm: None,
         };
         // Centred on the boundary: half of the pixel centres inside lie left of it.
         let c = Circle {

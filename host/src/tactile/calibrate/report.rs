@@ -13,6 +13,9 @@ use crate::tactile::model::{Sample, TactileModel};
 pub const REGIONS: usize = 3;
 /// Slopes below this never seen: steeper walls are extrapolated.
 pub const STEEP_SLOPE: f32 = 0.8;
+/// Slopes up to this taught: a note says how walls steeper than the steepest taught
+/// read, and how to teach them (the goal table's steep wall is 1.31).
+pub const TAUGHT_STEEP_SLOPE: f32 = 1.2;
 /// Presses suggested for a good model.
 const SUGGESTED_PRESSES: usize = 10;
 /// A press counts as near an edge when its centre is within this fraction of the frame.
@@ -168,9 +171,15 @@ impl CalibrationReport {
         for (axis, m) in ["x", "y"].iter().zip(max_slope) {
             if m < STEEP_SLOPE {
                 warnings.push(format!(
-                    "slopes along {axis} above {m:.2} were never seen: steeper walls will read shallow (press deeper, or with a smaller ball)"
+                    "slopes along {axis} above {m:.2} were never seen: steeper walls will read shallow (press deeper, or add presses of a smaller ball with --with-ball)"
                 ));
             }
+        }
+        let least = max_slope[0].min(max_slope[1]);
+        if (STEEP_SLOPE..TAUGHT_STEEP_SLOPE).contains(&least) {
+            warnings.push(format!(
+                "the steepest slope taught is {least:.2}: walls steeper than that read short (on our evaluation skins a 1 mm disk with a wall of 1.31 read 0.71-0.76 mm from an 8 or 6 mm ball alone, 0.79-0.97 mm with half the presses made with a 4 mm ball); add presses of a smaller ball (--with-ball 4:DIR) to teach steeper slopes"
+            ));
         }
         // Shallow slopes also come from a ball given larger than it is: its circles then
         // mean shallower presses than were made, and every depth reads shallow. Only the
@@ -339,6 +348,7 @@ mod tests {
             depth_mm: 1.0,
             overridden: false,
             fit_rms_px: 0.5,
+            ball_diameter_mm: 6.0,
             saturated,
         }
     }

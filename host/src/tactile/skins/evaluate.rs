@@ -41,6 +41,9 @@ pub struct EvalConfig {
     pub disk_diameter_mm: f64,
     /// Diameter of the calibration ball (mm); `None`: the family's own.
     pub ball_diameter_mm: Option<f64>,
+    /// Half of the presses made with a second ball of this diameter (mm) instead: a
+    /// smaller one teaches steeper slopes. `None`: one ball.
+    pub second_ball_mm: Option<f64>,
     /// Gradient model.
     pub model: ModelKind,
     /// Solver.
@@ -65,6 +68,7 @@ impl Default for EvalConfig {
             rest_frames: 10,
             disk_diameter_mm: 13.0,
             ball_diameter_mm: None,
+            second_ball_mm: None,
             model: ModelKind::Lut,
             solver: SolverKind::Dct,
             dark: false,
@@ -136,6 +140,8 @@ pub struct FamilyReport {
     pub skin_seed: u64,
     /// Diameter of the ball the skin was calibrated with (mm).
     pub ball_diameter_mm: f64,
+    /// Diameter of the second ball half of the presses were made with (mm), if any.
+    pub second_ball_mm: Option<f64>,
     /// LEDs-off frames used ([`EvalConfig::dark`]).
     pub dark: bool,
     /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
@@ -197,6 +203,7 @@ pub fn evaluate_skin(
         role: String::new(),
         skin_seed: config.skin_seed,
         ball_diameter_mm,
+        second_ball_mm: config.second_ball_mm,
         dark: config.dark,
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         calibration: CalibrationOutcome {
@@ -221,7 +228,28 @@ pub fn evaluate_skin(
     };
     progress("rendering references and presses");
     let refs = skin.references(8);
-    let mut presses = ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed);
+    let mut presses = match config.second_ball_mm {
+        None => ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed),
+        Some(second) => {
+            let half = config.presses / 2;
+            let mut presses = ball_presses(
+                skin,
+                ball_diameter_mm,
+                config.presses - half,
+                config.skin_seed,
+            );
+            presses.extend(
+                ball_presses(skin, second, half, config.skin_seed ^ 0x5EC0)
+                    .into_iter()
+                    .map(|mut p| {
+                        p.name = format!("second-{}", p.name);
+                        p.ball_diameter_mm = Some(second);
+                        p
+                    }),
+            );
+            presses
+        }
+    };
     if !config.dark {
         for p in &mut presses {
             p.dark = None;
@@ -452,6 +480,7 @@ pub fn ball_presses(skin: &Skin, diameter: f64, count: usize, seed: u64) -> Vec<
             dx: f.dx,
             dy: f.dy,
             dark: Some(f.dark),
+            ball_diameter_mm: None,
         })
         .collect()
 }
@@ -570,11 +599,14 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}, {} mm ball; {}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball{}; {}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
         r.ball_diameter_mm,
+        r.second_ball_mm
+            .map(|d| format!(" and {d} mm ball (half the presses each)"))
+            .unwrap_or_default(),
         if r.dark {
             "LEDs-off frames subtracted"
         } else {

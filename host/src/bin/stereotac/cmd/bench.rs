@@ -67,6 +67,10 @@ pub struct SkinsArgs {
     /// (`--list` gives it).
     #[arg(long, allow_negative_numbers = true, value_parser = parse_ball_mm)]
     pub ball_diameter_mm: Option<f64>,
+    /// Make half of the presses with a second ball of this diameter (mm, 2–20): a
+    /// smaller ball teaches the steeper slopes a larger one cannot make.
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_ball_mm)]
+    pub second_ball_mm: Option<f64>,
     /// Frame size.
     #[arg(long, value_parser = parse_size, default_value = "640x480")]
     pub size: (u32, u32),
@@ -204,6 +208,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 presses: a.presses,
                 placements: a.placements,
                 ball_diameter_mm: a.ball_diameter_mm,
+                second_ball_mm: a.second_ball_mm,
                 model: a.model,
                 dark: a.dark,
                 ambient: a.ambient,

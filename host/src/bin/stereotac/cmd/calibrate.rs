@@ -17,7 +17,7 @@ use stereotac::tactile::calibrate::{
     overlay,
 };
 use stereotac::tactile::contact::MAX_THRESHOLD;
-use stereotac::tactile::images::{load_pairs, load_references, load_rgb};
+use stereotac::tactile::images::{ImageError, load_pairs, load_references, load_rgb};
 
 use crate::console::naming_file;
 use crate::progress::bar;
@@ -32,6 +32,13 @@ pub struct Args {
     /// Diameter of the calibration ball.
     #[arg(long, allow_negative_numbers = true)]
     pub ball_diameter_mm: f64,
+    /// More presses, made with another ball: DIAMETER_MM:PATH, PATH a folder of pairs or
+    /// a recording like DIR (repeatable). A ball smaller than --ball-diameter-mm teaches
+    /// the steep walls the larger one cannot make (a 1.31 wall read 0.71-0.76 of its
+    /// depth from an 8 or 6 mm ball alone, 0.79-0.97 with half the presses of a 4 mm
+    /// ball). Their names get PATH's name in front: `small-press01`.
+    #[arg(long, value_name = "DIAMETER_MM:PATH", value_parser = parse_with_ball)]
+    pub with_ball: Vec<(f64, PathBuf)>,
     /// Image scale.
     #[arg(long, allow_negative_numbers = true, default_value_t = 15.0)]
     pub px_per_mm: f64,
@@ -152,26 +159,33 @@ pub fn run(a: Args) -> Result<()> {
     // The references first: a folder's press of another size is set aside undecoded.
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
-    let (pairs, unreadable) = if a.dir.is_file() {
-        (recorded_pairs(&a.dir)?, Vec::new())
-    } else {
-        let want = refs.as_ref().map(|(dx, _)| dx.dimensions());
-        let folder = load_pairs(&a.dir, want).map_err(|e| {
-            let e = anyhow::Error::from(e);
-            // A `record --png` folder: frames with an index, not named pairs.
-            if a.dir.join("index.jsonl").is_file() {
-                e.context(format!(
-                    "{} is a `record --png` folder: calibrate takes NAME_dx.png / NAME_dy.png \
-                     pairs or an MCAP recording; record the presses to MCAP (`record --out \
-                     presses.mcap`) and give that file, or `export` it to pairs",
-                    a.dir.display()
-                ))
-            } else {
-                e
+    let want = refs.as_ref().map(|(dx, _)| dx.dimensions());
+    let (mut pairs, mut unreadable) = load_presses(&a.dir, want)?;
+    for (diameter, path) in &a.with_ball {
+        let prefix = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "more".to_string());
+        let (more, more_unreadable) = load_presses(path, want)?;
+        unreadable.extend(
+            more_unreadable
+                .into_iter()
+                .map(|(name, why)| (format!("{prefix}-{name}"), why)),
+        );
+        for mut pair in more {
+            pair.name = format!("{prefix}-{}", pair.name);
+            pair.ball_diameter_mm = Some(*diameter);
+            if pairs.iter().any(|p| p.name == pair.name) {
+                anyhow::bail!(
+                    "{}: two presses are named {:?}: give the folders of the two balls \
+                     different names",
+                    path.display(),
+                    pair.name
+                );
             }
-        })?;
-        (folder.pairs, folder.set_aside)
-    };
+            pairs.push(pair);
+        }
+    }
     // An override naming no press would change nothing: a slip in the name, said now.
     let mut unknown: Vec<&String> = settings
         .overrides
@@ -352,6 +366,52 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// Presses, and the names of those whose files cannot be read with the reason.
+type Presses = (Vec<CalibrationPair>, Vec<(String, ImageError)>);
+
+/// The presses at `path`: a recording's pairs, or a folder's pairs and the names of
+/// those whose files cannot be read.
+fn load_presses(path: &Path, want: Option<(u32, u32)>) -> Result<Presses> {
+    if path.is_file() {
+        return Ok((recorded_pairs(path)?, Vec::new()));
+    }
+    let folder = load_pairs(path, want).map_err(|e| {
+        let e = anyhow::Error::from(e);
+        // A `record --png` folder: frames with an index, not named pairs.
+        if path.join("index.jsonl").is_file() {
+            e.context(format!(
+                "{} is a `record --png` folder: calibrate takes NAME_dx.png / NAME_dy.png \
+                 pairs or an MCAP recording; record the presses to MCAP (`record --out \
+                 presses.mcap`) and give that file, or `export` it to pairs",
+                path.display()
+            ))
+        } else {
+            e
+        }
+    })?;
+    Ok((folder.pairs, folder.set_aside))
+}
+
+/// `DIAMETER_MM:PATH` of `--with-ball`.
+fn parse_with_ball(s: &str) -> Result<(f64, PathBuf), String> {
+    let (d, path) = s
+        .split_once(':')
+        .ok_or_else(|| format!("expected DIAMETER_MM:PATH (e.g. 4:presses-4mm), got {s:?}"))?;
+    let d: f64 = d
+        .trim()
+        .parse()
+        .map_err(|_| format!("{d:?} is not a ball diameter in mm (e.g. 4:presses-4mm)"))?;
+    if !(d.is_finite() && d > 0.0 && d <= 1000.0) {
+        return Err(format!(
+            "ball diameter {d} mm: give a number above 0 and up to 1000"
+        ));
+    }
+    if path.is_empty() {
+        return Err("no PATH after the diameter (e.g. 4:presses-4mm)".to_string());
+    }
+    Ok((d, PathBuf::from(path)))
+}
+
 /// One overlay image per press: `DIR/NAME.png`.
 fn write_overlays(dir: &Path, pairs: &[CalibrationPair], cal: &Calibration) -> Result<()> {
     for pair in pairs {
@@ -375,7 +435,13 @@ fn recorded_pairs(path: &std::path::Path) -> Result<Vec<CalibrationPair>> {
     let mut pairs = Vec::new();
     let truncated = replay::pairs(path, |pair| -> Result<()> {
         if let replay::RecordedPair::Gradient { name, dx, dy, dark } = pair {
-            pairs.push(CalibrationPair { name, dx, dy, dark });
+            pairs.push(CalibrationPair {
+                name,
+                dx,
+                dy,
+                dark,
+                ball_diameter_mm: None,
+            });
         }
         Ok(())
     })
