@@ -355,6 +355,27 @@ fn arguments() {
         }
         refused(&args, &[says]);
     }
+    // A second ball's presses: DIAMETER_MM:PATH, refused at parsing when it is not.
+    for (value, says) in [
+        ("presses-4mm", "expected DIAMETER_MM:PATH"),
+        ("four:presses-4mm", "not a ball diameter in mm"),
+        ("0:presses-4mm", "ball diameter 0 mm"),
+        ("nan:presses-4mm", "ball diameter NaN mm"),
+        ("4:", "no PATH after the diameter"),
+    ] {
+        let model = dir.join("m.json");
+        let args = [
+            "calibrate",
+            s(&dir),
+            "--out",
+            s(&model),
+            "--ball-diameter-mm",
+            "8",
+            "--with-ball",
+            value,
+        ];
+        refused(&args, &["--with-ball", says]);
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -1276,7 +1276,7 @@ fn depth_beyond_the_skin_is_refused_with_the_reason() {
             assert!(!rejected.is_empty());
             for r in &rejected {
                 assert!(
-                    matches!(r.reason, Rejection::DeeperThanSkin { depth_mm, skin_mm: 0.3 } if depth_mm > 0.3),
+                    matches!(r.reason, Rejection::DeeperThanSkin { depth_mm, skin_mm: 0.3, .. } if depth_mm > 0.3),
                     "{}: {}",
                     r.name,
                     r.reason
@@ -1580,6 +1580,17 @@ fn leds_off_frames_make_a_model_on_led_light() {
     );
     let back = TactileModel::from_json("m", &cal.model.to_json()).unwrap();
     assert_eq!(back, cal.model, "the estimate is saved with the model");
+    // A press's own ball is kept through the LED light's pairs.
+    let mut given = presses.clone();
+    given[3].ball_diameter_mm = Some(6.2);
+    let own = calibrate(&given, Some(references), &settings(&optics), |_| {}).unwrap();
+    let ball_of = |name: &str| {
+        own.presses
+            .iter()
+            .find(|p| p.name == name)
+            .map(|p| p.ball_diameter_mm)
+    };
+    assert_eq!((ball_of("p3"), ball_of("p4")), (Some(6.2), Some(6.0)));
 
     let mut rec = Reconstructor::new(
         cal.model.clone(),
@@ -1913,7 +1924,7 @@ fn a_folder_of_huge_frames_is_refused_before_decoding() {
                 size: (8000, 8000),
                 ..
             }
-        ) && err.to_string().contains("would take 4.6 GB decoded"),
+        ) && err.to_string().contains("frames to 4.6 GB"),
         "{err}"
     );
     let err = load_pairs(&dir, Some((64, 48))).unwrap_err();
@@ -1922,4 +1933,96 @@ fn a_folder_of_huge_frames_is_refused_before_decoding() {
         "{err}"
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `calibrate --with-ball 4:DIR`: the second folder's presses are named after it, fitted
+/// with their own ball (the report says which), and one too large for its ball says so.
+#[test]
+fn the_cli_calibrates_from_folders_of_two_balls() {
+    let optics = optics();
+    let dir = std::env::temp_dir().join(format!("stereotac-two-balls-{}", std::process::id()));
+    let (large, small) = (dir.join("large"), dir.join("small"));
+    for (folder, diameter, seed) in [(&large, 6.0, 11), (&small, 4.0, 12)] {
+        std::fs::create_dir_all(folder).unwrap();
+        for p in ball_presses(&optics, 8, diameter, seed) {
+            p.dx.save(folder.join(format!("{}_dx.png", p.name)))
+                .unwrap();
+            p.dy.save(folder.join(format!("{}_dy.png", p.name)))
+                .unwrap();
+        }
+    }
+    // A press of the 6 mm ball among the 4 mm ones: too large for a 4 mm ball.
+    let stray = render(&optics, &ball(10.0, 8.0, 1.4), 77);
+    stray.dx.save(small.join("stray_dx.png")).unwrap();
+    stray.dy.save(small.join("stray_dy.png")).unwrap();
+    let (ref_dx, ref_dy) = (dir.join("ref_dx.png"), dir.join("ref_dy.png"));
+    let refs = reference_frames(&optics);
+    refs.0.save(&ref_dx).unwrap();
+    refs.1.save(&ref_dy).unwrap();
+    let (model, report) = (dir.join("model.json"), dir.join("report.json"));
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args([
+            "calibrate",
+            &s(&large),
+            "--ball-diameter-mm",
+            "6",
+            "--px-per-mm",
+        ])
+        .arg(optics.px_per_mm.to_string())
+        .args(["--ref-dx", &s(&ref_dx), "--ref-dy", &s(&ref_dy)])
+        .args(["--with-ball", &format!("4:{}", s(&small))])
+        .args(["--out", &s(&model), "--report", &s(&report)])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let presses = report["presses"].as_array().unwrap();
+    let balls: Vec<(String, f64)> = presses
+        .iter()
+        .map(|p| {
+            (
+                p["name"].as_str().unwrap().to_string(),
+                p["ball_diameter_mm"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    assert!(
+        balls
+            .iter()
+            .any(|(n, b)| n.starts_with("small-press") && *b == 4.0),
+        "{balls:?}"
+    );
+    assert!(
+        balls
+            .iter()
+            .any(|(n, b)| n.starts_with("press") && *b == 6.0),
+        "{balls:?}"
+    );
+    assert!(
+        balls
+            .iter()
+            .all(|(n, b)| n.starts_with("small-") == (*b == 4.0)),
+        "{balls:?}"
+    );
+    // The stray press is set aside as too large for the ball it was given.
+    let stray = report["rejected"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["name"] == "small-stray")
+        .unwrap_or_else(|| panic!("{}", report["rejected"]));
+    assert_eq!(stray["reason"]["kind"], "too_large", "{stray}");
+    assert_eq!(stray["reason"]["ball_mm"].as_f64(), Some(4.0), "{stray}");
+    assert!(
+        stdout.contains("small-stray") && stdout.contains("larger than a 4 mm ball"),
+        "{stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -446,11 +446,15 @@ impl PyTactileResult {
 }
 
 /// Calibrates a model from ball presses: `presses` a list of `(dx, dy)` or
-/// `(dx, dy, dark)` uint8 (height, width, 3) arrays; `ref` the no-contact frames.
+/// `(dx, dy, dark)` uint8 (height, width, 3) arrays; `ref` the no-contact frames;
+/// `press_balls_mm` the ball of each press (mm) when they were made with more than one
+/// (presses of a smaller ball teach the steep walls a larger one cannot make), else
+/// every press is `ball_diameter_mm`'s.
 /// Returns the model and the report (a dict: presses used, presses set aside with
 /// reasons, fit per region, coverage, warnings), as `stereotac calibrate --report` writes.
 #[pyfunction]
-#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5))]
+#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None))]
+#[allow(clippy::too_many_arguments)] // Python keyword arguments, one per setting
 pub fn calibrate<'py>(
     py: Python<'py>,
     presses: &Bound<'py, PyAny>,
@@ -459,8 +463,16 @@ pub fn calibrate<'py>(
     r#ref: Option<&Bound<'py, PyAny>>,
     skin_thickness_mm: f64,
     min_presses: usize,
+    press_balls_mm: Option<Vec<f64>>,
 ) -> PyResult<(PyTactileModel, Bound<'py, PyAny>)> {
     let items: Vec<Bound<'py, PyAny>> = presses.try_iter()?.collect::<PyResult<_>>()?;
+    if let Some(balls) = press_balls_mm.as_ref().filter(|b| b.len() != items.len()) {
+        return Err(crate::errors::bad_input(format!(
+            "press_balls_mm has {} diameters for {} presses: give one per press",
+            balls.len(),
+            items.len()
+        )));
+    }
     let pairs = items
         .iter()
         .enumerate()
@@ -471,7 +483,7 @@ pub fn calibrate<'py>(
                 dx: f.dx,
                 dy: f.dy,
                 dark: f.dark,
-                ball_diameter_mm: None,
+                ball_diameter_mm: press_balls_mm.as_ref().map(|b| b[i]),
             })
         })
         .collect::<PyResult<Vec<_>>>()?;

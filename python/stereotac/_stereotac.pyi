@@ -77,8 +77,10 @@ def calibrate(
     ref: Optional[_Frames] = None,
     skin_thickness_mm: float = 3.0,
     min_presses: int = 5,
+    press_balls_mm: Optional[Sequence[float]] = None,
 ) -> Tuple[TactileModel, Dict[str, Any]]:
-    """A model from ball presses, and the calibration report."""
+    """A model from ball presses, and the calibration report; `press_balls_mm` gives
+    each press's ball when they were made with more than one."""
 
 def load_rgb(path: _Path) -> npt.NDArray[np.uint8]:
     """An 8-bit image file as RGB (height, width, 3), read as the CLI reads it."""

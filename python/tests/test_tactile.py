@@ -145,3 +145,20 @@ def test_calibrate_equals_cli(cli, press_pairs, scene_pairs, tmp_path):
         stereotac.calibrate(presses, -1.0)
     with pytest.raises(stereotac.BadInputError, match="no calibration pairs"):
         stereotac.calibrate([], 6.0)
+    # Each press's ball: the same ball given per press is the same model; one diameter
+    # short, or one that is not a number, is refused.
+    same, _ = stereotac.calibrate(presses, 6.0, press_balls_mm=[6.0] * len(presses))
+    np.testing.assert_array_equal(
+        same.reconstruct(dx, dy, dark=dark).depth, model.reconstruct(dx, dy, dark=dark).depth
+    )
+    # A smaller ball makes the same circle a deeper press.
+    _, small = stereotac.calibrate(presses, 6.0, press_balls_mm=[5.5] * len(presses))
+    _, large = stereotac.calibrate(presses, 6.0)
+    large_depth = {p["name"]: p["depth_mm"] for p in large["presses"]}
+    assert small["presses"] and all(p["ball_diameter_mm"] == 5.5 for p in small["presses"])
+    for p in small["presses"]:
+        assert p["depth_mm"] > large_depth[p["name"]], p["name"]
+    with pytest.raises(stereotac.BadInputError, match="one per press"):
+        stereotac.calibrate(presses, 6.0, press_balls_mm=[6.0] * (len(presses) - 1))
+    with pytest.raises(stereotac.BadInputError, match="press002"):
+        stereotac.calibrate(presses, 6.0, press_balls_mm=[6.0, 6.0, float("nan")] + [6.0] * (len(presses) - 3))

@@ -72,8 +72,9 @@ pub enum ImageError {
     /// The folder's frames of the size taken would need more memory decoded than
     /// [`crate::limits::MAX_CALIBRATION_FRAMES`]: refused before any is decoded.
     #[error(
-        "{}: its {frames} frames of {}×{} px would take {:.1} GB decoded (at most {:.1} GB): \
-         calibrate from fewer presses (30 are plenty) or smaller frames",
+        "{}: its {frames} frames of {}×{} px would bring the calibration's frames to {:.1} GB \
+         decoded (at most {:.1} GB): calibrate from fewer presses (30 are plenty) or smaller \
+         frames",
         path.display(),
         size.0,
         size.1,
@@ -87,7 +88,7 @@ pub enum ImageError {
         frames: usize,
         /// Their size.
         size: (u32, u32),
-        /// What they would take decoded.
+        /// What they would take decoded, with the folders read before it.
         bytes: u64,
     },
     /// One reference frame given without the other.
@@ -152,6 +153,16 @@ pub fn load_references(
 /// than most pairs' dx frames, is set aside undecoded (a folder of huge images costs
 /// their headers only, and one odd press costs that press).
 pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, ImageError> {
+    load_more_pairs(dir, want, 0)
+}
+
+/// [`load_pairs`] for a folder read after others whose frames took `decoded` bytes: the
+/// bound on a calibration's frames holds for all of them together.
+pub fn load_more_pairs(
+    dir: &Path,
+    want: Option<(u32, u32)>,
+    decoded: u64,
+) -> Result<FolderPairs, ImageError> {
     let dir_error = |source| ImageError::Dir {
         path: dir.to_path_buf(),
         source,
@@ -199,7 +210,7 @@ pub fn load_pairs(dir: &Path, want: Option<(u32, u32)>) -> Result<FolderPairs, I
             .filter(|[dx, dy, _]| dx.is_some() && dy.is_some())
             .map(|[_, _, dark]| 2 + usize::from(dark.is_some()))
             .sum();
-        let bytes = frames as u64 * u64::from(size.0) * u64::from(size.1) * 3;
+        let bytes = decoded + frames as u64 * u64::from(size.0) * u64::from(size.1) * 3;
         if bytes > crate::limits::MAX_CALIBRATION_FRAMES {
             return Err(ImageError::TooMuch {
                 path: dir.to_path_buf(),

@@ -90,6 +90,8 @@ pub enum Rejection {
         depth_mm: f64,
         /// The skin's thickness (mm).
         skin_mm: f64,
+        /// Diameter of the ball given for the press (mm).
+        ball_mm: f64,
     },
     /// The pair does not look like this sensor's dx and dy phases (a frame without LED
     /// light, or the two given the wrong way round): said instead of "no contact".
@@ -126,9 +128,13 @@ impl fmt::Display for Rejection {
                 f,
                 "contact radius {contact_px:.1} px is too small to calibrate with: press deeper"
             ),
-            Rejection::DeeperThanSkin { depth_mm, skin_mm } => write!(
+            Rejection::DeeperThanSkin {
+                depth_mm,
+                skin_mm,
+                ball_mm,
+            } => write!(
                 f,
-                "the circle means a press {depth_mm:.2} mm deep, deeper than the {skin_mm} mm skin: wrong --skin-thickness-mm, --ball-diameter-mm or --px-per-mm, or light spreading beyond the imprint"
+                "with a {ball_mm} mm ball the circle means a press {depth_mm:.2} mm deep, deeper than the {skin_mm} mm skin: wrong --skin-thickness-mm, ball diameter (--ball-diameter-mm, or --with-ball for this press's folder) or --px-per-mm, or light spreading beyond the imprint"
             ),
             Rejection::NotCircular {
                 rms_px,
@@ -717,6 +723,7 @@ pub fn calibrate(
             (depth_mm > settings.skin_thickness_mm).then_some(Rejection::DeeperThanSkin {
                 depth_mm,
                 skin_mm: settings.skin_thickness_mm,
+                ball_mm: ball_mm(pair),
             })
         });
         if let Some(reason) = reason {

@@ -175,18 +175,30 @@ impl CalibrationReport {
                 ));
             }
         }
-        let least = max_slope[0].min(max_slope[1]);
+        let (least_axis, least) = if max_slope[1] < max_slope[0] {
+            ("y", max_slope[1])
+        } else {
+            ("x", max_slope[0])
+        };
         if (STEEP_SLOPE..TAUGHT_STEEP_SLOPE).contains(&least) {
+            let smallest = presses
+                .iter()
+                .map(|p| p.ball_diameter_mm)
+                .fold(f64::INFINITY, f64::min);
+            let fix = if smallest < model.ball_diameter_mm {
+                format!("press the {smallest} mm ball deeper, or add presses of a smaller one")
+            } else {
+                "add presses of a smaller ball (--with-ball 4:DIR; in Python, press_balls_mm) to teach steeper slopes".to_string()
+            };
             warnings.push(format!(
-                "the steepest slope taught is {least:.2}: walls steeper than that read short (on our evaluation skins a 1 mm disk with a wall of 1.31 read 0.71-0.76 mm from an 8 or 6 mm ball alone, 0.79-0.97 mm with half the presses made with a 4 mm ball); add presses of a smaller ball (--with-ball 4:DIR) to teach steeper slopes"
+                "the steepest slope taught along {least_axis} is {least:.2}: walls steeper than that read short (on our evaluation skins a 1 mm disk with a wall of 1.31 read 0.71-0.76 mm from an 8 or 6 mm ball alone, 0.79-0.97 mm with half the presses made with a 4 mm ball); {fix}"
             ));
         }
         // Shallow slopes also come from a ball given larger than it is: its circles then
         // mean shallower presses than were made, and every depth reads shallow. Only the
-        // user knows how deep they pressed.
-        if max_slope.iter().any(|&m| m < STEEP_SLOPE) {
-            warnings.extend(press_depth_warning(presses));
-        }
+        // user knows how deep they pressed. Judged per ball: the presses of a second,
+        // smaller ball teach steep slopes whatever the first one's diameter says.
+        warnings.extend(press_depth_warnings(presses, model.px_per_mm));
 
         warnings.extend(saturation_warning(presses));
 
@@ -226,17 +238,44 @@ impl CalibrationReport {
 }
 
 /// How deep the presses' circles say they went, for the user to hold against what they
-/// did (a ball given larger than it is fits the same circles with shallower presses).
-fn press_depth_warning(presses: &[PressFit]) -> Option<String> {
-    let depths = presses.iter().map(|p| p.depth_mm).filter(|d| d.is_finite());
-    let (lo, hi) = depths.fold((f64::INFINITY, 0.0f64), |(lo, hi), d| {
-        (lo.min(d), hi.max(d))
-    });
-    (lo <= hi).then(|| {
-        format!(
-            "with the ball diameter given, the presses' circles mean presses {lo:.2}-{hi:.2} mm deep: if they went deeper, the ball is smaller than --ball-diameter-mm says and every depth will read shallow"
-        )
-    })
+/// did (a ball given larger than it is fits the same circles with shallower presses):
+/// one warning per ball whose presses' steepest rim slope is under [`STEEP_SLOPE`].
+fn press_depth_warnings(presses: &[PressFit], px_per_mm: f64) -> Vec<String> {
+    let mut balls: Vec<f64> = presses.iter().map(|p| p.ball_diameter_mm).collect();
+    balls.sort_by(f64::total_cmp);
+    balls.dedup();
+    let two = balls.len() > 1;
+    balls
+        .into_iter()
+        .filter_map(|ball| {
+            let of_ball = || presses.iter().filter(move |p| p.ball_diameter_mm == ball);
+            let radius_px = ball / 2.0 * px_per_mm;
+            let steepest = of_ball()
+                .map(|p| {
+                    let r = p.circle.r.min(radius_px);
+                    r / (radius_px * radius_px - r * r).sqrt()
+                })
+                .filter(|s| s.is_finite())
+                .fold(0.0f64, f64::max);
+            if steepest >= STEEP_SLOPE as f64 {
+                return None;
+            }
+            let depths = of_ball().map(|p| p.depth_mm).filter(|d| d.is_finite());
+            let (lo, hi) = depths.fold((f64::INFINITY, 0.0f64), |(lo, hi), d| {
+                (lo.min(d), hi.max(d))
+            });
+            (lo <= hi).then(|| {
+                let (given, flag) = if two {
+                    (format!("the {ball} mm ball given"), "its --ball-diameter-mm or --with-ball")
+                } else {
+                    ("the ball diameter given".to_string(), "--ball-diameter-mm")
+                };
+                format!(
+                    "with {given}, the presses' circles mean presses {lo:.2}-{hi:.2} mm deep: if they went deeper, the ball is smaller than {flag} says and every depth will read shallow"
+                )
+            })
+        })
+        .collect()
 }
 
 /// The warning when presses saturate the camera inside their contact: the user can fix
@@ -373,10 +412,11 @@ mod tests {
         assert!(w.contains("exposure"), "{w}");
     }
 
-    /// The presses' depths, from the shallowest to the deepest, and the ball named.
+    /// The presses' depths, from the shallowest to the deepest, and the ball named; per
+    /// ball, and only for a ball whose presses make no slope of 0.8 at their rim.
     #[test]
     fn press_depths_are_said_with_the_ball_as_a_cause() {
-        assert_eq!(press_depth_warning(&[]), None);
+        assert!(press_depth_warnings(&[], 15.0).is_empty());
         let mut presses = [
             press("a", [0.0; 2]),
             press("b", [0.0; 2]),
@@ -385,8 +425,26 @@ mod tests {
         for (p, d) in presses.iter_mut().zip([0.5, 0.36, f64::NAN]) {
             p.depth_mm = d;
         }
-        let w = press_depth_warning(&presses).unwrap();
-        assert!(w.contains("presses 0.36-0.50 mm deep"), "{w}");
-        assert!(w.contains("--ball-diameter-mm"), "{w}");
+        // Circles of 30 px from a 6 mm ball at 30 px/mm: rim slope 0.35.
+        let w = press_depth_warnings(&presses, 30.0);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].contains("presses 0.36-0.50 mm deep"), "{}", w[0]);
+        assert!(w[0].contains("--ball-diameter-mm"), "{}", w[0]);
+        // At 15 px/mm the same circles make slope 0.89: nothing to say.
+        assert!(press_depth_warnings(&presses, 15.0).is_empty());
+        // A second, smaller ball (rim slope 1.33) is not held against the first.
+        let mut two = presses.to_vec();
+        let mut small = press("s", [0.0; 2]);
+        (small.ball_diameter_mm, small.depth_mm) = (2.5, 0.8);
+        two.push(small);
+        let w = press_depth_warnings(&two, 30.0);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("the 6 mm ball given")
+                && w[0].contains("0.36-0.50")
+                && w[0].contains("--with-ball"),
+            "{}",
+            w[0]
+        );
     }
 }

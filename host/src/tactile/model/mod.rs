@@ -302,7 +302,8 @@ pub struct TactileModel {
     pub height: usize,
     /// Scale (px per mm).
     pub px_per_mm: f64,
-    /// Ball used for calibration (mm).
+    /// Ball used for calibration (mm); when presses of a second ball were added, the
+    /// first one's (each press's ball is in the calibration report).
     pub ball_diameter_mm: f64,
     /// Thickness of the sensor's skin (mm): nothing presses deeper, so a reconstruction
     /// deeper than this is refused ([`crate::tactile::reconstruct::ReconstructError::DepthBeyondSkin`]).

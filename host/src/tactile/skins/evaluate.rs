@@ -229,17 +229,14 @@ pub fn evaluate_skin(
     progress("rendering references and presses");
     let refs = skin.references(8);
     let mut presses = match config.second_ball_mm {
-        None => ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed),
+        None => ball_presses(skin, ball_diameter_mm, config.presses, config.skin_seed, 0),
         Some(second) => {
             let half = config.presses / 2;
-            let mut presses = ball_presses(
-                skin,
-                ball_diameter_mm,
-                config.presses - half,
-                config.skin_seed,
-            );
+            let first = config.presses - half;
+            let mut presses = ball_presses(skin, ball_diameter_mm, first, config.skin_seed, 0);
             presses.extend(
-                ball_presses(skin, second, half, config.skin_seed ^ 0x5EC0)
+                // Frames numbered after the first ball's: their own camera noise.
+                ball_presses(skin, second, half, config.skin_seed ^ 0x5EC0, first as u64)
                     .into_iter()
                     .map(|mut p| {
                         p.name = format!("second-{}", p.name);
@@ -438,8 +435,15 @@ fn render_all(
 }
 
 /// `count` presses of a ball of `diameter` mm, 0.8–1.2 mm deep (at most half its radius):
-/// a quarter of them centred on a frame edge, the rest anywhere inside.
-pub fn ball_presses(skin: &Skin, diameter: f64, count: usize, seed: u64) -> Vec<CalibrationPair> {
+/// a quarter of them centred on a frame edge, the rest anywhere inside. Frame numbers
+/// (which seed the camera noise) start at 1000 + `first_frame`.
+pub fn ball_presses(
+    skin: &Skin,
+    diameter: f64,
+    count: usize,
+    seed: u64,
+    first_frame: u64,
+) -> Vec<CalibrationPair> {
     let mut rng = Rng::new(seed ^ 0xBA11);
     let ppm = skin.px_per_mm();
     let (w, h) = skin.size();
@@ -472,7 +476,7 @@ pub fn ball_presses(skin: &Skin, diameter: f64, count: usize, seed: u64) -> Vec<
             }
         })
         .collect();
-    render_all(skin, &scenes, 1000, AmbientScale::STEADY)
+    render_all(skin, &scenes, 1000 + first_frame, AmbientScale::STEADY)
         .into_iter()
         .enumerate()
         .map(|(k, f)| CalibrationPair {

@@ -17,7 +17,7 @@ use stereotac::tactile::calibrate::{
     overlay,
 };
 use stereotac::tactile::contact::MAX_THRESHOLD;
-use stereotac::tactile::images::{ImageError, load_pairs, load_references, load_rgb};
+use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
 
 use crate::console::naming_file;
 use crate::progress::bar;
@@ -34,9 +34,10 @@ pub struct Args {
     pub ball_diameter_mm: f64,
     /// More presses, made with another ball: DIAMETER_MM:PATH, PATH a folder of pairs or
     /// a recording like DIR (repeatable). A ball smaller than --ball-diameter-mm teaches
-    /// the steep walls the larger one cannot make (a 1.31 wall read 0.71-0.76 of its
-    /// depth from an 8 or 6 mm ball alone, 0.79-0.97 with half the presses of a 4 mm
-    /// ball). Their names get PATH's name in front: `small-press01`.
+    /// the steep walls the larger one cannot make (on our evaluation skins a 1.31 wall
+    /// read 0.71-0.76 of its depth from an 8 or 6 mm ball alone, 0.79-0.97 with half the
+    /// presses of a 4 mm ball). Their names get PATH's name in front (a folder `small`:
+    /// `small-press01`).
     #[arg(long, value_name = "DIAMETER_MM:PATH", value_parser = parse_with_ball)]
     pub with_ball: Vec<(f64, PathBuf)>,
     /// Image scale.
@@ -56,7 +57,8 @@ pub struct Args {
     #[arg(long, requires = "ref_dx")]
     pub ref_dark: Option<PathBuf>,
     /// JSON file of contact circles to use instead of fitted ones:
-    /// {"NAME": {"cx": px, "cy": px, "r": px}, ...}.
+    /// {"NAME": {"cx": px, "cy": px, "r": px}, ...} (a --with-ball press by its name
+    /// with the folder's in front: "small-press01").
     #[arg(long)]
     pub overrides: Option<PathBuf>,
     /// Fewest usable presses to calibrate from (presses that cannot be fitted are set
@@ -160,31 +162,37 @@ pub fn run(a: Args) -> Result<()> {
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
     let want = refs.as_ref().map(|(dx, _)| dx.dimensions());
-    let (mut pairs, mut unreadable) = load_presses(&a.dir, want)?;
+    let (mut pairs, mut unreadable) = load_presses(&a.dir, want, 0)?;
+    // Every source's names, for a slip in the overrides file: (source, first names).
+    let mut sources = vec![(a.dir.clone(), first_names(&pairs))];
+    // The second ball's frames at the first folder's size (an odd one is set aside), and
+    // within the bound on a calibration's frames together.
+    let want = want.or_else(|| pairs.first().map(|p| p.dx.dimensions()));
     for (diameter, path) in &a.with_ball {
-        let prefix = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "more".to_string());
-        let (more, more_unreadable) = load_presses(path, want)?;
+        let prefix = source_name(path);
+        let decoded = decoded_bytes(&pairs);
+        let (more, more_unreadable) = load_presses(path, want, decoded)?;
         unreadable.extend(
             more_unreadable
                 .into_iter()
                 .map(|(name, why)| (format!("{prefix}-{name}"), why)),
         );
+        let before = pairs.len();
         for mut pair in more {
             pair.name = format!("{prefix}-{}", pair.name);
             pair.ball_diameter_mm = Some(*diameter);
-            if pairs.iter().any(|p| p.name == pair.name) {
+            if let Some(clash) = pairs[..before].iter().find(|p| p.name == pair.name) {
                 anyhow::bail!(
-                    "{}: two presses are named {:?}: give the folders of the two balls \
-                     different names",
+                    "--with-ball {diameter}:{}: its press {:?} has the name of a press read \
+                     before it ({:?}): give the folders of the balls different names",
                     path.display(),
-                    pair.name
+                    pair.name,
+                    clash.name
                 );
             }
             pairs.push(pair);
         }
+        sources.push((path.clone(), first_names(&pairs[before..])));
     }
     // An override naming no press would change nothing: a slip in the name, said now.
     let mut unknown: Vec<&String> = settings
@@ -194,17 +202,19 @@ pub fn run(a: Args) -> Result<()> {
         .collect();
     unknown.sort();
     if let (Some(first), Some(file)) = (unknown.first(), &a.overrides) {
-        let names: Vec<&str> = pairs.iter().take(5).map(|p| p.name.as_str()).collect();
+        let names: Vec<String> = sources
+            .iter()
+            .map(|(path, names)| format!("{} in {}", names, path.display()))
+            .collect();
         anyhow::bail!(
-            "{}: no press is named {first:?}{} (the presses are named {}{})",
+            "{}: no press is named {first:?}{} (the presses are named {})",
             file.display(),
             if unknown.len() > 1 {
                 format!(" (nor {} other name(s) there)", unknown.len() - 1)
             } else {
                 String::new()
             },
-            names.join(", "),
-            if pairs.len() > 5 { ", …" } else { "" }
+            names.join("; ")
         );
     }
     // A press whose files cannot be read costs that press only: said now (before the
@@ -371,11 +381,11 @@ type Presses = (Vec<CalibrationPair>, Vec<(String, ImageError)>);
 
 /// The presses at `path`: a recording's pairs, or a folder's pairs and the names of
 /// those whose files cannot be read.
-fn load_presses(path: &Path, want: Option<(u32, u32)>) -> Result<Presses> {
+fn load_presses(path: &Path, want: Option<(u32, u32)>, decoded: u64) -> Result<Presses> {
     if path.is_file() {
         return Ok((recorded_pairs(path)?, Vec::new()));
     }
-    let folder = load_pairs(path, want).map_err(|e| {
+    let folder = load_more_pairs(path, want, decoded).map_err(|e| {
         let e = anyhow::Error::from(e);
         // A `record --png` folder: frames with an index, not named pairs.
         if path.join("index.jsonl").is_file() {
@@ -390,6 +400,44 @@ fn load_presses(path: &Path, want: Option<(u32, u32)>) -> Result<Presses> {
         }
     })?;
     Ok((folder.pairs, folder.set_aside))
+}
+
+/// The name a `--with-ball` source's presses get in front: a folder's name (all of it:
+/// `balls.4mm`), a recording's without its extension.
+fn source_name(path: &Path) -> String {
+    let path = if path.file_name().is_none() {
+        // `.`, `..` or a path ending in them.
+        path.canonicalize().unwrap_or_else(|_| path.to_path_buf())
+    } else {
+        path.to_path_buf()
+    };
+    let name = if path.is_file() {
+        path.file_stem()
+    } else {
+        path.file_name()
+    };
+    name.map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "more".to_string())
+}
+
+/// The first few names of `pairs`, for a message.
+fn first_names(pairs: &[CalibrationPair]) -> String {
+    let names: Vec<&str> = pairs.iter().take(3).map(|p| p.name.as_str()).collect();
+    format!(
+        "{}{}",
+        names.join(", "),
+        if pairs.len() > 3 { ", …" } else { "" }
+    )
+}
+
+/// What `pairs`' frames take decoded (bytes).
+fn decoded_bytes(pairs: &[CalibrationPair]) -> u64 {
+    pairs
+        .iter()
+        .flat_map(|p| [Some(&p.dx), Some(&p.dy), p.dark.as_ref()])
+        .flatten()
+        .map(|f| f.as_raw().len() as u64)
+        .sum()
 }
 
 /// `DIAMETER_MM:PATH` of `--with-ball`.
