@@ -360,6 +360,7 @@ fn arguments() {
         ("presses-4mm", "expected DIAMETER_MM:PATH"),
         ("four:presses-4mm", "not a ball diameter in mm"),
         ("0:presses-4mm", "ball diameter 0 mm"),
+        ("-3:presses-4mm", "ball diameter -3 mm"),
         ("nan:presses-4mm", "ball diameter NaN mm"),
         ("4:", "no PATH after the diameter"),
     ] {

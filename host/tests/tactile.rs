@@ -2024,5 +2024,19 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
         stdout.contains("small-stray") && stdout.contains("larger than a 4 mm ball"),
         "{stdout}"
     );
+    // The first folder again as the second ball's: refused, naming the option.
+    let again = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(["calibrate", &s(&large), "--ball-diameter-mm", "6"])
+        .args(["--with-ball", &format!("4:{}/", s(&large))])
+        .args(["--out", &s(&dir.join("again.json"))])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert_eq!(again.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--with-ball 4:") && err.contains("is read already"),
+        "{err}"
+    );
+    assert!(!dir.join("again.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -83,6 +83,8 @@ pub enum Rejection {
     TooSmall {
         /// Fitted contact radius (px).
         contact_px: f64,
+        /// Diameter of the ball given for the press (mm).
+        ball_mm: f64,
     },
     /// The circle implies a press deeper than the skin is thick.
     DeeperThanSkin {
@@ -124,9 +126,12 @@ impl fmt::Display for Rejection {
                 f,
                 "contact radius {contact_px:.1} px is larger than a {ball_mm} mm ball can make ({max_px:.1} px at 0.6 of its radius deep): wrong ball diameter (--ball-diameter-mm, or --with-ball for this press's folder) or --px-per-mm, or light spreading beyond the imprint"
             ),
-            Rejection::TooSmall { contact_px } => write!(
+            Rejection::TooSmall {
+                contact_px,
+                ball_mm,
+            } => write!(
                 f,
-                "contact radius {contact_px:.1} px is too small to calibrate with: press deeper"
+                "contact radius {contact_px:.1} px is too small to calibrate with (under 3 px, or under 0.02 mm deep for a {ball_mm} mm ball): press deeper, or check the ball's diameter"
             ),
             Rejection::DeeperThanSkin {
                 depth_mm,
@@ -707,6 +712,7 @@ pub fn calibrate(
         {
             Some(Rejection::TooSmall {
                 contact_px: circle.r,
+                ball_mm: ball_mm(pair),
             })
         } else {
             match fit {

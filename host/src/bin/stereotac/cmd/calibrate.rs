@@ -38,7 +38,12 @@ pub struct Args {
     /// read 0.71-0.76 of its depth from an 8 or 6 mm ball alone, 0.79-0.97 with half the
     /// presses of a 4 mm ball). Their names get PATH's name in front (a folder `small`:
     /// `small-press01`).
-    #[arg(long, value_name = "DIAMETER_MM:PATH", value_parser = parse_with_ball)]
+    #[arg(
+        long,
+        value_name = "DIAMETER_MM:PATH",
+        value_parser = parse_with_ball,
+        allow_hyphen_values = true
+    )]
     pub with_ball: Vec<(f64, PathBuf)>,
     /// Image scale.
     #[arg(long, allow_negative_numbers = true, default_value_t = 15.0)]
@@ -168,10 +173,24 @@ pub fn run(a: Args) -> Result<()> {
     // The second ball's frames at the first folder's size (an odd one is set aside), and
     // within the bound on a calibration's frames together.
     let want = want.or_else(|| pairs.first().map(|p| p.dx.dimensions()));
+    // The same folder or recording given twice would teach each press twice, with two
+    // balls: refused.
+    let mut read = vec![a.dir.canonicalize().unwrap_or_else(|_| a.dir.clone())];
     for (diameter, path) in &a.with_ball {
+        let option = format!("--with-ball {diameter}:{}", path.display());
+        let same = path.canonicalize().unwrap_or_else(|_| path.clone());
+        if read.contains(&same) {
+            anyhow::bail!(
+                "{option}: {} is read already (as DIR or in another --with-ball): give each \
+                 ball's presses in a folder or recording of their own",
+                path.display()
+            );
+        }
+        read.push(same);
         let prefix = source_name(path);
         let decoded = decoded_bytes(&pairs);
-        let (more, more_unreadable) = load_presses(path, want, decoded)?;
+        let (more, more_unreadable) =
+            load_presses(path, want, decoded).with_context(|| option.clone())?;
         unreadable.extend(
             more_unreadable
                 .into_iter()
@@ -266,13 +285,20 @@ pub fn run(a: Args) -> Result<()> {
             e
         }
     })?;
+    // The names' column as wide as the longest (a second ball's names carry its folder's).
+    let width = pairs
+        .iter()
+        .map(|p| p.name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(16);
     println!(
-        "{:<16} {:>8} {:>8} {:>8} {:>9} {:>8} {:>7}",
+        "{:<width$} {:>8} {:>8} {:>8} {:>9} {:>8} {:>7}",
         "pair", "cx px", "cy px", "r px", "depth mm", "fit px", "sat %"
     );
     for p in &cal.presses {
         println!(
-            "{:<16} {:>8.1} {:>8.1} {:>8.1} {:>9.3} {:>8} {:>7.1}",
+            "{:<width$} {:>8.1} {:>8.1} {:>8.1} {:>9.3} {:>8} {:>7.1}",
             p.name,
             p.circle.cx,
             p.circle.cy,
@@ -287,10 +313,10 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     for (name, why) in &unreadable {
-        println!("{name:<16} set aside: cannot be read: {why}");
+        println!("{name:<width$} set aside: cannot be read: {why}");
     }
     for r in &cal.rejected {
-        println!("{:<16} set aside: {}", r.name, r.reason);
+        println!("{:<width$} set aside: {}", r.name, r.reason);
     }
     let f = cal.model.fit;
     // Without held-out pairs there is no held-out figure (the model stores 0 there).
