@@ -1960,6 +1960,10 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
     refs.0.save(&ref_dx).unwrap();
     refs.1.save(&ref_dy).unwrap();
     let (model, report) = (dir.join("model.json"), dir.join("report.json"));
+    // An overlays folder an earlier run wrote into, with a press not given now.
+    let overlays = dir.join("overlays");
+    std::fs::create_dir_all(&overlays).unwrap();
+    std::fs::write(overlays.join("gone-press.png"), b"older").unwrap();
     let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
         .args([
@@ -1973,6 +1977,7 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
         .args(["--ref-dx", &s(&ref_dx), "--ref-dy", &s(&ref_dy)])
         .args(["--with-ball", &format!("4:{}", s(&small))])
         .args(["--out", &s(&model), "--report", &s(&report)])
+        .args(["--overlays", &s(&overlays), "--force"])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -2023,6 +2028,26 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
     assert!(
         stdout.contains("small-stray") && stdout.contains("larger than a 4 mm ball"),
         "{stdout}"
+    );
+    // Each press's overlay is written; the older image is named, not removed.
+    assert!(overlays.join("small-stray.png").is_file());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("gone-press.png") && stderr.contains("did not write"),
+        "{stderr}"
+    );
+    assert!(overlays.join("gone-press.png").is_file());
+    // A JSON file where the presses go: said to be neither a folder nor a recording.
+    let json = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(["calibrate", &s(&model), "--ball-diameter-mm", "6"])
+        .args(["--out", &s(&dir.join("from-json.json"))])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&json.stderr);
+    assert_eq!(json.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("looks like a JSON file") && err.contains("NAME_dx.png"),
+        "{err}"
     );
     // The first folder again as the second ball's: refused, naming the option.
     let again = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))

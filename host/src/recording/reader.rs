@@ -22,7 +22,7 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::Read;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -161,7 +161,6 @@ fn summary_damaged(error: &impl std::fmt::Display) -> String {
 
 /// `true` when `file` ends with the closing magic (its writer finished it).
 fn ends_with_magic(file: &mut File, len: u64) -> std::io::Result<bool> {
-    use std::io::{Seek, SeekFrom};
     let magic = mcap::MAGIC;
     if len < magic.len() as u64 {
         return Ok(false);
@@ -173,8 +172,38 @@ fn ends_with_magic(file: &mut File, len: u64) -> std::io::Result<bool> {
     Ok(tail == magic)
 }
 
+/// Up to `n` bytes from the start of `file`, leaving it at the start.
+fn read_start(file: &mut File, n: usize) -> std::io::Result<Vec<u8>> {
+    let mut start = Vec::with_capacity(n);
+    (&mut *file).take(n as u64).read_to_end(&mut start)?;
+    file.seek(SeekFrom::Start(0))?;
+    Ok(start)
+}
+
+/// What a file that is not an MCAP recording looks like from its first bytes, for the
+/// message (" (it looks like a JSON file)"), or nothing when it cannot be told.
+fn looks_like(start: &[u8]) -> &'static str {
+    let text = start.trim_ascii_start();
+    if start.starts_with(b"\x89PNG") {
+        " (it is a PNG image)"
+    } else if start.starts_with(&[0xff, 0xd8, 0xff]) {
+        " (it is a JPEG image)"
+    } else if start.starts_with(b"\x7fELF") {
+        " (it is an ELF binary)"
+    } else if start.starts_with(b"UF2\n") {
+        " (it is a UF2 firmware image)"
+    } else if text.starts_with(b"{") || text.starts_with(b"[") {
+        " (it looks like a JSON file)"
+    } else if text.starts_with(b"%YAML") {
+        " (it looks like a YAML file)"
+    } else {
+        ""
+    }
+}
+
 impl RecordingReader {
-    /// Opens `path`.
+    /// Opens `path`; a file that does not start with MCAP's magic bytes is refused here
+    /// (one shorter than them, an empty or cut recording, is read and reported as such).
     pub fn open(path: &Path) -> Result<Self, RecordingError> {
         let io = |error| RecordingError::Io {
             path: path.to_path_buf(),
@@ -183,6 +212,16 @@ impl RecordingReader {
         let mut file = File::open(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let finished = ends_with_magic(&mut file, len).map_err(io)?;
+        let start = read_start(&mut file, mcap::MAGIC.len()).map_err(io)?;
+        if !mcap::MAGIC.starts_with(&start) {
+            return Err(RecordingError::Format {
+                path: path.to_path_buf(),
+                message: format!(
+                    "it does not start with MCAP's magic bytes{}",
+                    looks_like(&start)
+                ),
+            });
+        }
         Ok(Self {
             finished,
             path: path.to_path_buf(),
@@ -627,6 +666,32 @@ pub fn header(path: &Path) -> Result<RecordingHeader, RecordingError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A file that does not start with MCAP's magic is refused at opening, saying what
+    /// it looks like; a cut one (a prefix of the magic, or empty) opens and is read as cut.
+    #[test]
+    fn what_is_not_a_recording_is_refused_at_opening() {
+        let dir = std::env::temp_dir().join(format!("stereotac-not-mcap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, bytes, says) in [
+            ("model.json", &b"  {\"width\": 640}"[..], "JSON"),
+            ("frame.mcap", b"\x89PNG\r\n\x1a\n....", "PNG"),
+            ("notes.mcap", b"this is not an MCAP file", "magic bytes"),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes).unwrap();
+            let e = RecordingReader::open(&path).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains(says), "{e}");
+        }
+        for (name, bytes) in [("empty.mcap", &b""[..]), ("cut.mcap", &mcap::MAGIC[..5])] {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes).unwrap();
+            let mut reader = RecordingReader::open(&path).unwrap();
+            let e = reader.next_record().unwrap().unwrap_err().to_string();
+            assert!(e.contains("empty or cut"), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     /// An attachment whose body ends right after its data's length field (the mcap
     /// parser would panic on it) is an error; one with its fields whole parses.

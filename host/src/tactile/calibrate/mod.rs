@@ -30,7 +30,9 @@ pub use report::{CalibrationReport, overlay};
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
-use super::model::validate::{MAX_SKIN_THICKNESS_MM, MIN_PX_PER_MM, MIN_SKIN_THICKNESS_MM};
+use super::model::validate::{
+    MAX_SCALE, MAX_SKIN_THICKNESS_MM, MIN_PX_PER_MM, MIN_SKIN_THICKNESS_MM, valid_ball_diameter,
+};
 use super::model::{
     AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, JointSample, LUT_MAX_COLOUR,
     LightModel, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, PhotometricModel,
@@ -198,15 +200,17 @@ impl CalibrationSettings {
     /// Checks the numbers a user gives (ball diameter, px/mm) against the bounds a model
     /// file is held to ([`super::model::validate`]), before any work.
     pub fn check(&self) -> Result<(), CalibrationError> {
-        for (what, v, min) in [
-            ("ball diameter (mm)", self.ball_diameter_mm, 0.0),
-            ("px/mm", self.px_per_mm, MIN_PX_PER_MM),
-        ] {
-            if !(v.is_finite() && v > min && v <= 1000.0) {
-                return Err(CalibrationError::Settings(format!(
-                    "{what} must be a finite number above {min} and up to 1000, got {v}"
-                )));
-            }
+        if !valid_ball_diameter(self.ball_diameter_mm) {
+            return Err(CalibrationError::Settings(format!(
+                "ball diameter (mm) must be a finite number above 0 and up to {MAX_SCALE}, got {}",
+                self.ball_diameter_mm
+            )));
+        }
+        let px = self.px_per_mm;
+        if !(px.is_finite() && px > MIN_PX_PER_MM && px <= MAX_SCALE) {
+            return Err(CalibrationError::Settings(format!(
+                "px/mm must be a finite number above {MIN_PX_PER_MM} and up to {MAX_SCALE}, got {px}"
+            )));
         }
         let (lo, hi) = (MIN_SKIN_THICKNESS_MM, MAX_SKIN_THICKNESS_MM);
         if !(lo..=hi).contains(&self.skin_thickness_mm) {
@@ -421,11 +425,11 @@ pub fn calibrate(
     settings.check()?;
     if let Some((name, d)) = pairs.iter().find_map(|p| {
         p.ball_diameter_mm
-            .filter(|d| !(d.is_finite() && *d > 0.0 && *d <= 1000.0))
+            .filter(|d| !valid_ball_diameter(*d))
             .map(|d| (&p.name, d))
     }) {
         return Err(CalibrationError::Settings(format!(
-            "press {name}: its ball diameter (mm) must be a finite number above 0 and up to 1000, got {d}"
+            "press {name}: its ball diameter (mm) must be a finite number above 0 and up to {MAX_SCALE}, got {d}"
         )));
     }
     let want = first.dx.dimensions();
@@ -697,22 +701,23 @@ pub fn calibrate(
                 continue;
             }
         };
-        let ball_px = ball_px_of(pair);
+        let (ball_px, ball_mm) = (ball_px_of(pair), ball_mm(pair));
         let max_contact_px =
             ball_px * (1.0 - (1.0 - MAX_DEPTH_OF_RADIUS) * (1.0 - MAX_DEPTH_OF_RADIUS)).sqrt();
+        // How deep a ball of this size went to leave this circle (the sagitta); NaN when
+        // the circle is larger than the ball, which the first check sets aside.
+        let depth_px = ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt();
+        let depth_mm = depth_px / settings.px_per_mm;
         let reason = if !(circle.r.is_finite() && circle.r <= max_contact_px) {
             Some(Rejection::TooLarge {
                 contact_px: circle.r,
                 max_px: max_contact_px,
-                ball_mm: ball_mm(pair),
+                ball_mm,
             })
-        } else if circle.r < 3.0
-            || ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt()
-                < 0.02 * settings.px_per_mm
-        {
+        } else if circle.r < 3.0 || depth_px < 0.02 * settings.px_per_mm {
             Some(Rejection::TooSmall {
                 contact_px: circle.r,
-                ball_mm: ball_mm(pair),
+                ball_mm,
             })
         } else {
             match fit {
@@ -723,13 +728,11 @@ pub fn calibrate(
                 _ => None,
             }
         };
-        let depth_mm =
-            (ball_px - (ball_px * ball_px - circle.r * circle.r).sqrt()) / settings.px_per_mm;
         let reason = reason.or_else(|| {
             (depth_mm > settings.skin_thickness_mm).then_some(Rejection::DeeperThanSkin {
                 depth_mm,
                 skin_mm: settings.skin_thickness_mm,
-                ball_mm: ball_mm(pair),
+                ball_mm,
             })
         });
         if let Some(reason) = reason {
@@ -749,7 +752,7 @@ pub fn calibrate(
             depth_mm,
             overridden,
             fit_rms_px,
-            ball_diameter_mm: ball_mm(pair),
+            ball_diameter_mm: ball_mm,
             saturated: saturated_in_contact(&raw_pairs[index], &circle, settings.filter.saturation),
         });
         used.push(pair);

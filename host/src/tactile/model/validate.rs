@@ -24,6 +24,16 @@ const MAX_TABLE: usize = 1024;
 /// The least image scale of a tactile sensor (px/mm, exclusive): below it a 640 px frame
 /// would span more than a metre of skin.
 pub const MIN_PX_PER_MM: f64 = 0.5;
+/// The largest scale (px/mm) and ball diameter (mm) a model, a calibration's settings or
+/// a press may state: wide of any tactile sensor, it keeps sizes computed from them bounded.
+pub const MAX_SCALE: f64 = 1000.0;
+
+/// Whether `d` is a ball diameter (mm) the calibration and a model file accept: finite,
+/// above 0 and at most [`MAX_SCALE`]. The CLI, the settings and each press check with it,
+/// so the bound cannot drift between them.
+pub fn valid_ball_diameter(d: f64) -> bool {
+    d.is_finite() && d > 0.0 && d <= MAX_SCALE
+}
 
 /// The first problem found, as (field, what is wrong).
 pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
@@ -34,8 +44,8 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         }
     }
     for (field, v, min, max) in [
-        ("px_per_mm", m.px_per_mm, MIN_PX_PER_MM, 1000.0),
-        ("ball_diameter_mm", m.ball_diameter_mm, 0.0, 1000.0),
+        ("px_per_mm", m.px_per_mm, MIN_PX_PER_MM, MAX_SCALE),
+        ("ball_diameter_mm", m.ball_diameter_mm, 0.0, MAX_SCALE),
     ] {
         if !(v.is_finite() && v > min && v <= max) {
             return fail(

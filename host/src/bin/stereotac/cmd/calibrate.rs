@@ -18,6 +18,7 @@ use stereotac::tactile::calibrate::{
 };
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
+use stereotac::tactile::model::validate::{MAX_SCALE, valid_ball_diameter};
 
 use crate::console::naming_file;
 use crate::progress::bar;
@@ -409,7 +410,10 @@ type Presses = (Vec<CalibrationPair>, Vec<(String, ImageError)>);
 /// those whose files cannot be read.
 fn load_presses(path: &Path, want: Option<(u32, u32)>, decoded: u64) -> Result<Presses> {
     if path.is_file() {
-        return Ok((recorded_pairs(path)?, Vec::new()));
+        let pairs = recorded_pairs(path).context(
+            "presses are a folder of NAME_dx.png / NAME_dy.png pairs or an MCAP recording",
+        )?;
+        return Ok((pairs, Vec::new()));
     }
     let folder = load_more_pairs(path, want, decoded).map_err(|e| {
         let e = anyhow::Error::from(e);
@@ -475,9 +479,9 @@ fn parse_with_ball(s: &str) -> Result<(f64, PathBuf), String> {
         .trim()
         .parse()
         .map_err(|_| format!("{d:?} is not a ball diameter in mm (e.g. 4:presses-4mm)"))?;
-    if !(d.is_finite() && d > 0.0 && d <= 1000.0) {
+    if !valid_ball_diameter(d) {
         return Err(format!(
-            "ball diameter {d} mm: give a number above 0 and up to 1000"
+            "ball diameter {d} mm: give a number above 0 and up to {MAX_SCALE}"
         ));
     }
     if path.is_empty() {
@@ -501,7 +505,34 @@ fn write_overlays(dir: &Path, pairs: &[CalibrationPair], cal: &Calibration) -> R
             .with_context(|| format!("writing {}", path.display()))?;
     }
     println!("wrote {} overlays to {}", pairs.len(), dir.display());
+    let older = older_images(dir, pairs);
+    if let Some(first) = older.first() {
+        eprintln!(
+            "warning: {} also holds {} PNG image(s) this run did not write (e.g. {first}): \
+             overlays of presses not given now, or other files; remove them or give an \
+             empty folder",
+            dir.display(),
+            older.len()
+        );
+    }
     Ok(())
+}
+
+/// The `.png` files in `dir` that are not the overlay of one of `pairs` (a folder given
+/// with `--force` keeps an earlier run's overlays), sorted by name.
+fn older_images(dir: &Path, pairs: &[CalibrationPair]) -> Vec<String> {
+    let ours: std::collections::HashSet<String> =
+        pairs.iter().map(|p| format!("{}.png", p.name)).collect();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut older: Vec<String> = entries
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.to_ascii_lowercase().ends_with(".png") && !ours.contains(n))
+        .collect();
+    older.sort();
+    older
 }
 
 /// Camera 0's dx/dy pairs of a recording.
