@@ -989,7 +989,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 31] = [
+    let cases: [(&str, Damage); 32] = [
         ("dx.lut.gain_negative", |m| {
             m["dx"]["lut"]["gain_negative"]
                 .as_array_mut()
@@ -1048,6 +1048,9 @@ fn model_files_round_trip_and_refuse_other_versions() {
         }),
         ("width", |m| m["width"] = 100_000.into()),
         ("px_per_mm", |m| m["px_per_mm"] = 0.into()),
+        ("other_balls_mm", |m| {
+            m["other_balls_mm"] = serde_json::json!([4.0, -2.0])
+        }),
         ("background.factor", |m| {
             m["background"]["factor"] = 0.into()
         }),
@@ -2028,6 +2031,16 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
     assert!(
         stdout.contains("small-stray") && stdout.contains("larger than a 4 mm ball"),
         "{stdout}"
+    );
+    // The model names the second ball as well as the first.
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(written["ball_diameter_mm"].as_f64(), Some(6.0));
+    assert_eq!(
+        written["other_balls_mm"],
+        serde_json::json!([4.0]),
+        "{}",
+        written["other_balls_mm"]
     );
     // Each press's overlay is written; the older image is named, not removed.
     assert!(overlays.join("small-stray.png").is_file());

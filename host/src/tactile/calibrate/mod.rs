@@ -868,6 +868,14 @@ pub fn calibrate(
         fit_report.photometric_validation_rms,
         fit_report.photometric_validation_read,
     ) = photometric_rms(&photometric, &joint_valid);
+    // The other balls of the presses used, smallest first, each once.
+    let mut other_balls_mm: Vec<f64> = presses
+        .iter()
+        .map(|p| p.ball_diameter_mm)
+        .filter(|&d| d != settings.ball_diameter_mm)
+        .collect();
+    other_balls_mm.sort_by(f64::total_cmp);
+    other_balls_mm.dedup();
     let model = TactileModel {
         format: MODEL_FORMAT.to_string(),
         version: MODEL_VERSION,
@@ -875,6 +883,7 @@ pub fn calibrate(
         height: h,
         px_per_mm: settings.px_per_mm,
         ball_diameter_mm: settings.ball_diameter_mm,
+        other_balls_mm,
         skin_thickness_mm: settings.skin_thickness_mm,
         filter: settings.filter,
         contact: contact_params,

@@ -319,8 +319,10 @@ fn region_name(col: usize, row: usize) -> String {
     }
 }
 
-/// The dx image with the fitted circle drawn on it (green when the press was used,
-/// magenta when set aside) and a cross at its centre, to check fits by eye.
+/// The dx image with the fitted circle drawn on it (solid green when the press was used,
+/// dashed white when set aside: magenta, tried first, vanished on the red and blue of a
+/// dx frame), each line between black edges so it shows on any colour, and a cross at
+/// its centre, to check fits by eye.
 pub fn overlay(dx: &RgbImage, circle: Option<&Circle>, used: bool) -> RgbImage {
     let mut out = dx.clone();
     let Some(c) = circle else { return out };
@@ -330,23 +332,36 @@ pub fn overlay(dx: &RgbImage, circle: Option<&Circle>, used: bool) -> RgbImage {
     let colour = if used {
         image::Rgb([0, 255, 0])
     } else {
-        image::Rgb([255, 0, 255])
+        image::Rgb([255, 255, 255])
     };
+    let edge = image::Rgb([0, 0, 0]);
     let (w, h) = (out.width() as i64, out.height() as i64);
-    let mut put = |x: f64, y: f64| {
+    let mut put = |x: f64, y: f64, colour| {
         let (x, y) = (x.round() as i64, y.round() as i64);
         if (0..w).contains(&x) && (0..h).contains(&y) {
             out.put_pixel(x as u32, y as u32, colour);
         }
     };
     let steps = ((c.r * 8.0).ceil() as usize).clamp(16, 20_000);
-    for k in 0..steps {
-        let a = std::f64::consts::TAU * k as f64 / steps as f64;
-        put(c.cx + c.r * a.cos(), c.cy + c.r * a.sin());
+    // A step is about 0.8 px of arc: set aside, dashes and gaps of ten steps (8 px).
+    let drawn = |k: usize| used || (k / 10).is_multiple_of(2);
+    for pass in [0, 1] {
+        for k in (0..steps).filter(|&k| drawn(k)) {
+            let a = std::f64::consts::TAU * k as f64 / steps as f64;
+            let (cos, sin) = (a.cos(), a.sin());
+            if pass == 0 {
+                // The black edges first, the line over them.
+                for r in [c.r - 1.0, c.r + 1.0] {
+                    put(c.cx + r * cos, c.cy + r * sin, edge);
+                }
+            } else {
+                put(c.cx + c.r * cos, c.cy + c.r * sin, colour);
+            }
+        }
     }
     for d in -4..=4 {
-        put(c.cx + d as f64, c.cy);
-        put(c.cx, c.cy + d as f64);
+        put(c.cx + d as f64, c.cy, colour);
+        put(c.cx, c.cy + d as f64, colour);
     }
     out
 }
@@ -367,8 +382,26 @@ mod tests {
         assert_eq!(o.get_pixel(25, 15).0, [0, 255, 0]);
         assert_eq!(o.get_pixel(35, 15).0, [0, 255, 0], "centre cross");
         assert_eq!(o.get_pixel(5, 5).0, [0, 0, 0]);
-        let r = overlay(&img, Some(&c), false);
-        assert_eq!(r.get_pixel(25, 15).0, [255, 0, 255]);
+        // Black edges either side of the line.
+        assert_eq!(o.get_pixel(24, 15).0, [0, 0, 0]);
+        let grey = RgbImage::from_pixel(40, 30, image::Rgb([200, 60, 90]));
+        let g = overlay(&grey, Some(&c), true);
+        assert_eq!(g.get_pixel(24, 15).0, [0, 0, 0], "edge");
+        assert_eq!(g.get_pixel(26, 15).0, [0, 0, 0], "edge");
+        // Set aside: white and dashed (some of the circle is drawn, some not).
+        let r = overlay(&grey, Some(&c), false);
+        assert_eq!(r.get_pixel(25, 15).0, [255, 255, 255]);
+        let on_circle: Vec<[u8; 3]> = (0..64)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 64.0;
+                let (x, y) = (35.0 + 10.0 * a.cos(), 15.0 + 10.0 * a.sin());
+                (x.round() as u32, y.round() as u32)
+            })
+            .filter(|&(x, y)| x < 40 && y < 30)
+            .map(|(x, y)| r.get_pixel(x, y).0)
+            .collect();
+        assert!(on_circle.contains(&[255, 255, 255]), "{on_circle:?}");
+        assert!(on_circle.contains(&[200, 60, 90]), "gaps: {on_circle:?}");
         let nan = Circle { r: f64::NAN, ..c };
         assert_eq!(overlay(&img, Some(&nan), true), img);
         assert_eq!(overlay(&img, None, true), img);

@@ -302,9 +302,13 @@ pub struct TactileModel {
     pub height: usize,
     /// Scale (px per mm).
     pub px_per_mm: f64,
-    /// Ball used for calibration (mm); when presses of a second ball were added, the
+    /// Ball used for calibration (mm); when presses of other balls were added, the
     /// first one's (each press's ball is in the calibration report).
     pub ball_diameter_mm: f64,
+    /// The other balls (mm) whose presses taught the model, smallest first; empty (and
+    /// left out of the file) when every press was of [`Self::ball_diameter_mm`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_balls_mm: Vec<f64>,
     /// Thickness of the sensor's skin (mm): nothing presses deeper, so a reconstruction
     /// deeper than this is refused ([`crate::tactile::reconstruct::ReconstructError::DepthBeyondSkin`]).
     /// Files written before it existed read as [`DEFAULT_SKIN_THICKNESS_MM`].

@@ -54,6 +54,18 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
             );
         }
     }
+    if let Some(d) = m.other_balls_mm.iter().find(|&&d| !valid_ball_diameter(d)) {
+        return fail(
+            "other_balls_mm",
+            format!("{d} must be finite, above 0 and at most {MAX_SCALE}"),
+        );
+    }
+    if m.other_balls_mm.len() > MAX_TABLE {
+        return fail(
+            "other_balls_mm",
+            format!("{} balls, more than {MAX_TABLE}", m.other_balls_mm.len()),
+        );
+    }
     if !(MIN_SKIN_THICKNESS_MM..=MAX_SKIN_THICKNESS_MM).contains(&m.skin_thickness_mm) {
         return fail(
             "skin_thickness_mm",

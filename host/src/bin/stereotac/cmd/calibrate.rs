@@ -75,8 +75,8 @@ pub struct Args {
     /// (normalised-colour units; flat skin reads 0).
     #[arg(long, allow_negative_numbers = true)]
     pub contact_threshold: Option<f32>,
-    /// Write each press's dx image with its fitted circle here (green: used, magenta:
-    /// set aside), to check the fits by eye.
+    /// Write each press's dx image with its fitted circle here (solid green: used,
+    /// dashed white: set aside), to check the fits by eye.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
     /// Also write the calibration report (presses, reasons, fit per region, coverage,
