@@ -233,10 +233,11 @@ fn presses_of_a_second_smaller_ball_teach_the_table_steep_walls() {
         )
     };
     let (one, two) = (read(&one_ball.model), read(&two_balls.model));
-    // Measured: 0.63 and 0.88 mm.
+    // Measured: 0.65 and 0.91 mm (0.63 and 0.88 before the slopes beside a strip in
+    // shadow were read again, `tactile::shadowed`).
     assert!(one < 0.75, "one ball: {one:.3} mm of 1.000");
     assert!(
-        two > 0.85 && two < 1.05,
+        two > 0.895 && two < 1.05,
         "two balls: {two:.3} mm of 1.000 (one ball {one:.3})"
     );
     // A ball diameter that is not a number is refused, naming the press.

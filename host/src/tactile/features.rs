@@ -8,7 +8,8 @@
 //! pixels of a region row at a time, in vector lanes (colour planes first, then the
 //! filter and the factors without branches), and only then the accepted pixels are kept
 //! (a compaction whose write position advances with the filter's verdict), or, with the
-//! lookup table, turned into slopes at once ([`Features::lut_slopes`]).
+//! lookup table, turned into slopes at once ([`Features::lut_slopes`]), the pixels with a
+//! strip of the other phase in shadow then read again ([`super::shadowed`]).
 
 use std::time::Instant;
 
@@ -18,6 +19,7 @@ use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
 use super::model::{GainPlanes, Lut, cross_factor};
 use super::sanitize::sanitize;
+use super::shadowed;
 use crate::timing::ms_between as ms;
 
 /// Feature rows of one axis and where they go.
@@ -49,6 +51,9 @@ struct RowScratch {
     colour: [[Vec<f32>; 2]; 2],
     /// Accepted by the filter, dx then dy.
     lit: [Vec<bool>; 2],
+    /// Which slopes to read again, lit in both phases with a strip of the other phase in
+    /// shadow ([`shadowed::marks`]).
+    again: Vec<u8>,
 }
 
 /// What the features are made from.
@@ -185,6 +190,29 @@ impl Features {
                 let fixed = sanitize(out, max_slope);
                 changed += fixed.non_finite + fixed.clamped;
             }
+            // Where a strip of the other phase is in shadow the cross factor fell short:
+            // those pixels' colours are made again from the frames and read again.
+            let refs = [
+                inputs.refs.dx.planes(span.clone()),
+                inputs.refs.dy.planes(span.clone()),
+            ];
+            let raw = |k: usize| {
+                [0, 1].map(|phase| {
+                    let [r, g, b] = &row.planes[phase];
+                    refs[phase]
+                        .normalise(inputs.filter, k, [r[k], g[k], b[k]])
+                        .0
+                })
+            };
+            let span_gains = [0, 1].map(|axis| &gains[axis].0[span.clone()]);
+            shadowed::reread(
+                luts,
+                &row.again,
+                raw,
+                span_gains,
+                [&mut p[at.clone()], &mut q[at.clone()]],
+                max_slope,
+            );
             clock = Instant::now();
             timings.model_ms += ms(t, clock);
         });
@@ -214,12 +242,14 @@ impl RowScratch {
             colour[1].resize(n, 0.0);
             lit.resize(n, false);
         }
+        self.again.resize(n, 0);
         normalise_pair(
             &self.planes,
             &refs,
             inputs.filter,
             &mut self.colour,
             &mut self.lit,
+            &mut self.again,
         );
     }
 }
@@ -242,13 +272,14 @@ fn normalise_pair(
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
+    again: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
         // SAFETY: `normalise_pair_avx2` only needs AVX2, detected just above.
-        return unsafe { normalise_pair_avx2(planes, refs, filter, colour, lit) };
+        return unsafe { normalise_pair_avx2(planes, refs, filter, colour, lit, again) };
     }
-    normalise_pair_portable(planes, refs, filter, colour, lit)
+    normalise_pair_portable(planes, refs, filter, colour, lit, again)
 }
 
 /// [`normalise_pair_portable`] in 8-wide lanes (no FMA: the same numbers).
@@ -260,8 +291,9 @@ fn normalise_pair_avx2(
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
+    again: &mut [u8],
 ) {
-    normalise_pair_portable(planes, refs, filter, colour, lit)
+    normalise_pair_portable(planes, refs, filter, colour, lit, again)
 }
 
 #[inline(always)]
@@ -271,6 +303,7 @@ fn normalise_pair_portable(
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
+    again: &mut [u8],
 ) {
     let n = lit[0].len();
     let [[rx, gx, bx], [ry, gy, by]] = planes;
@@ -279,6 +312,7 @@ fn normalise_pair_portable(
     let (cxr, cxb, cyr, cyb) = (&mut cxr[..n], &mut cxb[..n], &mut cyr[..n], &mut cyb[..n]);
     let [lit_x, lit_y] = lit;
     let (lit_x, lit_y) = (&mut lit_x[..n], &mut lit_y[..n]);
+    let again = &mut again[..n];
     for i in 0..n {
         let (c_dx, ok_dx) = refs[0].normalise(filter, i, [rx[i], gx[i], bx[i]]);
         let (c_dy, ok_dy) = refs[1].normalise(filter, i, [ry[i], gy[i], by[i]]);
@@ -298,6 +332,7 @@ fn normalise_pair_portable(
         cyb[i] = c_dy[1] * s_dx;
         lit_x[i] = ok_dx;
         lit_y[i] = ok_dy;
+        again[i] = shadowed::marks(c_dx, c_dy, ok_dx & ok_dy);
     }
 }
 
@@ -441,16 +476,55 @@ mod tests {
             assert_eq!(all, touched, "axis {axis}");
         }
         let mut want_changed = 0;
-        for (axis, got) in [&p, &q].into_iter().enumerate() {
+        let mut want = [vec![0.0f32; roi.area()], vec![0.0f32; roi.area()]];
+        for (axis, want) in want.iter_mut().enumerate() {
             let rows = &features.axes[axis];
             let mut slopes = vec![0.0; rows.rows.len()];
             lut.eval_batch(&rows.rows, &mut slopes);
             let fixed = sanitize(&mut slopes, 3.0);
             want_changed += fixed.non_finite + fixed.clamped;
-            let mut want = vec![0.0f32; roi.area()];
             for (&k, &s) in rows.targets.iter().zip(&slopes) {
                 want[k] = s;
             }
+        }
+        // Then the pixels with a strip of the other phase in shadow are read again, from
+        // their colours made pixel by pixel (`colours_of`) over the whole region.
+        let at = |k: usize| (roi.y + k / roi.width) * w + roi.x + k % roi.width;
+        let colours: Vec<[f32; 4]> = (0..roi.area())
+            .map(|k| {
+                let px = |img: &RgbImage| {
+                    let v = img.as_raw();
+                    let i = 3 * at(k);
+                    [v[i], v[i + 1], v[i + 2]].map(f32::from)
+                };
+                colours_of(&refs, &filter, at(k), px(&dx), px(&dy)).0
+            })
+            .collect();
+        let marks: Vec<u8> = colours
+            .iter()
+            .zip(&mask)
+            .map(|(c, &touched)| {
+                let lit = touched && c.iter().all(|v| !v.is_nan());
+                shadowed::marks([c[0], c[1]], [c[2], c[3]], lit)
+            })
+            .collect();
+        let region_gains: Vec<[f32; 2]> = (0..roi.area()).map(|k| gains[0].0[at(k)]).collect();
+        let [want_p, want_q] = &mut want;
+        let again = shadowed::reread(
+            [&lut, &lut],
+            &marks,
+            |k| {
+                [
+                    [colours[k][0], colours[k][1]],
+                    [colours[k][2], colours[k][3]],
+                ]
+            },
+            [&region_gains, &region_gains],
+            [want_p, want_q],
+            3.0,
+        );
+        assert!(again > 0, "the scene has strips in shadow");
+        for (axis, (got, want)) in [&p, &q].into_iter().zip(&want).enumerate() {
             assert_eq!(
                 got.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                 want.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),

@@ -26,6 +26,7 @@ pub mod reconstruct;
 pub mod reference_check;
 pub mod render;
 pub mod sanitize;
+pub mod shadowed;
 pub mod skins;
 pub mod smooth;
 pub mod synthetic;

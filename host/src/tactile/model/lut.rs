@@ -170,6 +170,17 @@ impl Lut {
         a * (1.0 - fr) + c * fr
     }
 
+    /// Slope for normalised colour `(r, b)` with a pixel's position gains `[positive,
+    /// negative]` (one entry of [`Self::gain_planes`]); 0 for a damaged model file.
+    #[inline]
+    pub fn eval_with_gains(&self, r: f32, b: f32, gains: [f32; 2]) -> f32 {
+        let Some(table) = self.checked_table() else {
+            return 0.0;
+        };
+        let colour = self.table_colour(table, r, b);
+        colour * gains[usize::from(colour < 0.0)]
+    }
+
     /// Slope for normalised colour `(r, b)` at normalised position `(x, y)` ∈ [0, 1]².
     #[inline]
     pub fn eval(&self, r: f32, b: f32, x: f32, y: f32) -> f32 {
