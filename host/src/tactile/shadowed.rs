@@ -73,16 +73,14 @@ pub fn reread(
         let mut read = [p[k], q[k]];
         for _ in 0..ITERATIONS {
             let normal = (1.0 + read[0] * read[0] + read[1] * read[1]).sqrt();
-            let last = read;
             for axis in (0..2).filter(|&a| again[a]) {
                 let factor = normal.max(had[axis]).min(MAX_NORMAL);
                 let [red, blue] = colours[axis];
                 let s = luts[axis].eval_with_gains(red * factor, blue * factor, gains[axis][k]);
-                read[axis] = if s.is_finite() {
-                    s.clamp(-max_slope, max_slope)
-                } else {
-                    last[axis]
-                };
+                // A reading that is not a number keeps the last one.
+                if s.is_finite() {
+                    read[axis] = s.clamp(-max_slope, max_slope);
+                }
             }
         }
         [p[k], q[k]] = read;

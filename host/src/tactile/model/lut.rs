@@ -177,8 +177,7 @@ impl Lut {
         let Some(table) = self.checked_table() else {
             return 0.0;
         };
-        let colour = self.table_colour(table, r, b);
-        colour * gains[usize::from(colour < 0.0)]
+        self.gained_colour(table, r, b, gains)
     }
 
     /// Slope for normalised colour `(r, b)` at normalised position `(x, y)` ∈ [0, 1]².
@@ -283,11 +282,18 @@ impl Lut {
         let n = out.len().min(red.len()).min(blue.len()).min(gains.len());
         let (red, blue, gains, out) = (&red[..n], &blue[..n], &gains[..n], &mut out[..n]);
         for i in 0..n {
-            let colour = self.table_colour(table, red[i], blue[i]);
-            // Indexed rather than branched: on a flat contact the readings' signs are
-            // noise, and a branch would be mispredicted on half of them.
-            out[i] = colour * gains[i][usize::from(colour < 0.0)];
+            out[i] = self.gained_colour(table, red[i], blue[i], gains[i]);
         }
+    }
+
+    /// The colour table at `(r, b)` times the gain of its sign (`[positive, negative]`);
+    /// `table` from [`Self::checked_table`].
+    #[inline(always)]
+    fn gained_colour(&self, table: &[f32], r: f32, b: f32, gains: [f32; 2]) -> f32 {
+        let colour = self.table_colour(table, r, b);
+        // Indexed rather than branched: on a flat contact the readings' signs are noise,
+        // and a branch would be mispredicted on half of them.
+        colour * gains[usize::from(colour < 0.0)]
     }
 
     /// The table when it matches its size (`None` for a damaged model file).
