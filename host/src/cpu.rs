@@ -40,14 +40,17 @@ pub fn avx2_bmi() -> bool {
 #[cfg(target_arch = "x86_64")]
 pub fn avx512_popcnt() -> bool {
     static USE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *USE.get_or_init(|| {
-        std::env::var_os("STEREOTAC_NO_AVX512").is_none()
-            && avx2_bmi()
-            && std::is_x86_feature_detected!("avx512f")
-            && std::is_x86_feature_detected!("avx512bw")
-            && std::is_x86_feature_detected!("avx512vl")
-            && std::is_x86_feature_detected!("avx512bitalg")
-    })
+    *USE.get_or_init(|| std::env::var_os("STEREOTAC_NO_AVX512").is_none() && has_avx512_popcnt())
+}
+
+/// Whether the CPU has what [`avx512_popcnt`] asks for, whatever the environment says.
+#[cfg(target_arch = "x86_64")]
+pub fn has_avx512_popcnt() -> bool {
+    avx2_bmi()
+        && std::is_x86_feature_detected!("avx512f")
+        && std::is_x86_feature_detected!("avx512bw")
+        && std::is_x86_feature_detected!("avx512vl")
+        && std::is_x86_feature_detected!("avx512bitalg")
 }
 
 /// Never on other architectures.

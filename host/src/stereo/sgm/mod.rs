@@ -1991,22 +1991,12 @@ mod tests {
         }
     }
 
-    /// The census costs compiled three ways (portable, AVX2's nibble tables, AVX-512's
-    /// byte population count) agree cell for cell, whichever the CPU would pick; rows
-    /// of several widths and disparity counts, so the 64-byte lanes have tails.
-    #[test]
-    #[allow(unsafe_code)]
-    fn the_cost_kernels_agree() {
-        #[cfg(target_arch = "x86_64")]
-        let (avx2, avx512) = (crate::cpu::avx2_bmi(), crate::cpu::avx512_popcnt());
-        #[cfg(not(target_arch = "x86_64"))]
-        let (avx2, avx512) = (false, false);
-        if !avx2 {
-            eprintln!("skipped: no AVX2 here");
-        }
-        if !avx512 {
-            eprintln!("skipped: no AVX-512 population count here");
-        }
+    /// A census cost kernel agrees cell for cell with the portable one: rows of several
+    /// widths and disparity counts, so the 64-byte lanes have tails.
+    fn check_cost_kernel(
+        name: &str,
+        kernel: impl Fn(&Shape, PlaneRow<'_>, PlaneRow<'_>, &mut [u8]),
+    ) {
         for (w, nd, d_min) in [(75, 16, 3), (130, 64, 0), (97, 48, 5)] {
             let (l, r) = shifted_pair(w, 9, |x, _| 4.0 + 0.05 * x as f32);
             let s = Shape { w, h: 9, nd, d_min };
@@ -2022,23 +2012,57 @@ mod tests {
             for y in 0..s.h {
                 let mut expected = vec![0; w * nd];
                 costs(&s, cl.row(y), cr.row(y), &mut expected);
-                #[cfg(target_arch = "x86_64")]
-                {
-                    let mut got = vec![0; w * nd];
-                    if avx2 {
-                        // SAFETY: detected above.
-                        unsafe { costs_avx2(&s, cl.row(y), cr.row(y), &mut got) };
-                        assert!(got == expected, "AVX2, width {w}, {nd} d, row {y}");
-                    }
-                    if avx512 {
-                        got.fill(0);
-                        // SAFETY: detected above.
-                        unsafe { costs_avx512(&s, cl.row(y), cr.row(y), &mut got) };
-                        assert!(got == expected, "AVX-512, width {w}, {nd} d, row {y}");
-                    }
-                }
+                let mut got = vec![0; w * nd];
+                kernel(&s, cl.row(y), cr.row(y), &mut got);
+                assert!(got == expected, "{name}, width {w}, {nd} d, row {y}");
+                assert!(expected.iter().any(|&c| c > 0), "costs all zero");
             }
         }
+    }
+
+    /// The census costs of AVX2's nibble tables are the portable ones.
+    #[test]
+    #[cfg_attr(
+        not(build_cpu_avx2_bmi),
+        ignore = "needs AVX2 and BMI, which this machine lacks"
+    )]
+    #[allow(unsafe_code)]
+    fn avx2_costs_are_the_portable_costs() {
+        #[cfg(target_arch = "x86_64")]
+        {
+            assert!(
+                crate::cpu::avx2_bmi(),
+                "needs AVX2 and BMI: this CPU lacks them"
+            );
+            // SAFETY: the CPU has AVX2 and BMI (asserted above).
+            check_cost_kernel("AVX2", |s, l, r, out| unsafe { costs_avx2(s, l, r, out) });
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        panic!("no AVX2 kernel on this architecture");
+    }
+
+    /// The census costs of AVX-512's byte population count are the portable ones
+    /// (whatever `STEREOTAC_NO_AVX512` says: it only keeps the pipeline off them).
+    #[test]
+    #[cfg_attr(
+        not(build_cpu_avx512_popcnt),
+        ignore = "needs AVX-512 BITALG, which this machine lacks"
+    )]
+    #[allow(unsafe_code)]
+    fn avx512_costs_are_the_portable_costs() {
+        #[cfg(target_arch = "x86_64")]
+        {
+            assert!(
+                crate::cpu::has_avx512_popcnt(),
+                "needs AVX-512 BITALG: this CPU lacks it"
+            );
+            // SAFETY: the CPU has AVX-512 F, BW, VL and BITALG (asserted above).
+            check_cost_kernel("AVX-512", |s, l, r, out| unsafe {
+                costs_avx512(s, l, r, out)
+            });
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        panic!("no AVX-512 kernel on this architecture");
     }
 
     #[test]

@@ -661,11 +661,15 @@ mod tests {
     /// the row's end (where the gather would leave the row and the scalar loop takes
     /// over).
     #[test]
+    #[cfg_attr(
+        not(build_cpu_avx2_bmi),
+        ignore = "needs AVX2 and BMI, which this machine lacks"
+    )]
     fn eight_lane_terms_are_the_scalar_terms() {
-        if !Kernel::Avx2.is_available() {
-            eprintln!("skipped: no AVX2 here");
-            return;
-        }
+        assert!(
+            Kernel::Avx2.is_available(),
+            "needs AVX2 and BMI: this CPU lacks them"
+        );
         let mut rng = crate::rng::Rng::new(11);
         for w in [8, 13, 61, 64, 203] {
             let left = Grid::from_fn(w, 1, |_, _| (rng.uniform() * 255.0) as u8);
