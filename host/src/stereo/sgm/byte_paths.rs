@@ -107,7 +107,7 @@ unsafe fn min_byte(v: __m256i) -> u8 {
 mod tests {
     use super::*;
     use crate::rng::Rng;
-    use crate::stereo::sgm::{Lane, Penalties, step};
+    use crate::stereo::sgm::sweep::{Lane, Penalties, step};
 
     /// Every path and sum equals the portable step's, at 32 and 64 disparities, with
     /// values at the byte bound, padding beside them, and sums added to or written.
