@@ -113,18 +113,40 @@ fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
     }
 }
 
+/// The model without its light models: the lookup table alone, as model files written
+/// before the light model read (nothing past the table's reach).
+fn table_alone(model: &TactileModel) -> TactileModel {
+    let mut alone = model.clone();
+    alone.dx.light = None;
+    alone.dy.light = None;
+    alone
+}
+
 /// A disk 1 mm deep whose wall is steeper (1.6) than any slope the 6 mm calibration
-/// ball made (about 0.9): the lookup table saturates at the ball's slopes and reads it
-/// shallow (0.84 mm); the light and photometric models carry the strips' response past
-/// them.
+/// ball made (about 0.9): the lookup table alone saturates at the ball's slopes and
+/// reads it shallow (0.84 mm); the light and photometric models carry the strips'
+/// response past them, and so does the table with the light model reading past its
+/// reach (`tactile::past_reach`; measured 0.96 mm).
 #[test]
 fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
     let optics = optics();
     let (model, refs) = calibrated(&optics);
     let scene = disk(1.6);
     let read = |kind| reading(&optics, &model, &refs, kind, SolverKind::Dct, &scene);
+    let alone = reading(
+        &optics,
+        &table_alone(&model),
+        &refs,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        &scene,
+    );
+    assert!(alone < 0.9, "the table alone read {alone:.3} mm of 1.000");
     let (lut, light) = (read(ModelKind::Lut), read(ModelKind::Light));
-    assert!(lut < 0.9, "lut read {lut:.3} mm of 1.000");
+    assert!(
+        (lut - 1.0).abs() < 0.07,
+        "the table with the light model past its reach read {lut:.3} mm of 1.000 (alone {alone:.3})"
+    );
     assert!(
         (light - 1.0).abs() < 0.07,
         "light read {light:.3} mm of 1.000"
@@ -232,7 +254,12 @@ fn presses_of_a_second_smaller_ball_teach_the_table_steep_walls() {
             &scene,
         )
     };
-    let (one, two) = (read(&one_ball.model), read(&two_balls.model));
+    // The table alone (the light model reads past its reach otherwise: one ball then
+    // 0.95 mm).
+    let (one, two) = (
+        read(&table_alone(&one_ball.model)),
+        read(&table_alone(&two_balls.model)),
+    );
     // Measured: 0.65 and 0.91 mm (0.63 and 0.88 before the slopes beside a strip in
     // shadow were read again, `tactile::shadowed`).
     assert!(one < 0.75, "one ball: {one:.3} mm of 1.000");

@@ -18,6 +18,7 @@ use image::RgbImage;
 use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
 use super::model::{GainPlanes, Lut, cross_factor};
+use super::past_reach::Reach;
 use super::sanitize::sanitize;
 use super::shadowed;
 use crate::timing::ms_between as ms;
@@ -69,6 +70,9 @@ pub struct Inputs<'a> {
     /// Position gains of every pixel of the frame per axis
     /// ([`super::model::Lut::gain_planes`]), or `None`.
     pub gains: Option<&'a [GainPlanes; 2]>,
+    /// Where the lookup tables' slopes are read by the light model as well
+    /// ([`super::past_reach`]), or `None`.
+    pub reach: Option<Reach<'a>>,
 }
 
 /// Calls `visit(ry, first, span)` for every run of set pixels of `mask` (row-major over
@@ -213,6 +217,23 @@ impl Features {
                 [&mut p[at.clone()], &mut q[at.clone()]],
                 max_slope,
             );
+            // Past the table's reach the light model reads the slope as well.
+            if let Some(reach) = &inputs.reach {
+                let height = inputs.dx.height() as f32;
+                let position = |k: usize| {
+                    let i = span.start + k;
+                    [(i % w) as f32 / w as f32, (i / w) as f32 / height]
+                };
+                let [[xr, xb], [yr, yb]] = &row.colour;
+                reach.extend(
+                    [&row.lit[0], &row.lit[1]],
+                    [[xr, xb], [yr, yb]],
+                    position,
+                    span_gains,
+                    [&mut p[at.clone()], &mut q[at.clone()]],
+                    max_slope,
+                );
+            }
             clock = Instant::now();
             timings.model_ms += ms(t, clock);
         });
@@ -384,6 +405,7 @@ mod tests {
             refs: &refs,
             filter: &filter,
             gains: None,
+            reach: None,
         };
         let mut features = Features::default();
         features.collect(&inputs, &roi, &mask);
@@ -454,6 +476,7 @@ mod tests {
             refs: &refs,
             filter: &filter,
             gains: Some(&gains),
+            reach: None,
         };
         let mut features = Features::default();
         let (mut p, mut q) = (vec![0.0f32; roi.area()], vec![0.0f32; roi.area()]);

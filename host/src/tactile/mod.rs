@@ -20,6 +20,7 @@ pub mod features;
 pub mod images;
 pub mod model;
 pub mod output;
+pub mod past_reach;
 pub mod phase_check;
 pub mod poisson;
 pub mod reconstruct;

@@ -22,6 +22,7 @@ use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
 use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light, validate};
+use super::past_reach::Reach;
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::reference_check;
@@ -577,6 +578,14 @@ impl Reconstructor {
             refs: &self.refs,
             filter: &filter,
             gains: self.lut_gains.as_deref(),
+            // Slopes past the table's reach are read by the light model too, when the
+            // model file has one.
+            reach: match (&self.model.dx.light, &self.model.dy.light) {
+                (Some(x), Some(y)) if self.lut_gains.is_some() => {
+                    Reach::new([&self.model.dx.lut, &self.model.dy.lut], [x, y])
+                }
+                _ => None,
+            },
         };
         let mut p = Grid::filled(roi.width, roi.height, 0.0f32);
         let mut q = Grid::filled(roi.width, roi.height, 0.0f32);

@@ -191,7 +191,7 @@ impl CalibrationReport {
                 "add presses of a smaller ball (--with-ball 4:DIR; in Python, press_balls_mm) to teach steeper slopes".to_string()
             };
             warnings.push(format!(
-                "the steepest slope taught along {least_axis} is {least:.2}: walls steeper than that read short (on our evaluation skins a 1 mm disk with a wall of 1.31 read 0.73-0.83 mm from an 8 or 6 mm ball alone, 0.84-1.04 mm with half the presses made with a 4 mm ball); {fix}"
+                "the steepest slope taught along {least_axis} is {least:.2}: walls steeper than that read short, or from the light model's straight lines past the lookup table's reach (on our evaluation skins a 1 mm disk with a wall of 1.31 read 0.79-1.05 mm from an 8 or 6 mm ball alone, 0.84-1.08 mm with half the presses made with a 4 mm ball); {fix}"
             ));
         }
         // Shallow slopes also come from a ball given larger than it is: its circles then

@@ -296,6 +296,17 @@ impl Lut {
         colour * gains[usize::from(colour < 0.0)]
     }
 
+    /// The table's largest reading and its most negative one, as magnitudes
+    /// `[positive, negative]` (0 for a sign it never reads), before the position gains;
+    /// `None` for a damaged model file.
+    pub fn extremes(&self) -> Option<[f32; 2]> {
+        let table = self.checked_table()?;
+        let finite = table.iter().copied().filter(|v| v.is_finite());
+        let most = finite.clone().fold(0.0f32, f32::max);
+        let least = finite.fold(0.0f32, f32::min);
+        Some([most, -least])
+    }
+
     /// The table when it matches its size (`None` for a damaged model file).
     #[inline]
     fn checked_table(&self) -> Option<&[f32]> {

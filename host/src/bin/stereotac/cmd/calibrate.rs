@@ -36,7 +36,7 @@ pub struct Args {
     /// More presses, made with another ball: DIAMETER_MM:PATH, PATH a folder of pairs or
     /// a recording like DIR (repeatable). A ball smaller than --ball-diameter-mm teaches
     /// the steep walls the larger one cannot make (on our evaluation skins a 1.31 wall
-    /// read 0.73-0.83 of its depth from an 8 or 6 mm ball alone, 0.84-1.04 with half the
+    /// read 0.79-1.05 of its depth from an 8 or 6 mm ball alone, 0.84-1.08 with half the
     /// presses of a 4 mm ball). Their names get PATH's name in front (a folder `small`:
     /// `small-press01`).
     #[arg(

@@ -1,0 +1,245 @@
+//! Slopes past the lookup table's reach, read by the light model as well.
+//!
+//! The table answers with the slopes its calibration presses made: its entries saturate
+//! at the steepest slope the ball taught, so a steeper wall reads as that slope (one
+//! ball on the tuning families: a 1 mm disk with a wall of 1.31 read 0.90 and 0.83 mm).
+//! The light model ([`LightModel`]) is a straight line per strip and extrapolates, but
+//! it reads gentle slopes less well than the table. So a pixel whose table reading (its
+//! position gain taken out) reaches [`REACH_SHARE`] of the table's largest reading of
+//! that sign is read by the light model too (both phases, [`read_pair`]), and takes the
+//! light model's slope on an axis where it points the same way and is steeper. Pixels
+//! under the reach keep the table's slopes bit for bit: a scene without steep walls
+//! costs a comparison a pixel.
+
+use super::model::Lut;
+use super::model::light::{LightModel, read_pair};
+
+/// Share of the table's largest reading (of each sign) from which the light model reads
+/// a pixel as well. Chosen on the tuning families (`bench skins`, one ball, 10
+/// placements; see the README's section on slopes past the table's reach).
+pub const REACH_SHARE: f32 = 0.75;
+
+/// The light models and, per axis, the table readings `[positive, negative magnitude]`
+/// from which they read a pixel too.
+#[derive(Debug, Clone, Copy)]
+pub struct Reach<'a> {
+    light: [&'a LightModel; 2],
+    from: [[f32; 2]; 2],
+}
+
+impl<'a> Reach<'a> {
+    /// The reach of `luts` with the light models `light`; `None` when a table has no
+    /// entries (a damaged model file reads 0 anyway). A sign the table never reads has
+    /// no reach there.
+    pub fn new(luts: [&Lut; 2], light: [&'a LightModel; 2]) -> Option<Self> {
+        let [x, y] = [luts[0].extremes()?, luts[1].extremes()?];
+        let from = [x, y].map(|e| {
+            e.map(|v| {
+                if v > 0.0 && v.is_finite() {
+                    v * REACH_SHARE
+                } else {
+                    f32::INFINITY
+                }
+            })
+        });
+        Some(Self { light, from })
+    }
+
+    /// Whether a table reading `slope` (with its pixel's gains `[positive, negative]`)
+    /// reaches the table's limit on `axis`.
+    #[inline(always)]
+    fn reached(&self, axis: usize, slope: f32, gains: [f32; 2]) -> bool {
+        let negative = usize::from(slope < 0.0);
+        let gain = gains[negative];
+        // Gains are positive (a model file's are checked); the table's own value.
+        slope.abs() >= self.from[axis][negative] * gain
+    }
+
+    /// Reads again, with the light model, the pixels of a run whose table slopes reach
+    /// the limit on either axis and that both phases light (`lit`): `features` are the
+    /// run's model inputs `[red, blue]` per phase (each phase's normalised colour times
+    /// the other phase's cross factor, [`colour_features`](super::model::colour_features)),
+    /// `position(k)` pixel `k`'s position `[x / width, y / height]`, `gains` the table's
+    /// position gains per axis. An axis takes the light model's slope where it points the
+    /// same way and is steeper (bounded by ±`max_slope`). Returns how many pixels were
+    /// read.
+    pub fn extend(
+        &self,
+        lit: [&[bool]; 2],
+        features: [[&[f32]; 2]; 2],
+        position: impl Fn(usize) -> [f32; 2],
+        gains: [&[[f32; 2]]; 2],
+        slopes: [&mut [f32]; 2],
+        max_slope: f32,
+    ) -> usize {
+        let [p, q] = slopes;
+        let n = [
+            p.len(),
+            q.len(),
+            lit[0].len(),
+            lit[1].len(),
+            gains[0].len(),
+            gains[1].len(),
+        ]
+        .into_iter()
+        .chain(features.iter().flatten().map(|f| f.len()))
+        .min()
+        .unwrap_or(0);
+        let mut count = 0;
+        for k in 0..n {
+            if !(lit[0][k] && lit[1][k])
+                || !(self.reached(0, p[k], gains[0][k]) || self.reached(1, q[k], gains[1][k]))
+            {
+                continue;
+            }
+            count += 1;
+            let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
+            let [x, y] = position(k);
+            let read = read_pair(self.light, fx, fy, x, y);
+            for (s, r) in [&mut p[k], &mut q[k]].into_iter().zip(read) {
+                if r.is_finite() && r * *s > 0.0 && r.abs() > s.abs() {
+                    *s = r.clamp(-max_slope, max_slope);
+                }
+            }
+        }
+        count
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tactile::model::{Sample, colour_features};
+
+    /// Cotangent of the strips' elevation on the analytic skin.
+    const K: f32 = 1.6;
+
+    /// Model inputs `[[red, blue] of dx, of dy]` of matte skin at slopes `(p, q)`, lit from
+    /// elevation `cot⁻¹ K` on all four sides, made as reconstruction makes them.
+    fn features(p: f32, q: f32) -> [[f32; 2]; 2] {
+        let norm = (1.0 + p * p + q * q).sqrt();
+        let lit = |s: f32| [(1.0 + K * s).max(0.0) / norm, (1.0 - K * s).max(0.0) / norm];
+        let ([rx, bx], [ry, by]) = (lit(p), lit(q));
+        let f = colour_features([rx, bx, ry, by]);
+        [f[0].expect("lit"), f[1].expect("lit")]
+    }
+
+    /// A table and a light model per axis, both taught slopes up to `taught` (a ball's).
+    fn models(taught: f32) -> ([Lut; 2], [LightModel; 2]) {
+        let mut sets = [Vec::new(), Vec::new()];
+        for i in -20..=20 {
+            for j in -20..=20 {
+                let (p, q) = (i as f32 / 20.0 * taught, j as f32 / 20.0 * taught);
+                if p.hypot(q) > taught {
+                    continue;
+                }
+                let f = features(p, q);
+                for (axis, (set, s)) in sets.iter_mut().zip([p, q]).enumerate() {
+                    set.push(Sample {
+                        features: [f[axis][0], f[axis][1], 0.5, 0.5],
+                        target: s,
+                    });
+                }
+            }
+        }
+        (
+            [0, 1].map(|a| Lut::fit(&sets[a], 64, 4.0, 1, 1)),
+            [0, 1].map(|a| LightModel::fit(&sets[a], 1, 1)),
+        )
+    }
+
+    /// The table's slopes of pixels at `slopes`, then [`Reach::extend`] on them; the
+    /// pixels read by the light model are counted.
+    fn read(
+        luts: &[Lut; 2],
+        light: &[LightModel; 2],
+        slopes: &[(f32, f32)],
+        lit: bool,
+    ) -> (Vec<[f32; 2]>, Vec<[f32; 2]>, usize) {
+        let f: Vec<_> = slopes.iter().map(|&(p, q)| features(p, q)).collect();
+        let plane = |phase: usize, c: usize| f.iter().map(|f| f[phase][c]).collect::<Vec<_>>();
+        let planes = [[plane(0, 0), plane(0, 1)], [plane(1, 0), plane(1, 1)]];
+        let table: Vec<[f32; 2]> = f
+            .iter()
+            .map(|f| [0, 1].map(|a| luts[a].eval(f[a][0], f[a][1], 0.5, 0.5)))
+            .collect();
+        let (mut p, mut q): (Vec<f32>, Vec<f32>) = table.iter().map(|s| (s[0], s[1])).unzip();
+        let n = slopes.len();
+        let gains = vec![[1.0f32, 1.0]; n];
+        let lit = vec![lit; n];
+        let reach = Reach::new([&luts[0], &luts[1]], [&light[0], &light[1]]).unwrap();
+        let count = reach.extend(
+            [&lit, &lit],
+            [
+                [&planes[0][0], &planes[0][1]],
+                [&planes[1][0], &planes[1][1]],
+            ],
+            |_| [0.5, 0.5],
+            [&gains, &gains],
+            [&mut p, &mut q],
+            3.0,
+        );
+        let after = p.into_iter().zip(q).map(|(p, q)| [p, q]).collect();
+        (table, after, count)
+    }
+
+    #[test]
+    fn walls_past_the_taught_slopes_read_their_slope_and_gentle_ones_are_untouched() {
+        let (luts, light) = models(0.8);
+        let steep = [(1.31f32, 0.0f32), (-1.31, 0.0), (0.0, 1.6), (0.0, -1.2)];
+        let gentle = [(0.3f32, 0.0f32), (-0.2, 0.1), (0.0, 0.0), (0.1, -0.35)];
+        let all: Vec<_> = steep.iter().chain(&gentle).copied().collect();
+        let (table, after, count) = read(&luts, &light, &all, true);
+        for (k, &(p, q)) in steep.iter().enumerate() {
+            let (t, s) = (table[k], after[k]);
+            let (truth, was, now) = if p != 0.0 {
+                (p, t[0], s[0])
+            } else {
+                (q, t[1], s[1])
+            };
+            // The table saturates at about the taught 0.8; the light model reads on.
+            assert!(was.abs() < 0.9, "({p}, {q}): the table read {was}");
+            assert!((now - truth).abs() < 0.05, "({p}, {q}): {was} -> {now}");
+        }
+        for k in steep.len()..all.len() {
+            assert_eq!(after[k], table[k], "{:?}", all[k]);
+        }
+        assert_eq!(count, steep.len());
+    }
+
+    #[test]
+    fn unlit_pixels_other_signs_and_bounds_are_kept() {
+        let (luts, light) = models(0.8);
+        // Not lit in both phases: as the table read it.
+        let (table, after, count) = read(&luts, &light, &[(1.31, 0.0)], false);
+        assert_eq!((after, count), (table, 0));
+        // The light model's slope is bounded by max_slope (3): past it, 3.
+        let (_, after, _) = read(&luts, &light, &[(4.0, 0.0)], true);
+        assert!(after[0][0] <= 3.0 && after[0][0] > 2.5, "{:?}", after[0]);
+    }
+
+    #[test]
+    fn a_table_without_readings_of_a_sign_has_no_reach_there() {
+        let flat = Lut {
+            bins: 2,
+            max_value: 4.0,
+            cells_x: 1,
+            cells_y: 1,
+            table: vec![0.0; 4],
+            gain: vec![1.0],
+            gain_negative: vec![1.0],
+        };
+        let light = LightModel {
+            cells_x: 1,
+            cells_y: 1,
+            response: vec![[K, -K]],
+        };
+        let reach = Reach::new([&flat, &flat], [&light, &light]).unwrap();
+        assert!(!reach.reached(0, 100.0, [1.0, 1.0]) && !reach.reached(1, -100.0, [1.0, 1.0]));
+        let damaged = Lut {
+            table: vec![],
+            ..flat.clone()
+        };
+        assert!(Reach::new([&damaged, &flat], [&light, &light]).is_none());
+    }
+}
