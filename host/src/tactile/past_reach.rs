@@ -19,21 +19,18 @@ use super::model::light::{LightModel, read_pair};
 /// placements; see the README's section on slopes past the table's reach).
 pub const REACH_SHARE: f32 = 0.75;
 
-/// The light models and, per axis, the table readings `[positive, negative magnitude]`
-/// from which they read a pixel too.
-#[derive(Debug, Clone, Copy)]
-pub struct Reach<'a> {
-    light: [&'a LightModel; 2],
-    from: [[f32; 2]; 2],
-}
+/// Per axis, the table readings `[positive, negative magnitude]` from which the light
+/// model reads a pixel too: [`REACH_SHARE`] of the table's largest reading of that sign
+/// ([`Lut::extremes`]), infinite for a sign the table never reads. Made once per model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReachLimits([[f32; 2]; 2]);
 
-impl<'a> Reach<'a> {
-    /// The reach of `luts` with the light models `light`; `None` when a table has no
-    /// entries (a damaged model file reads 0 anyway). A sign the table never reads has
-    /// no reach there.
-    pub fn new(luts: [&Lut; 2], light: [&'a LightModel; 2]) -> Option<Self> {
+impl ReachLimits {
+    /// The limits of `luts`; `None` when a table has no entries (a damaged model file
+    /// reads 0 anyway).
+    pub fn of(luts: [&Lut; 2]) -> Option<Self> {
         let [x, y] = [luts[0].extremes()?, luts[1].extremes()?];
-        let from = [x, y].map(|e| {
+        Some(Self([x, y].map(|e| {
             e.map(|v| {
                 if v > 0.0 && v.is_finite() {
                     v * REACH_SHARE
@@ -41,8 +38,24 @@ impl<'a> Reach<'a> {
                     f32::INFINITY
                 }
             })
-        });
-        Some(Self { light, from })
+        })))
+    }
+}
+
+/// The light models and the limits from which they read a pixel too.
+#[derive(Debug, Clone, Copy)]
+pub struct Reach<'a> {
+    light: [&'a LightModel; 2],
+    from: [[f32; 2]; 2],
+}
+
+impl<'a> Reach<'a> {
+    /// The light models `light` reading past `limits`.
+    pub fn new(limits: ReachLimits, light: [&'a LightModel; 2]) -> Self {
+        Self {
+            light,
+            from: limits.0,
+        }
     }
 
     /// Whether a table reading `slope` (with its pixel's gains `[positive, negative]`)
@@ -167,7 +180,8 @@ mod tests {
         let n = slopes.len();
         let gains = vec![[1.0f32, 1.0]; n];
         let lit = vec![lit; n];
-        let reach = Reach::new([&luts[0], &luts[1]], [&light[0], &light[1]]).unwrap();
+        let limits = ReachLimits::of([&luts[0], &luts[1]]).unwrap();
+        let reach = Reach::new(limits, [&light[0], &light[1]]);
         let count = reach.extend(
             [&lit, &lit],
             [
@@ -234,12 +248,12 @@ mod tests {
             cells_y: 1,
             response: vec![[K, -K]],
         };
-        let reach = Reach::new([&flat, &flat], [&light, &light]).unwrap();
+        let reach = Reach::new(ReachLimits::of([&flat, &flat]).unwrap(), [&light, &light]);
         assert!(!reach.reached(0, 100.0, [1.0, 1.0]) && !reach.reached(1, -100.0, [1.0, 1.0]));
         let damaged = Lut {
             table: vec![],
             ..flat.clone()
         };
-        assert!(Reach::new([&damaged, &flat], [&light, &light]).is_none());
+        assert!(ReachLimits::of([&damaged, &flat]).is_none());
     }
 }

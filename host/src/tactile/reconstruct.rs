@@ -22,7 +22,7 @@ use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
 use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light, validate};
-use super::past_reach::Reach;
+use super::past_reach::{Reach, ReachLimits};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
 use super::reference_check;
@@ -281,6 +281,9 @@ pub struct Reconstructor {
     /// The lookup table's position gain at every pixel, per axis (LUT only: computed
     /// once, so the model does not blend it per pixel).
     lut_gains: Option<Arc<[GainPlanes; 2]>>,
+    /// Where the light model reads the table's slopes too (LUT with light models only:
+    /// made once from the tables).
+    reach_limits: Option<ReachLimits>,
     slopes: Vec<f32>,
     /// The photometric model's four colours of each touched pixel.
     joint_colours: Vec<[f32; 4]>,
@@ -304,6 +307,7 @@ impl Reconstructor {
             features: Default::default(),
             unread_fill: UnreadFill::default(),
             lut_gains: self.lut_gains.clone(),
+            reach_limits: self.reach_limits,
             slopes: Vec::new(),
             joint_colours: Vec::new(),
             led: Default::default(),
@@ -422,8 +426,15 @@ impl Reconstructor {
                 }
             }
         }
+        // The light model reads past the table's reach only with the table (its gains
+        // made) and light models in the file.
+        let reach_limits = match (&lut_gains, &model.dx.light, &model.dy.light) {
+            (Some(_), Some(_), Some(_)) => ReachLimits::of([&model.dx.lut, &model.dy.lut]),
+            _ => None,
+        };
         Ok(Self {
             lut_gains,
+            reach_limits,
             model,
             kind,
             solver_kind,
@@ -580,10 +591,12 @@ impl Reconstructor {
             gains: self.lut_gains.as_deref(),
             // Slopes past the table's reach are read by the light model too, when the
             // model file has one.
-            reach: match (&self.model.dx.light, &self.model.dy.light) {
-                (Some(x), Some(y)) if self.lut_gains.is_some() => {
-                    Reach::new([&self.model.dx.lut, &self.model.dy.lut], [x, y])
-                }
+            reach: match (
+                self.reach_limits,
+                &self.model.dx.light,
+                &self.model.dy.light,
+            ) {
+                (Some(limits), Some(x), Some(y)) => Some(Reach::new(limits, [x, y])),
                 _ => None,
             },
         };
