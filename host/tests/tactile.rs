@@ -159,6 +159,51 @@ fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
     );
 }
 
+/// The light model's reading past the table's reach is a switch: off, the table reads
+/// alone, as from a model file without light models (bit for bit), and the count says
+/// how many pixels the light model read; on again, the same depth as before. Only the
+/// table with light models can read past its reach.
+#[test]
+fn reading_past_the_tables_reach_can_be_turned_off() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let pair = render(&optics, &disk(1.6), 3);
+    let mut on = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
+    assert!(on.reads_past_reach());
+    let with = on.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert!(with.past_reach_pixels > 0);
+
+    let mut off = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
+    assert!(!off.set_past_reach(false) && !off.reads_past_reach());
+    assert!(
+        !off.fresh().reads_past_reach(),
+        "a worker's copy keeps the switch"
+    );
+    let without = off.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert_eq!(without.past_reach_pixels, 0);
+    let mut alone = reconstructor(&table_alone(&model), &refs, ModelKind::Lut, SolverKind::Dct);
+    assert!(!alone.set_past_reach(true), "no light model to read with");
+    let table = alone.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert_eq!(table.past_reach_pixels, 0);
+    assert_eq!(without.depth_mm.as_slice(), table.depth_mm.as_slice());
+    assert_ne!(without.depth_mm.as_slice(), with.depth_mm.as_slice());
+
+    assert!(off.set_past_reach(true));
+    let again = off.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert_eq!(again.past_reach_pixels, with.past_reach_pixels);
+    assert_eq!(again.depth_mm.as_slice(), with.depth_mm.as_slice());
+
+    for kind in [ModelKind::Mlp, ModelKind::Light, ModelKind::Photometric] {
+        let mut other = reconstructor(&model, &refs, kind, SolverKind::Dct);
+        assert!(
+            !other.reads_past_reach() && !other.set_past_reach(true),
+            "{kind}"
+        );
+        let r = other.reconstruct(&pair.dx, &pair.dy).unwrap();
+        assert_eq!(r.past_reach_pixels, 0, "{kind}");
+    }
+}
+
 /// Presses of a second, smaller ball (each tagged with its diameter) teach the table
 /// the steep slopes the calibration ball cannot make: the 1.6 wall that the 6 mm ball's
 /// table reads short reads deeper, and each press's depth comes from its own ball.
@@ -1428,6 +1473,14 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
     );
     let lo = below["colour_range"]["lo"].as_f64().unwrap();
     assert!((lo + 0.1).abs() < 1e-6, "{below}");
+    // A wall steeper than the calibration ball's is read past the table's reach by
+    // default (counted in summary.json), by the table alone with --no-past-reach.
+    let (_, past, _) = run(&disk(1.6), "past", &[]);
+    let (_, alone, _) = run(&disk(1.6), "alone", &["--no-past-reach"]);
+    assert!(past["past_reach_pixels"].as_u64().unwrap() > 0, "{past}");
+    assert_eq!(alone["past_reach_pixels"], 0, "{alone}");
+    let deepest = |s: &serde_json::Value| s["max_depth_mm"].as_f64().unwrap();
+    assert!(deepest(&alone) < deepest(&past) - 0.05, "{alone}\n{past}");
     let mesh = std::fs::read(out.join("depth_mesh.ply")).unwrap();
     let header = String::from_utf8_lossy(&mesh[..400]);
     let (w, h) = (optics.width, optics.height);

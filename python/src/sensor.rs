@@ -275,8 +275,10 @@ impl PySensor {
     /// none is given. `model`: a path or a `TactileModel`; `calib`: a path or a pair of
     /// paths (ROS), `units` the unit of an OpenCV file's `T`. A model calibrated with
     /// LEDs-off frames is refused in a mode without dark phases unless `static_ambient`
-    /// (the ambient light measured at calibration is removed instead).
-    #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut", static_ambient = false))]
+    /// (the ambient light measured at calibration is removed instead). `past_reach=False`
+    /// keeps the lookup table's slopes where they reach its limit (as
+    /// `TactileModel.reconstruct`).
+    #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut", static_ambient = false, past_reach = true))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         slf: PyRef<'_, Self>,
@@ -291,6 +293,7 @@ impl PySensor {
         frames: bool,
         kind: &str,
         static_ambient: bool,
+        past_reach: bool,
     ) -> PyResult<PyLiveRun> {
         let mode = mode_named(mode)?;
         let period = period_us(period_ms)?;
@@ -409,7 +412,7 @@ impl PySensor {
                 mode,
                 period,
                 duration_s,
-                tactile: tactile.map(|(m, r)| (m, r, kind)),
+                tactile: tactile.map(|(m, r)| (m, r, kind, past_reach)),
                 stereo,
                 frames,
             },
@@ -583,11 +586,13 @@ impl Drop for PyEvents {
     }
 }
 
-/// A tactile model, the no-contact frames it normalises by, and the gradient model.
+/// A tactile model, the no-contact frames it normalises by, the gradient model, and
+/// whether the light model reads past the lookup table's reach.
 type TactileInputs = (
     TactileModel,
     Option<(image::RgbImage, image::RgbImage)>,
     ModelKind,
+    bool,
 );
 
 /// What the live thread hands on.
@@ -861,15 +866,16 @@ fn prepare(
     let stamp_refs: Vec<StampRef> = session.captures().iter().map(|c| c.stamp_ref()).collect();
     let mut px_per_mm = 15.0;
     let tactile_stage = match tactile {
-        Some((model, references, kind)) => {
+        Some((model, references, kind, past_reach)) => {
             px_per_mm = model.px_per_mm;
-            let rec = Reconstructor::new(
+            let mut rec = Reconstructor::new(
                 model,
                 kind,
                 SolverKind::Dct,
                 references.as_ref().map(|(dx, dy)| (dx, dy).into()),
             )
             .map_err(|e| bad(e.to_string()))?;
+            rec.set_past_reach(past_reach);
             Some(TactileStage::new(rec, px_per_mm, stamp_refs[0]))
         }
         None => None,

@@ -25,11 +25,15 @@ use crate::errors::{bad_input, py_result};
 pub struct PyTactileModel {
     model: TactileModel,
     /// The reconstructor without references, kept for `reconstruct` (its solver plans
-    /// and buffers are reused), with the kind and solver it was made for.
-    cached: Option<(ModelKind, SolverKind, Reconstructor)>,
+    /// and buffers are reused), with the settings it was made for.
+    cached: Option<(Settings, Reconstructor)>,
     /// Input buffers, reused between calls.
     frames: Frames,
 }
+
+/// What a reconstructor is made with: gradient model, solver, and whether the light model
+/// reads past the lookup table's reach.
+type Settings = (ModelKind, SolverKind, bool);
 
 /// A gradient model kind from its name.
 fn model_kind(name: &str) -> PyResult<ModelKind> {
@@ -176,9 +180,11 @@ impl PyTactileModel {
 
     /// Depth of one dx/dy pair. `ref`: no-contact frames `(dx, dy)` or `(dx, dy, dark)`
     /// to normalise by (otherwise the model's background); `dark`: the LEDs-off frame
-    /// taken with the pair. For a stream with reference frames, make a `Reconstructor`
-    /// once instead (references are prepared once, buffers reused).
-    #[pyo3(signature = (dx, dy, r#ref = None, dark = None, kind = "lut", solver = "dct"))]
+    /// taken with the pair. `past_reach=False` keeps the lookup table's slopes where they
+    /// reach its limit (by default the model file's light model reads steeper walls
+    /// there). For a stream with reference frames, make a `Reconstructor` once instead
+    /// (references are prepared once, buffers reused).
+    #[pyo3(signature = (dx, dy, r#ref = None, dark = None, kind = "lut", solver = "dct", past_reach = true))]
     #[allow(clippy::too_many_arguments)]
     fn reconstruct(
         &mut self,
@@ -189,38 +195,42 @@ impl PyTactileModel {
         dark: Option<&Bound<'_, PyAny>>,
         kind: &str,
         solver: &str,
+        past_reach: bool,
     ) -> PyResult<PyTactileResult> {
         let (kind, solver) = (model_kind(kind)?, solver_kind(solver)?);
+        let settings = (kind, solver, past_reach);
         let mut frames = std::mem::take(&mut self.frames);
         let read = frames.fill("", dx, dy, dark);
         self.frames = frames;
         read?;
         if let Some(r) = r#ref {
-            let mut rec = self.reconstructor_for(py, Some(r), kind, solver)?;
+            let mut rec = self.reconstructor_for(py, Some(r), settings)?;
             return run(py, &mut rec, &self.frames);
         }
         let mut rec = match self.cached.take() {
-            Some((k, s, rec)) if (k, s) == (kind, solver) => rec,
-            _ => self.reconstructor_for(py, None, kind, solver)?,
+            Some((cached, rec)) if cached == settings => rec,
+            _ => self.reconstructor_for(py, None, settings)?,
         };
         let result = run(py, &mut rec, &self.frames);
-        self.cached = Some((kind, solver, rec));
+        self.cached = Some((settings, rec));
         result
     }
 
     /// A reconstructor for this model: `ref` (no-contact frames `(dx, dy)` or
-    /// `(dx, dy, dark)`) prepared once, solver plans and buffers kept between pairs.
-    #[pyo3(signature = (r#ref = None, kind = "lut", solver = "dct"))]
+    /// `(dx, dy, dark)`) prepared once, solver plans and buffers kept between pairs;
+    /// `past_reach` as in `reconstruct`.
+    #[pyo3(signature = (r#ref = None, kind = "lut", solver = "dct", past_reach = true))]
     fn reconstructor(
         &self,
         py: Python<'_>,
         r#ref: Option<&Bound<'_, PyAny>>,
         kind: &str,
         solver: &str,
+        past_reach: bool,
     ) -> PyResult<PyReconstructor> {
         let (kind, solver) = (model_kind(kind)?, solver_kind(solver)?);
         Ok(PyReconstructor {
-            inner: self.reconstructor_for(py, r#ref, kind, solver)?,
+            inner: self.reconstructor_for(py, r#ref, (kind, solver, past_reach))?,
             frames: Frames::default(),
         })
     }
@@ -252,13 +262,17 @@ impl PyTactileModel {
         &self,
         py: Python<'_>,
         r#ref: Option<&Bound<'_, PyAny>>,
-        kind: ModelKind,
-        solver: SolverKind,
+        (kind, solver, past_reach): Settings,
     ) -> PyResult<Reconstructor> {
         let refs = r#ref.map(|r| Frames::from_tuple("ref", r)).transpose()?;
         let model = self.model.clone();
         py_result(py.detach(|| {
-            Reconstructor::new(model, kind, solver, refs.as_ref().map(Frames::phase_frames))
+            Reconstructor::new(model, kind, solver, refs.as_ref().map(Frames::phase_frames)).map(
+                |mut rec| {
+                    rec.set_past_reach(past_reach);
+                    rec
+                },
+            )
         }))
     }
 }
@@ -358,6 +372,9 @@ pub struct PyTactileResult {
     /// Slopes the sanitiser replaced or clamped.
     #[pyo3(get)]
     sanitized_slopes: usize,
+    /// Touched pixels the light model read past the lookup table's reach.
+    #[pyo3(get)]
+    past_reach_pixels: usize,
     /// Live results: when the pair's second (dy) exposure ended, host µs; `None` offline.
     #[pyo3(get)]
     timestamp_us: Option<f64>,
@@ -399,6 +416,7 @@ impl PyTactileResult {
                 .collect(),
             ambient: r.ambient.name().to_string(),
             sanitized_slopes: s.sanitized_slopes,
+            past_reach_pixels: s.past_reach_pixels,
             timestamp_us: None,
             record: None,
             summary: s,

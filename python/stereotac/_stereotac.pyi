@@ -29,6 +29,8 @@ class TactileResult:
     """Regions integrated: (x, y, width, height) in px."""
     ambient: str
     sanitized_slopes: int
+    past_reach_pixels: int
+    """Touched pixels the light model read past the lookup table's reach."""
     timestamp_us: Optional[float]
     """Live results: end of the dy exposure, host µs (None offline)."""
     record: Optional[Dict[str, Any]]
@@ -64,10 +66,16 @@ class TactileModel:
         dark: Optional[_Rgb] = None,
         kind: str = "lut",
         solver: str = "dct",
+        past_reach: bool = True,
     ) -> TactileResult:
-        """Depth of one pair; kind "lut", "mlp", "light" or "photometric", solver "dct" (Neumann) or "dst"."""
+        """Depth of one pair; kind "lut", "mlp", "light" or "photometric", solver "dct" (Neumann) or "dst";
+        past_reach=False keeps the lookup table's slopes where they reach its limit."""
     def reconstructor(
-        self, ref: Optional[_Frames] = None, kind: str = "lut", solver: str = "dct"
+        self,
+        ref: Optional[_Frames] = None,
+        kind: str = "lut",
+        solver: str = "dct",
+        past_reach: bool = True,
     ) -> Reconstructor: ...
 
 def calibrate(
@@ -226,5 +234,6 @@ class Sensor:
         frames: bool = False,
         kind: str = "lut",
         static_ambient: bool = False,
+        past_reach: bool = True,
     ) -> LiveRun:
         """The live pipeline of `stereotac run`: results with host timestamps."""

@@ -44,6 +44,7 @@ def test_reconstruct_equals_cli(cli, model_path, scene_pairs, tmp_path, which):
     assert np.float32(r.max_depth_mm) == np.float32(summary["max_depth_mm"])  # f32 in JSON
     assert r.area_mm2 == pytest.approx(summary["contact_area_mm2"])
     assert r.volume_mm3 == pytest.approx(summary["volume_mm3"])
+    assert r.past_reach_pixels == summary["past_reach_pixels"]
     assert r.contact_mask.dtype == np.bool_ and r.contact_mask.shape == r.depth.shape
     assert set(r.timings) == {"detect_ms", "colour_ms", "model_ms", "solve_ms", "total_ms"}
     if which == "contact":
@@ -51,6 +52,21 @@ def test_reconstruct_equals_cli(cli, model_path, scene_pairs, tmp_path, which):
         assert r.regions, "a contact has regions"
     else:
         assert not r.contact and r.centroid_mm is None
+
+
+def test_past_reach_off_equals_cli(cli, model_path, scene_pairs, tmp_path):
+    _, dx, dy, dark = contact_pair(scene_pairs)
+    args = ["reconstruct", "--model", model_path, "--dx", dx, "--dy", dy, "--out-dir", tmp_path / "o"]
+    args += ["--json", "--no-past-reach"] + ([] if dark is None else ["--dark", dark])
+    summary = json.loads(run(cli, *args))
+    expected = np.load(tmp_path / "o" / "depth.npy")
+    model = stereotac.TactileModel.load(model_path)
+    dx_img, dy_img, dark_img = frames(contact_pair(scene_pairs))
+    r = model.reconstruct(dx_img, dy_img, dark=dark_img, past_reach=False)
+    assert r.past_reach_pixels == 0 == summary["past_reach_pixels"]
+    np.testing.assert_array_equal(r.depth, expected)
+    rec = model.reconstructor(past_reach=False)
+    np.testing.assert_array_equal(rec.reconstruct(dx_img, dy_img, dark=dark_img).depth, expected)
 
 
 def test_reconstructor_and_model_agree(model_path, scene_pairs):

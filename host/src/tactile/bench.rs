@@ -62,6 +62,39 @@ pub struct DepthErrors {
     pub reading_mm: f64,
 }
 
+/// The gradient models measured: every kind, and the lookup table a second time alone
+/// (without the light model reading past its reach, [`super::past_reach`]) to compare.
+const VARIANTS: [(ModelKind, bool); 5] = [
+    (ModelKind::Lut, true),
+    (ModelKind::Lut, false),
+    (ModelKind::Mlp, false),
+    (ModelKind::Light, false),
+    (ModelKind::Photometric, false),
+];
+
+/// A reconstructor of `variant` (see [`VARIANTS`]) and whether it reads past the table's
+/// reach.
+fn reconstructor(
+    model: &TactileModel,
+    (kind, past_reach): (ModelKind, bool),
+    solver: SolverKind,
+    refs: &(image::RgbImage, image::RgbImage),
+) -> (Reconstructor, bool) {
+    let mut rec = Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into()))
+        .expect("the built-in model takes its own reference frames");
+    let on = rec.set_past_reach(past_reach);
+    (rec, on)
+}
+
+/// The model's name in the tables: `lut` reads past the table's reach, `lut-alone` does
+/// not.
+fn model_label(kind: ModelKind, past_reach: bool) -> String {
+    match kind {
+        ModelKind::Lut if !past_reach => "lut-alone".into(),
+        _ => kind.to_string(),
+    }
+}
+
 /// One scene × size × model × solver.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BenchRecord {
@@ -73,6 +106,8 @@ pub struct BenchRecord {
     pub height: usize,
     /// Gradient model.
     pub model: ModelKind,
+    /// The light model read slopes past the lookup table's reach.
+    pub past_reach: bool,
     /// Solver.
     pub solver: SolverKind,
     /// Median milliseconds per stage.
@@ -103,6 +138,8 @@ pub struct SizeReference {
 pub struct DiskStatistic {
     /// Gradient model.
     pub model: ModelKind,
+    /// The light model read slopes past the lookup table's reach.
+    pub past_reach: bool,
     /// Solver.
     pub solver: SolverKind,
     /// Placements.
@@ -150,20 +187,14 @@ pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
             calibration: model.fit,
         });
         let scenes = builtin_scenes(&optics);
-        let total = scenes.len() * ModelKind::ALL.len() * SolverKind::ALL.len();
+        let total = scenes.len() * VARIANTS.len() * SolverKind::ALL.len();
         let mut done = 0;
         for (name, scene) in &scenes {
             let pair = render(&optics, scene, 7);
             let truth = scene.truth(w, h, optics.px_per_mm).depth;
-            for kind in ModelKind::ALL {
+            for variant in VARIANTS {
                 for solver in SolverKind::ALL {
-                    let mut rec = Reconstructor::new(
-                        model.clone(),
-                        kind,
-                        solver,
-                        Some((&refs.0, &refs.1).into()),
-                    )
-                    .expect("the built-in model takes its own reference frames");
+                    let (mut rec, past_reach) = reconstructor(&model, variant, solver, &refs);
                     let mut runs = Vec::with_capacity(config.repeats);
                     let mut last = None;
                     for _ in 0..config.repeats.max(1) {
@@ -176,7 +207,8 @@ pub fn run(config: &BenchConfig, progress: Progress<'_>) -> BenchReport {
                         scene: name.to_string(),
                         width: w,
                         height: h,
-                        model: kind,
+                        model: variant.0,
+                        past_reach,
                         solver,
                         median_ms: median_timings(&runs),
                         errors: errors(&last.depth_mm, &truth),
@@ -234,13 +266,11 @@ fn disk_statistics(
         })
         .collect();
     let mut out = Vec::new();
-    let total = placements * ModelKind::ALL.len() * SolverKind::ALL.len();
+    let total = placements * VARIANTS.len() * SolverKind::ALL.len();
     let mut done = 0;
-    for kind in ModelKind::ALL {
+    for variant in VARIANTS {
         for solver in SolverKind::ALL {
-            let mut rec =
-                Reconstructor::new(model.clone(), kind, solver, Some((&refs.0, &refs.1).into()))
-                    .expect("the built-in model takes its own reference frames");
+            let (mut rec, past_reach) = reconstructor(model, variant, solver, refs);
             let mut readings = Vec::with_capacity(placements);
             for (i, (scene, truth)) in scenes.iter().enumerate() {
                 let pair = render(optics, scene, 100 + i as u64);
@@ -253,7 +283,8 @@ fn disk_statistics(
             let mean = readings.iter().sum::<f64>() / n;
             let var = readings.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
             out.push(DiskStatistic {
-                model: kind,
+                model: variant.0,
+                past_reach,
                 solver,
                 placements,
                 mean_mm: mean,
@@ -410,7 +441,7 @@ pub fn format_table(report: &BenchReport) -> String {
     }
     let _ = writeln!(
         s,
-        "\n{:<11} {:>9} {:<4} {:<4} | {:>6} {:>6} {:>6} {:>6} {:>7} | {:>7} {:>7} {:>6} {:>6} {:>7}",
+        "\n{:<11} {:>9} {:<11} {:<4} | {:>6} {:>6} {:>6} {:>6} {:>7} | {:>7} {:>7} {:>6} {:>6} {:>7}",
         "scene",
         "size",
         "mdl",
@@ -431,10 +462,10 @@ pub fn format_table(report: &BenchReport) -> String {
         let e = &r.errors;
         let _ = writeln!(
             s,
-            "{:<11} {:>9} {:<4} {:<4} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>7.2} | {:>7.4} {:>7.3} {:>6.3} {:>6.3} {:>7.3}",
+            "{:<11} {:>9} {:<11} {:<4} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} {:>7.2} | {:>7.4} {:>7.3} {:>6.3} {:>6.3} {:>7.3}",
             r.scene,
             format!("{}x{}", r.width, r.height),
-            r.model,
+            model_label(r.model, r.past_reach),
             r.solver,
             t.detect_ms,
             t.colour_ms,
@@ -457,7 +488,11 @@ pub fn format_table(report: &BenchReport) -> String {
             let _ = writeln!(
                 s,
                 "  {} + {}: {} places, mean {:.3} mm, std {:.3} mm",
-                d.model, d.solver, d.placements, d.mean_mm, d.std_mm
+                model_label(d.model, d.past_reach),
+                d.solver,
+                d.placements,
+                d.mean_mm,
+                d.std_mm
             );
         }
     }

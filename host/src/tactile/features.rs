@@ -92,6 +92,15 @@ fn for_each_run(
     }
 }
 
+/// What [`Features::lut_slopes`] changed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LutCounts {
+    /// Slopes bounded by `max_slope` (NaN → 0).
+    pub sanitized: usize,
+    /// Pixels read by the light model as well ([`super::past_reach`]).
+    pub past_reach: usize,
+}
+
 /// Time spent in the two stages of [`Features::lut_slopes`] (ms).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct FusedTimings {
@@ -154,7 +163,7 @@ impl Features {
     /// the table in one pass with no feature rows in between. Pixels the filter rejects in
     /// a phase get slope 0 on its axis; slopes are bounded by `max_slope` (NaN → 0) and
     /// the bounded ones counted, as [`super::sanitize::sanitize`] does. Needs
-    /// `inputs.gains`. Returns the slopes changed and the time of each stage.
+    /// `inputs.gains`. Returns what was changed and the time of each stage.
     pub fn lut_slopes(
         &mut self,
         inputs: &Inputs<'_>,
@@ -163,13 +172,13 @@ impl Features {
         luts: [&Lut; 2],
         slopes: [&mut [f32]; 2],
         max_slope: f32,
-    ) -> (usize, FusedTimings) {
+    ) -> (LutCounts, FusedTimings) {
         let w = inputs.dx.width() as usize;
         let mut timings = FusedTimings::default();
-        let mut changed = 0;
+        let mut counts = LutCounts::default();
         self.unread.iter_mut().for_each(Vec::clear);
         let Some(gains) = inputs.gains else {
-            return (0, timings);
+            return (counts, timings);
         };
         let (row, unread) = (&mut self.row, &mut self.unread);
         let [p, q] = slopes;
@@ -192,7 +201,7 @@ impl Features {
                 let refused = at.clone().zip(lit).filter(|(_, ok)| !**ok);
                 unread[axis].extend(refused.map(|(i, _)| i));
                 let fixed = sanitize(out, max_slope);
-                changed += fixed.non_finite + fixed.clamped;
+                counts.sanitized += fixed.non_finite + fixed.clamped;
             }
             // Where a strip of the other phase is in shadow the cross factor fell short:
             // those pixels' colours are made again from the frames and read again.
@@ -219,13 +228,12 @@ impl Features {
             );
             // Past the table's reach the light model reads the slope as well.
             if let Some(reach) = &inputs.reach {
-                let height = inputs.dx.height() as f32;
-                let position = |k: usize| {
-                    let i = span.start + k;
-                    [(i % w) as f32 / w as f32, (i / w) as f32 / height]
-                };
+                // A run lies in one frame row.
+                let y = (span.start / w) as f32 / inputs.dx.height() as f32;
+                let x0 = span.start % w;
+                let position = |k: usize| [(x0 + k) as f32 / w as f32, y];
                 let [[xr, xb], [yr, yb]] = &row.colour;
-                reach.extend(
+                counts.past_reach += reach.extend(
                     [&row.lit[0], &row.lit[1]],
                     [[xr, xb], [yr, yb]],
                     position,
@@ -237,7 +245,7 @@ impl Features {
             clock = Instant::now();
             timings.model_ms += ms(t, clock);
         });
-        (changed, timings)
+        (counts, timings)
     }
 }
 
@@ -480,8 +488,13 @@ mod tests {
         };
         let mut features = Features::default();
         let (mut p, mut q) = (vec![0.0f32; roi.area()], vec![0.0f32; roi.area()]);
-        let (changed, _) =
+        let (counts, _) =
             features.lut_slopes(&inputs, &roi, &mask, [&lut, &lut], [&mut p, &mut q], 3.0);
+        assert_eq!(
+            counts.past_reach, 0,
+            "no light model, no reading past the reach"
+        );
+        let changed = counts.sanitized;
         let fused_rejected = features.rejected();
         let fused_unread = features.unread.clone();
 

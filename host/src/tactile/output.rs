@@ -94,6 +94,9 @@ pub struct Summary {
     pub rejected_pixels: usize,
     /// Slopes the sanitiser replaced or clamped.
     pub sanitized_slopes: usize,
+    /// Touched pixels read by the light model past the lookup table's reach (see
+    /// [`crate::tactile::past_reach`]; 0 when that is off or the model is not the table).
+    pub past_reach_pixels: usize,
     /// Which ambient light was removed (see [`crate::tactile::ambient`]).
     pub ambient: AmbientSource,
     /// Stage timings (ms).
@@ -135,6 +138,7 @@ impl Summary {
             regions: r.regions.clone(),
             rejected_pixels: r.rejected_pixels,
             sanitized_slopes: r.sanitized_slopes,
+            past_reach_pixels: r.past_reach_pixels,
             ambient: r.ambient,
             timings: r.timings,
         }

@@ -6,13 +6,14 @@
 //! The light model ([`LightModel`]) is a straight line per strip and extrapolates, but
 //! it reads gentle slopes less well than the table. So a pixel whose table reading (its
 //! position gain taken out) reaches [`REACH_SHARE`] of the table's largest reading of
-//! that sign is read by the light model too (both phases, [`read_pair`]), and takes the
-//! light model's slope on an axis where it points the same way and is steeper. Pixels
-//! under the reach keep the table's slopes bit for bit: a scene without steep walls
-//! costs a comparison a pixel.
+//! that sign is read by the light model too (both phases,
+//! [`read_pair`](super::model::light::read_pair)), and takes the light model's slope on
+//! an axis where it points the same way and is steeper. Pixels under the reach keep the
+//! table's slopes bit for bit: a scene without steep walls costs a comparison a pixel;
+//! `Reconstructor::set_past_reach(false)` turns the reading off.
 
 use super::model::Lut;
-use super::model::light::{LightModel, read_pair};
+use super::model::light::{LightModel, PairReader};
 
 /// Share of the table's largest reading (of each sign) from which the light model reads
 /// a pixel as well. Chosen on the tuning families (`bench skins`, one ball, 10
@@ -99,16 +100,26 @@ impl<'a> Reach<'a> {
         .min()
         .unwrap_or(0);
         let mut count = 0;
+        // Made at the first pixel read (most runs have none).
+        let mut reader = None;
         for k in 0..n {
             if !(lit[0][k] && lit[1][k])
                 || !(self.reached(0, p[k], gains[0][k]) || self.reached(1, q[k], gains[1][k]))
             {
                 continue;
             }
+            let reader = match &mut reader {
+                Some(r) => r,
+                None => match PairReader::new(self.light) {
+                    Some(r) => reader.insert(r),
+                    // A damaged light model reads nothing.
+                    None => return count,
+                },
+            };
             count += 1;
             let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
             let [x, y] = position(k);
-            let read = read_pair(self.light, fx, fy, x, y);
+            let read = reader.read(fx, fy, x, y);
             for (s, r) in [&mut p[k], &mut q[k]].into_iter().zip(read) {
                 if r.is_finite() && r * *s > 0.0 && r.abs() > s.abs() {
                     *s = r.clamp(-max_slope, max_slope);

@@ -201,6 +201,9 @@ pub struct Reconstruction {
     pub rejected_pixels: usize,
     /// Slopes replaced or clamped by the sanitiser.
     pub sanitized_slopes: usize,
+    /// Touched pixels whose lookup-table slopes reached the table's limit and were read
+    /// by the light model too ([`super::past_reach`]; 0 when that is off).
+    pub past_reach_pixels: usize,
     /// Per phase (dx, dy), the fraction of the frame where the colour filter rejected it;
     /// above [`phase_check::MIN_LIT_FRACTION`]'s complement in either, the pair is not a
     /// lit dx/dy pair and its depth or "no contact" means nothing ([`Self::unlit`]).
@@ -257,6 +260,15 @@ impl Reconstruction {
             });
         }
         Ok(self)
+    }
+}
+
+/// Where the light model reads past the lookup table's reach: only with the table (its
+/// gains made, `lut`) and light models in the file.
+fn reach_limits_of(model: &TactileModel, lut: bool) -> Option<ReachLimits> {
+    match (lut, &model.dx.light, &model.dy.light) {
+        (true, Some(_), Some(_)) => ReachLimits::of([&model.dx.lut, &model.dy.lut]),
+        _ => None,
     }
 }
 
@@ -426,12 +438,7 @@ impl Reconstructor {
                 }
             }
         }
-        // The light model reads past the table's reach only with the table (its gains
-        // made) and light models in the file.
-        let reach_limits = match (&lut_gains, &model.dx.light, &model.dy.light) {
-            (Some(_), Some(_), Some(_)) => ReachLimits::of([&model.dx.lut, &model.dy.lut]),
-            _ => None,
-        };
+        let reach_limits = reach_limits_of(&model, lut_gains.is_some());
         Ok(Self {
             lut_gains,
             reach_limits,
@@ -454,6 +461,25 @@ impl Reconstructor {
     /// The calibrated model.
     pub fn model(&self) -> &TactileModel {
         &self.model
+    }
+
+    /// Turns the light model's reading of slopes past the lookup table's reach
+    /// ([`super::past_reach`]) on (the default) or off (the table's slopes alone, as
+    /// before; for a skin the light model over-reads). It can be on only with the lookup
+    /// table and a model file that has light models; returns whether it is on now.
+    pub fn set_past_reach(&mut self, on: bool) -> bool {
+        self.reach_limits = if on {
+            reach_limits_of(&self.model, self.lut_gains.is_some())
+        } else {
+            None
+        };
+        self.reach_limits.is_some()
+    }
+
+    /// Whether the light model reads slopes past the lookup table's reach
+    /// ([`Self::set_past_reach`]).
+    pub fn reads_past_reach(&self) -> bool {
+        self.reach_limits.is_some()
     }
 
     /// Reconstructs one frame pair (no LEDs-off frame).
@@ -553,6 +579,7 @@ impl Reconstructor {
             regions: Vec::new(),
             rejected_pixels: 0,
             sanitized_slopes: 0,
+            past_reach_pixels: 0,
             unlit_fraction: detection.unlit_fraction,
             ambient,
             timings: StageTimings {
@@ -606,7 +633,7 @@ impl Reconstructor {
             // The lookup table (its gains are made only for it) reads the colours as they
             // are made: one pass, no rows of features in between; each stage's time is
             // measured inside it.
-            let (changed, times) = self.features.lut_slopes(
+            let (counts, times) = self.features.lut_slopes(
                 &inputs,
                 roi,
                 &mask,
@@ -614,7 +641,8 @@ impl Reconstructor {
                 [p.as_mut_slice(), q.as_mut_slice()],
                 self.max_slope,
             );
-            out.sanitized_slopes += changed;
+            out.sanitized_slopes += counts.sanitized;
+            out.past_reach_pixels += counts.past_reach;
             out.rejected_pixels += self.features.rejected();
             let t2 = Instant::now();
             let overhead = ms(t0, t2) - times.colour_ms - times.model_ms;

@@ -66,6 +66,10 @@ pub struct StageArgs {
     /// each pair's own (wrong as soon as the room's light changes).
     #[arg(long)]
     pub static_ambient: bool,
+    /// Keep the lookup table's slopes where they reach its limit (by default the model
+    /// file's light model reads steeper walls there; `process`: as the recording's run).
+    #[arg(long)]
+    pub no_past_reach: bool,
 }
 
 /// What a size mismatch asks the user to change.
@@ -102,6 +106,9 @@ pub struct TactileSetup {
     /// The calibration's ambient light accepted in place of LEDs-off frames
     /// (`--static-ambient`; kept in the recording, so `process` does as `run` did).
     pub static_ambient: bool,
+    /// The light model reads slopes past the lookup table's reach (not with
+    /// `--no-past-reach`; kept in the recording too).
+    pub past_reach: bool,
 }
 
 impl TactileSetup {
@@ -114,12 +121,13 @@ impl TactileSetup {
 
     /// The stage for a camera stamping `stamp_ref`.
     pub fn stage(&self, stamp_ref: StampRef) -> Result<TactileStage> {
-        let reconstructor = Reconstructor::new(
+        let mut reconstructor = Reconstructor::new(
             self.model.clone(),
             self.kind,
             SolverKind::Dct,
             self.references.as_ref().map(|(dx, dy)| (dx, dy).into()),
         )?;
+        reconstructor.set_past_reach(self.past_reach);
         Ok(TactileStage::new(
             reconstructor,
             self.model.px_per_mm,
@@ -166,6 +174,7 @@ impl TactileSetup {
             entries: BTreeMap::from([
                 ("model_kind".into(), self.kind.to_string()),
                 ("static_ambient".into(), self.static_ambient.to_string()),
+                ("past_reach".into(), self.past_reach.to_string()),
             ]),
         });
         for item in items {

@@ -184,6 +184,28 @@ pub fn read_pair(models: [&LightModel; 2], fx: [f32; 2], fy: [f32; 2], x: f32, y
     }
 }
 
+/// [`read_pair`] for pixels of one frame row after another: each model's responses are
+/// blended down the frame once per row position `y` (as [`read_rows`] does).
+pub struct PairReader<'a> {
+    at: [Responses<'a>; 2],
+}
+
+impl<'a> PairReader<'a> {
+    /// `None` for a damaged model (fewer responses than cells), which reads 0.
+    pub fn new(models: [&'a LightModel; 2]) -> Option<Self> {
+        Some(Self {
+            at: [Responses::new(models[0])?, Responses::new(models[1])?],
+        })
+    }
+
+    /// [`read_pair`] of the pixel at `(x, y)`.
+    #[inline]
+    pub fn read(&mut self, fx: [f32; 2], fy: [f32; 2], x: f32, y: f32) -> [f32; 2] {
+        let [at_x, at_y] = &mut self.at;
+        pair_slopes(fx, fy, at_x.at(x, y), at_y.at(x, y))
+    }
+}
+
 /// [`read_pair`] with the responses at the pixel given.
 fn pair_slopes(fx: [f32; 2], fy: [f32; 2], ax: [f32; 2], ay: [f32; 2]) -> [f32; 2] {
     let mut slopes = [invert(fx, ax), invert(fy, ay)];
@@ -435,10 +457,28 @@ mod tests {
             "{gq} {alone_q}"
         );
         let [fx, _] = both_phases(0.93, 0.93, k);
-        // A damaged model: zero, never a panic.
+        // A damaged model: zero, never a panic; no reader either.
         let mut broken = mx.clone();
         broken.response.clear();
         assert_eq!(read_pair([&broken, &my], fx, fx, 0.5, 0.5), [0.0, 0.0]);
+        assert!(PairReader::new([&broken, &my]).is_none());
+        // The reader, row after row, reads as `read_pair` (the responses blended in
+        // another order: equal to rounding).
+        let mut reader = PairReader::new([&mx, &my]).expect("whole models");
+        for y in [0.1f32, 0.45, 0.9] {
+            for i in 0..12 {
+                let x = i as f32 / 11.0;
+                let (p, q) = (1.4 * x - 0.7, 1.1 - 1.3 * y);
+                let [fx, fy] = both_phases(p, q, k);
+                let (got, want) = (
+                    reader.read(fx, fy, x, y),
+                    read_pair([&mx, &my], fx, fy, x, y),
+                );
+                for (g, w) in got.into_iter().zip(want) {
+                    assert!((g - w).abs() < 1e-4, "({x}, {y}): {got:?} vs {want:?}");
+                }
+            }
+        }
     }
 
     #[test]

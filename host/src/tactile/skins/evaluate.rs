@@ -46,6 +46,9 @@ pub struct EvalConfig {
     pub second_ball_mm: Option<f64>,
     /// Gradient model.
     pub model: ModelKind,
+    /// Let the light model read slopes past the lookup table's reach
+    /// ([`crate::tactile::past_reach`]; the default); `false`: the table alone.
+    pub past_reach: bool,
     /// Solver.
     pub solver: SolverKind,
     /// Use the LEDs-off frames: calibrate on LED light and remove each pair's ambient
@@ -70,6 +73,7 @@ impl Default for EvalConfig {
             ball_diameter_mm: None,
             second_ball_mm: None,
             model: ModelKind::Lut,
+            past_reach: true,
             solver: SolverKind::Dct,
             dark: false,
             ambient: AmbientScale::STEADY,
@@ -144,6 +148,9 @@ pub struct FamilyReport {
     pub second_ball_mm: Option<f64>,
     /// LEDs-off frames used ([`EvalConfig::dark`]).
     pub dark: bool,
+    /// The light model read slopes past the lookup table's reach (asked for with
+    /// [`EvalConfig::past_reach`], and the model is the table with light models).
+    pub past_reach: bool,
     /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
     pub ambient: [f64; 3],
     /// Calibration.
@@ -205,6 +212,7 @@ pub fn evaluate_skin(
         ball_diameter_mm,
         second_ball_mm: config.second_ball_mm,
         dark: config.dark,
+        past_reach: false,
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         calibration: CalibrationOutcome {
             given: config.presses,
@@ -291,6 +299,7 @@ pub fn evaluate_skin(
             return report;
         }
     };
+    report.past_reach = rec.set_past_reach(config.past_reach);
     let (mut refused, mut first_refusal) = (0, None);
     let mut read = |frames: &SkinFrames| {
         let read = rec
@@ -603,7 +612,7 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}, {} mm ball{}; {}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball{}; {}{}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
@@ -615,6 +624,11 @@ pub fn format_report(r: &FamilyReport) -> String {
             "LEDs-off frames subtracted"
         } else {
             "raw frames"
+        },
+        if r.past_reach {
+            ", light model past the table's reach"
+        } else {
+            ""
         },
         r.ambient[0],
         r.ambient[1],

@@ -77,6 +77,10 @@ pub struct SkinsArgs {
     /// Gradient model.
     #[arg(long, default_value = "lut")]
     pub model: ModelKind,
+    /// Read with the lookup table alone where its slopes reach its limit (by default the
+    /// light model reads steeper walls there): to compare the two.
+    #[arg(long)]
+    pub no_past_reach: bool,
     /// Interleaved mode: calibrate on LED light (LEDs-off frames subtracted) and remove
     /// each pair's ambient light with its LEDs-off frame.
     #[arg(long)]
@@ -210,6 +214,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 ball_diameter_mm: a.ball_diameter_mm,
                 second_ball_mm: a.second_ball_mm,
                 model: a.model,
+                past_reach: !a.no_past_reach,
                 dark: a.dark,
                 ambient: a.ambient,
                 ..Default::default()

@@ -323,6 +323,12 @@ fn setups(
         || recorded
             .and_then(|m| m.get("static_ambient"))
             .is_some_and(|v| v == "true");
+    // Off when asked, or when the run that made the recording had it off; on by default
+    // (a recording without the setting), as `reconstruct`.
+    let past_reach = !a.stages.no_past_reach
+        && recorded
+            .and_then(|m| m.get("past_reach"))
+            .is_none_or(|v| v != "false");
     let tactile = match (
         &a.stages.model,
         header.attachments.get(topics::MODEL_ATTACHMENT),
@@ -332,6 +338,7 @@ fn setups(
             references: None,
             kind,
             static_ambient,
+            past_reach,
         }),
         (None, Some(json)) => {
             let name = format!("{file} attachment {}", topics::MODEL_ATTACHMENT);
@@ -350,6 +357,7 @@ fn setups(
                 references,
                 kind,
                 static_ambient,
+                past_reach,
             })
         }
         (None, None) => None,

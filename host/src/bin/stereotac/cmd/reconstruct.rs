@@ -51,6 +51,11 @@ pub struct Args {
     /// file that holds it; a missing one is named).
     #[arg(long = "model-kind", default_value = "lut")]
     pub model_kind: ModelKind,
+    /// Keep the lookup table's slopes where they reach its limit. By default the model
+    /// file's light model reads steeper walls there (summary.json's past_reach_pixels
+    /// counts them); turn it off for a skin where that over-reads.
+    #[arg(long)]
+    pub no_past_reach: bool,
     /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:
     /// flat skin to the deepest point, at least 0.5 mm). The range is in the picture's
     /// legend and summary.json.
@@ -94,6 +99,7 @@ pub fn run(a: Args) -> Result<()> {
             dark: ref_dark.as_ref(),
         }),
     )?;
+    rec.set_past_reach(!a.no_past_reach);
     let r = rec
         .reconstruct_frames(PhaseFrames {
             dx: &dx,

@@ -63,6 +63,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                 references: None,
                 kind: a.stages.model_kind.unwrap_or_default(),
                 static_ambient: a.stages.static_ambient,
+                past_reach: !a.stages.no_past_reach,
             },
             None if all_sim => {
                 let (calibration, references) = builtin_calibration(
@@ -74,6 +75,7 @@ fn setups(a: &Args) -> Result<(Option<TactileSetup>, Option<StereoSetup>)> {
                     references: Some(references),
                     kind: a.stages.model_kind.unwrap_or_default(),
                     static_ambient: a.stages.static_ambient,
+                    past_reach: !a.stages.no_past_reach,
                 }
             }
             None => bail!(
