@@ -285,6 +285,17 @@ impl Kernel {
         }
     }
 
+    /// The kernels the tests compare: the portable one everywhere, the AVX2 one where
+    /// this CPU has it. A machine without it is reported by an ignored test
+    /// (`the_avx2_kernel_is_among_those_tested`), not passed over in silence.
+    #[cfg(test)]
+    pub(crate) fn tested() -> Vec<Self> {
+        [Kernel::Portable, Kernel::Avx2]
+            .into_iter()
+            .filter(|k| k.is_available())
+            .collect()
+    }
+
     /// The fastest available kernel.
     pub fn best() -> Self {
         if Kernel::Avx2.is_available() {
@@ -653,6 +664,18 @@ pub(super) fn subpixel_offset(fit: SubpixelFit, below: u16, c: u16, above: u16) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stereo kernel tests loop over [`Kernel::tested`]: on a machine without AVX2
+    /// and BMI they check the portable kernel only, and this test says so (ignored).
+    #[test]
+    #[cfg_attr(
+        not(build_cpu_avx2_bmi),
+        ignore = "the stereo kernel tests check the portable kernel only: this machine \
+                  lacks AVX2 and BMI"
+    )]
+    fn the_avx2_kernel_is_among_those_tested() {
+        assert_eq!(Kernel::tested(), [Kernel::Portable, Kernel::Avx2]);
+    }
 
     /// A random-dot texture (deterministic), values 0..=255.
     fn dots(w: usize, h: usize, seed: u64) -> Grid<u8> {

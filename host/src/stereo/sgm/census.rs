@@ -304,10 +304,7 @@ mod tests {
             let at = |x: isize, y: isize| {
                 img.get(x.clamp(0, w - 1) as usize, y.clamp(0, h - 1) as usize)
             };
-            for kernel in [Kernel::Portable, Kernel::Avx2]
-                .into_iter()
-                .filter(|k| k.is_available())
-            {
+            for kernel in Kernel::tested() {
                 for view in [View::Left, View::Right { pad: 5 }] {
                     // A kept buffer of the right size with stale contents is overwritten.
                     let stale = vec![0xa5; ih * CENSUS_BYTES * (iw + 5)];

@@ -378,10 +378,7 @@ mod tests {
     fn a_constant_shift_is_found_exactly_by_every_variant() {
         let (l, r) = shifted_pair(160, 60, |_, _| 23.0);
         for paths in Paths::ALL {
-            for kernel in [Kernel::Portable, Kernel::Avx2]
-                .into_iter()
-                .filter(|k| k.is_available())
-            {
+            for kernel in Kernel::tested() {
                 let m = matcher(paths, kernel).compute(&l, &r).unwrap();
                 let valid: Vec<f32> = m
                     .disparity

@@ -626,10 +626,7 @@ mod tests {
         for radius in [REFINE_RADIUS, 1, 7, 15] {
             let mut slow = start.clone();
             refine_by_definition(&l, &r, &mut slow, radius);
-            for kernel in [Kernel::Portable, Kernel::Avx2]
-                .into_iter()
-                .filter(|k| k.is_available())
-            {
+            for kernel in Kernel::tested() {
                 let mut fast = start.clone();
                 refine(kernel, (&l, &r), radius, &mut fast, &mut planes);
                 let changed = fast
@@ -726,9 +723,8 @@ mod tests {
         r: &Grid<u8>,
         start: &Grid<f32>,
     ) -> Vec<(Kernel, Grid<f32>)> {
-        [Kernel::Portable, Kernel::Avx2]
+        Kernel::tested()
             .into_iter()
-            .filter(|k| k.is_available())
             .map(|kernel| {
                 let mut d = start.clone();
                 let planes = &mut RefinePlanes::default();

@@ -367,8 +367,7 @@ mod tests {
                 // The sums whole, and split in two volumes (as two sweeps leave them).
                 let first: Vec<u16> = sum.iter().map(|&v| v / 3).collect();
                 let second: Vec<u16> = sum.iter().zip(&first).map(|(v, f)| v - f).collect();
-                let kernels = [Kernel::Portable, Kernel::Avx2];
-                for kernel in kernels.into_iter().filter(|k| k.is_available()) {
+                for kernel in Kernel::tested() {
                     for split in [false, true] {
                         narrow.fill(f32::NAN);
                         let a = if split {

@@ -900,10 +900,7 @@ mod tests {
                 let cr = census(Kernel::Portable, &r, View::Right { pad }, Vec::new());
                 assert_eq!(fits_a_byte(&p), p2 <= 103);
                 let expected = aggregated_by_definition(&cl, &cr, &p, directions);
-                for kernel in [Kernel::Portable, Kernel::Avx2]
-                    .into_iter()
-                    .filter(|k| k.is_available())
-                {
+                for kernel in Kernel::tested() {
                     for side_by_side in [false, true] {
                         let got = aggregated_by_sweeps(kernel, &cl, &cr, &p, side_by_side);
                         let first_miss = got.iter().zip(&expected).position(|(a, b)| a != b);
