@@ -197,6 +197,61 @@ fn run_records_two_cameras_and_process_reproduces_every_depth_map_bit_for_bit() 
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `--no-past-reach`: live, every pair reads with the lookup table alone (none counted
+/// past its reach, where the default run counts them on the steep scene), the recording
+/// keeps the setting, and `process` does as the run did.
+#[test]
+fn no_past_reach_is_kept_by_the_recording_and_process_does_as_the_run_did() {
+    let dir = temp_dir("live-past-reach");
+    let reached = |text: &str| -> Vec<u64> {
+        text.lines()
+            .map(|l| {
+                let v: serde_json::Value = serde_json::from_str(l).unwrap();
+                v["past_reach_pixels"].as_u64().unwrap()
+            })
+            .collect()
+    };
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "--sim",
+            "run",
+            "--camera",
+            "sim",
+            "--mode",
+            "gradient",
+            "--duration-s",
+            "3",
+            "--jsonl",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, text, err) = stereotac(&args);
+        assert!(ok, "{err}");
+        text
+    };
+    // The simulated scenes include a wall steeper than the built-in ball's slopes.
+    let default = reached(&run(&[]));
+    assert!(default.iter().any(|&n| n > 0), "{default:?}");
+    let rec = dir.join("alone.mcap");
+    let alone = reached(&run(&["--no-past-reach", "--mcap", path(&rec)]));
+    assert!(
+        !alone.is_empty() && alone.iter().all(|&n| n == 0),
+        "{alone:?}"
+    );
+    let bytes = std::fs::read(&rec).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    let settings = summary
+        .metadata_indexes
+        .iter()
+        .find(|m| m.name == "tactile_settings")
+        .expect("tactile settings recorded");
+    let m = mcap::read::metadata(&bytes, settings).unwrap();
+    assert_eq!(m.metadata["past_reach"], "false", "{:?}", m.metadata);
+    let (ok, text, err) = stereotac(&["process", path(&rec), "--jsonl"]);
+    assert!(ok, "{err}");
+    assert_eq!(reached(&text), alone);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn process_refuses_what_is_not_a_recording_naming_the_file() {
     let dir = temp_dir("live-bad");

@@ -107,6 +107,12 @@ def test_a_dark_frame_model_needs_dark_phases_or_static_ambient(sensor, model_pa
     assert results and all(r.record["ambient"] == "calibration" for r in results)
 
 
+def test_past_reach_off_reads_the_table_alone(sensor, model_path):
+    results = list(sensor.run(mode="gradient", model=model_path, past_reach=False, duration_s=2))
+    assert results
+    assert all(r.past_reach_pixels == 0 == r.record["past_reach_pixels"] for r in results)
+
+
 def test_a_closed_sensor_says_so(model_path):
     s = stereotac.Sensor(sim=True)
     s.close()

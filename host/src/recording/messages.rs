@@ -249,6 +249,10 @@ pub struct TactileRecord {
     pub max_depth_mm: f32,
     /// Displaced volume, mm³.
     pub volume_mm3: f64,
+    /// Touched pixels whose slopes the light model read past the lookup table's reach
+    /// (`tactile::past_reach`; 0 with `--no-past-reach` or another model).
+    #[serde(default)]
+    pub past_reach_pixels: u64,
     /// Time per stage of the reconstruction, ms.
     pub stage_ms: StageTimings,
     /// From the end of the dy exposure to the depth being ready, ms (host clock); none
