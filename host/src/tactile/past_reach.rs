@@ -133,19 +133,14 @@ impl<'a> Reach<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tactile::model::{Sample, colour_features};
+    use crate::tactile::model::{Sample, matte_features};
 
     /// Cotangent of the strips' elevation on the analytic skin.
     const K: f32 = 1.6;
 
-    /// Model inputs `[[red, blue] of dx, of dy]` of matte skin at slopes `(p, q)`, lit from
-    /// elevation `cot⁻¹ K` on all four sides, made as reconstruction makes them.
+    /// Model inputs of the analytic matte skin at slopes `(p, q)` ([`matte_features`]).
     fn features(p: f32, q: f32) -> [[f32; 2]; 2] {
-        let norm = (1.0 + p * p + q * q).sqrt();
-        let lit = |s: f32| [(1.0 + K * s).max(0.0) / norm, (1.0 - K * s).max(0.0) / norm];
-        let ([rx, bx], [ry, by]) = (lit(p), lit(q));
-        let f = colour_features([rx, bx, ry, by]);
-        [f[0].expect("lit"), f[1].expect("lit")]
+        matte_features(p, q, K)
     }
 
     /// A table and a light model per axis, both taught slopes up to `taught` (a ball's).

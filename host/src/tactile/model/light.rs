@@ -343,6 +343,7 @@ fn invert(colour: [f32; 2], response: [f32; 2]) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::tactile::model::matte_features;
 
     /// A matte skin whose light elevation changes across the frame: the facing strip's
     /// colour `1 + a·p`, the other's `1 − a'·p`, shadowed at 0.
@@ -388,18 +389,8 @@ mod tests {
         }
     }
 
-    /// Features of a matte skin lit from elevation `cot⁻¹ k` on all four sides at slopes
-    /// `(p, q)`, made as reconstruction makes them ([`super::super::colour_features`]).
-    fn both_phases(p: f32, q: f32, k: f32) -> [[f32; 2]; 2] {
-        let norm = (1.0 + p * p + q * q).sqrt();
-        let lit = |s: f32| [(1.0 + k * s).max(0.0) / norm, (1.0 - k * s).max(0.0) / norm];
-        let ([rx, bx], [ry, by]) = (lit(p), lit(q));
-        let f = super::super::colour_features([rx, bx, ry, by]);
-        [f[0].expect("lit"), f[1].expect("lit")]
-    }
-
     #[test]
-    fn reads_walls_steep_along_both_axes_from_both_phases() {
+    fn reads_walls_steep_along_both_axes_from_matte_features() {
         let k = 1.6f32;
         // Calibration-like samples: slopes up to 0.9 in any direction.
         let mut sets = [Vec::new(), Vec::new()];
@@ -409,7 +400,7 @@ mod tests {
                 if p.hypot(q) > 0.9 {
                     continue;
                 }
-                let f = both_phases(p, q, k);
+                let f = matte_features(p, q, k);
                 for (axis, (set, s)) in sets.iter_mut().zip([p, q]).enumerate() {
                     for (x, y) in [(0.2, 0.3), (0.7, 0.6)] {
                         set.push(Sample {
@@ -422,7 +413,7 @@ mod tests {
         }
         let [mx, my] = sets.map(|s| LightModel::fit(&s, 2, 2));
         let read = |p: f32, q: f32| {
-            let [fx, fy] = both_phases(p, q, k);
+            let [fx, fy] = matte_features(p, q, k);
             let alone = [
                 mx.eval(fx[0], fx[1], 0.5, 0.5),
                 my.eval(fy[0], fy[1], 0.5, 0.5),
@@ -456,7 +447,7 @@ mod tests {
             (gq - 0.7).abs() < 0.1 && (alone_q - 0.7).abs() > 0.3,
             "{gq} {alone_q}"
         );
-        let [fx, _] = both_phases(0.93, 0.93, k);
+        let [fx, _] = matte_features(0.93, 0.93, k);
         // A damaged model: zero, never a panic; no reader either.
         let mut broken = mx.clone();
         broken.response.clear();
@@ -469,7 +460,7 @@ mod tests {
             for i in 0..12 {
                 let x = i as f32 / 11.0;
                 let (p, q) = (1.4 * x - 0.7, 1.1 - 1.3 * y);
-                let [fx, fy] = both_phases(p, q, k);
+                let [fx, fy] = matte_features(p, q, k);
                 let (got, want) = (
                     reader.read(fx, fy, x, y),
                     read_pair([&mx, &my], fx, fy, x, y),
@@ -487,7 +478,7 @@ mod tests {
         let samples: Vec<Sample> = (-900..=900)
             .map(|i| {
                 let p = i as f32 / 1000.0;
-                let [f, _] = both_phases(p, 0.0, k);
+                let [f, _] = matte_features(p, 0.0, k);
                 Sample {
                     features: [f[0], f[1], 0.5, 0.5],
                     target: p,
@@ -506,7 +497,7 @@ mod tests {
         ];
         let (mut rows, mut targets) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
         for (i, &(p, q)) in slopes.iter().enumerate() {
-            let f = both_phases(p, q, k);
+            let f = matte_features(p, q, k);
             let x = i as f32 / 6.0;
             for axis in 0..2 {
                 let seen = match i {
@@ -528,7 +519,7 @@ mod tests {
             [&mut p, &mut q],
         );
         for (i, &(tp, tq)) in slopes.iter().enumerate() {
-            let f = both_phases(tp, tq, k);
+            let f = matte_features(tp, tq, k);
             let x = i as f32 / 6.0;
             let want = match i {
                 1 | 4 => [model.eval(f[0][0], f[0][1], x, 0.25), 9.0],

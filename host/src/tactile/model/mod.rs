@@ -36,6 +36,18 @@ use crate::limits::MAX_MODEL_FILE;
 /// Colour range covered by the lookup table (cross-normalised units, flat skin = 1).
 pub const LUT_MAX_COLOUR: f32 = 4.0;
 
+/// Model inputs `[[red, blue] of dx, of dy]` of a matte skin at slopes `(p, q)`, lit from
+/// elevation `cot⁻¹ k` on all four sides, made as reconstruction makes them
+/// ([`colour_features`]): the analytic skin of the models' tests.
+#[cfg(test)]
+pub(crate) fn matte_features(p: f32, q: f32, k: f32) -> [[f32; 2]; 2] {
+    let norm = (1.0 + p * p + q * q).sqrt();
+    let lit = |s: f32| [(1.0 + k * s).max(0.0) / norm, (1.0 - k * s).max(0.0) / norm];
+    let ([rx, bx], [ry, by]) = (lit(p), lit(q));
+    let f = colour_features([rx, bx, ry, by]);
+    [f[0].expect("lit"), f[1].expect("lit")]
+}
+
 /// Model colour inputs of both phases from one pixel's normalised colours
 /// `[r_dx, b_dx, r_dy, b_dy]` (NaN where the colour filter rejected that phase).
 ///
