@@ -162,7 +162,7 @@ fn the_light_model_reads_walls_steeper_than_the_calibration_ball() {
 /// The light model's reading past the table's reach is a switch: off, the table reads
 /// alone, as from a model file without light models (bit for bit), and the count says
 /// how many pixels the light model read; on again, the same depth as before. Only the
-/// table with light models can read past its reach.
+/// table and the perceptron, with light models, read past the calibration's slopes.
 #[test]
 fn reading_past_the_tables_reach_can_be_turned_off() {
     let optics = optics();
@@ -193,7 +193,28 @@ fn reading_past_the_tables_reach_can_be_turned_off() {
     assert_eq!(again.past_reach_pixels, with.past_reach_pixels);
     assert_eq!(again.depth_mm.as_slice(), with.depth_mm.as_slice());
 
-    for kind in [ModelKind::Mlp, ModelKind::Light, ModelKind::Photometric] {
+    // The perceptron saturates as the table does, and is read past it the same way: the
+    // 1.6 wall reads deeper with it than alone.
+    let truth = disk(1.6)
+        .truth(optics.width, optics.height, optics.px_per_mm)
+        .depth;
+    let mut mlp = reconstructor(&model, &refs, ModelKind::Mlp, SolverKind::Dct);
+    assert!(mlp.reads_past_reach());
+    let read = mlp.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert!(read.past_reach_pixels > 0);
+    assert!(!mlp.set_past_reach(false));
+    let mlp_alone = mlp.reconstruct(&pair.dx, &pair.dy).unwrap();
+    assert_eq!(mlp_alone.past_reach_pixels, 0);
+    let (past, alone) = (
+        errors(&read.depth_mm, &truth).reading_mm,
+        errors(&mlp_alone.depth_mm, &truth).reading_mm,
+    );
+    assert!(
+        (past - 1.0).abs() < 0.07 && past > alone + 0.03,
+        "the perceptron read {past:.3} mm of 1.000 past its reach, {alone:.3} alone"
+    );
+
+    for kind in [ModelKind::Light, ModelKind::Photometric] {
         let mut other = reconstructor(&model, &refs, kind, SolverKind::Dct);
         assert!(
             !other.reads_past_reach() && !other.set_past_reach(true),

@@ -276,7 +276,7 @@ impl PySensor {
     /// paths (ROS), `units` the unit of an OpenCV file's `T`. A model calibrated with
     /// LEDs-off frames is refused in a mode without dark phases unless `static_ambient`
     /// (the ambient light measured at calibration is removed instead). `past_reach=False`
-    /// keeps the lookup table's slopes where they reach its limit (as
+    /// keeps the model's slopes (lookup table or perceptron) where they reach the calibration's limit (as
     /// `TactileModel.reconstruct`).
     #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut", static_ambient = false, past_reach = true))]
     #[allow(clippy::too_many_arguments)]
@@ -587,7 +587,7 @@ impl Drop for PyEvents {
 }
 
 /// A tactile model, the no-contact frames it normalises by, the gradient model, and
-/// whether the light model reads past the lookup table's reach.
+/// whether the light model reads past the calibration's slopes.
 type TactileInputs = (
     TactileModel,
     Option<(image::RgbImage, image::RgbImage)>,

@@ -32,7 +32,7 @@ pub struct PyTactileModel {
 }
 
 /// What a reconstructor is made with: gradient model, solver, and whether the light model
-/// reads past the lookup table's reach.
+/// reads past the calibration's slopes.
 type Settings = (ModelKind, SolverKind, bool);
 
 /// A gradient model kind from its name.
@@ -372,7 +372,7 @@ pub struct PyTactileResult {
     /// Slopes the sanitiser replaced or clamped.
     #[pyo3(get)]
     sanitized_slopes: usize,
-    /// Touched pixels the light model read past the lookup table's reach.
+    /// Touched pixels the light model read past the calibration's slopes.
     #[pyo3(get)]
     past_reach_pixels: usize,
     /// Live results: when the pair's second (dy) exposure ended, host µs; `None` offline.

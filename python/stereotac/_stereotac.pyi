@@ -30,7 +30,7 @@ class TactileResult:
     ambient: str
     sanitized_slopes: int
     past_reach_pixels: int
-    """Touched pixels the light model read past the lookup table's reach."""
+    """Touched pixels the light model read past the calibration's slopes."""
     timestamp_us: Optional[float]
     """Live results: end of the dy exposure, host µs (None offline)."""
     record: Optional[Dict[str, Any]]
@@ -69,7 +69,7 @@ class TactileModel:
         past_reach: bool = True,
     ) -> TactileResult:
         """Depth of one pair; kind "lut", "mlp", "light" or "photometric", solver "dct" (Neumann) or "dst";
-        past_reach=False keeps the lookup table's slopes where they reach its limit."""
+        past_reach=False keeps the model's slopes (lookup table or perceptron) where they reach the calibration's limit."""
     def reconstructor(
         self,
         ref: Optional[_Frames] = None,

@@ -249,8 +249,9 @@ pub struct TactileRecord {
     pub max_depth_mm: f32,
     /// Displaced volume, mm³.
     pub volume_mm3: f64,
-    /// Touched pixels whose slopes the light model read past the lookup table's reach
-    /// (`tactile::past_reach`; 0 with `--no-past-reach` or another model).
+    /// Touched pixels whose slopes the light model read past the calibration's slopes
+    /// (`tactile::past_reach`: the table's or the perceptron's; 0 with
+    /// `--no-past-reach`).
     #[serde(default)]
     pub past_reach_pixels: u64,
     /// Time per stage of the reconstruction, ms.

@@ -62,11 +62,13 @@ pub struct DepthErrors {
     pub reading_mm: f64,
 }
 
-/// The gradient models measured: every kind, and the lookup table a second time alone
-/// (without the light model reading past its reach, [`super::past_reach`]) to compare.
-const VARIANTS: [(ModelKind, bool); 5] = [
+/// The gradient models measured: every kind, and the lookup table and the perceptron a
+/// second time alone (without the light model reading past the calibration's slopes,
+/// [`super::past_reach`]) to compare.
+const VARIANTS: [(ModelKind, bool); 6] = [
     (ModelKind::Lut, true),
     (ModelKind::Lut, false),
+    (ModelKind::Mlp, true),
     (ModelKind::Mlp, false),
     (ModelKind::Light, false),
     (ModelKind::Photometric, false),
@@ -86,11 +88,11 @@ fn reconstructor(
     (rec, on)
 }
 
-/// The model's name in the tables: `lut` reads past the table's reach, `lut-alone` does
-/// not.
+/// The model's name in the tables: `lut` and `mlp` read past the calibration's slopes,
+/// `lut-alone` and `mlp-alone` do not.
 fn model_label(kind: ModelKind, past_reach: bool) -> String {
     match kind {
-        ModelKind::Lut if !past_reach => "lut-alone".into(),
+        ModelKind::Lut | ModelKind::Mlp if !past_reach => format!("{kind}-alone"),
         _ => kind.to_string(),
     }
 }
@@ -106,7 +108,7 @@ pub struct BenchRecord {
     pub height: usize,
     /// Gradient model.
     pub model: ModelKind,
-    /// The light model read slopes past the lookup table's reach.
+    /// The light model read slopes steeper than the calibration's.
     pub past_reach: bool,
     /// Solver.
     pub solver: SolverKind,
@@ -138,7 +140,7 @@ pub struct SizeReference {
 pub struct DiskStatistic {
     /// Gradient model.
     pub model: ModelKind,
-    /// The light model read slopes past the lookup table's reach.
+    /// The light model read slopes steeper than the calibration's.
     pub past_reach: bool,
     /// Solver.
     pub solver: SolverKind,

@@ -94,8 +94,9 @@ pub struct Summary {
     pub rejected_pixels: usize,
     /// Slopes the sanitiser replaced or clamped.
     pub sanitized_slopes: usize,
-    /// Touched pixels read by the light model past the lookup table's reach (see
-    /// [`crate::tactile::past_reach`]; 0 when that is off or the model is not the table).
+    /// Touched pixels read by the light model past the calibration's slopes (see
+    /// [`crate::tactile::past_reach`]; 0 when that is off, or with the light or
+    /// photometric model).
     pub past_reach_pixels: usize,
     /// Which ambient light was removed (see [`crate::tactile::ambient`]).
     pub ambient: AmbientSource,

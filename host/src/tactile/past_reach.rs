@@ -10,7 +10,9 @@
 //! [`read_pair`](super::model::light::read_pair)), and takes the light model's slope on
 //! an axis where it points the same way and is steeper. Pixels under the reach keep the
 //! table's slopes bit for bit: a scene without steep walls costs a comparison a pixel;
-//! `Reconstructor::set_past_reach(false)` turns the reading off.
+//! `Reconstructor::set_past_reach(false)` turns the reading off. The perceptron
+//! saturates the same way and is read past the same limits ([`Reach::extend_rows`]: its
+//! slopes come as feature rows, and it takes the position as an input, so no gains).
 
 use super::model::Lut;
 use super::model::light::{LightModel, PairReader};
@@ -119,14 +121,69 @@ impl<'a> Reach<'a> {
             count += 1;
             let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
             let [x, y] = position(k);
-            let read = reader.read(fx, fy, x, y);
-            for (s, r) in [&mut p[k], &mut q[k]].into_iter().zip(read) {
-                if r.is_finite() && r * *s > 0.0 && r.abs() > s.abs() {
-                    *s = r.clamp(-max_slope, max_slope);
-                }
-            }
+            take_steeper([&mut p[k], &mut q[k]], reader.read(fx, fy, x, y), max_slope);
         }
         count
+    }
+
+    /// [`Self::extend`] for a model read from feature rows (the perceptron): `rows` are
+    /// each phase's `[red, blue, x / width, y / height]` of the pixels it lit, `targets`
+    /// their indices in the region's `[p, q]` grids `slopes` (increasing). A pixel both
+    /// phases lit whose slope reaches the limit on either axis is read (no position gains:
+    /// the model takes the position as an input). Returns how many pixels were read.
+    pub fn extend_rows(
+        &self,
+        rows: [&[[f32; 4]]; 2],
+        targets: [&[usize]; 2],
+        slopes: [&mut [f32]; 2],
+        max_slope: f32,
+    ) -> usize {
+        let [p, q] = slopes;
+        let n = [0, 1].map(|a| rows[a].len().min(targets[a].len()));
+        let (mut i, mut j, mut count) = (0, 0, 0);
+        let mut reader = None;
+        while i < n[0] && j < n[1] {
+            let (a, b) = (targets[0][i], targets[1][j]);
+            if a != b {
+                // One phase alone lit the pixel: not read.
+                if a < b {
+                    i += 1;
+                } else {
+                    j += 1;
+                }
+                continue;
+            }
+            let (fx, fy) = (rows[0][i], rows[1][j]);
+            (i, j) = (i + 1, j + 1);
+            let (Some(&sp), Some(&sq)) = (p.get(a), q.get(a)) else {
+                continue;
+            };
+            if !(self.reached(0, sp, [1.0; 2]) || self.reached(1, sq, [1.0; 2])) {
+                continue;
+            }
+            let reader = match &mut reader {
+                Some(r) => r,
+                None => match PairReader::new(self.light) {
+                    Some(r) => reader.insert(r),
+                    None => return count,
+                },
+            };
+            count += 1;
+            let read = reader.read([fx[0], fx[1]], [fy[0], fy[1]], fx[2], fx[3]);
+            take_steeper([&mut p[a], &mut q[a]], read, max_slope);
+        }
+        count
+    }
+}
+
+/// Each slope takes the light model's `read` where it points the same way and is
+/// steeper, bounded by ±`max_slope`.
+#[inline]
+fn take_steeper(slopes: [&mut f32; 2], read: [f32; 2], max_slope: f32) {
+    for (s, r) in slopes.into_iter().zip(read) {
+        if r.is_finite() && r * *s > 0.0 && r.abs() > s.abs() {
+            *s = r.clamp(-max_slope, max_slope);
+        }
     }
 }
 
@@ -225,6 +282,56 @@ mod tests {
             assert_eq!(after[k], table[k], "{:?}", all[k]);
         }
         assert_eq!(count, steep.len());
+    }
+
+    /// Read from feature rows (the perceptron's path), a pixel lit in both phases reads
+    /// as [`Reach::extend`] reads it; one lit in one phase only is kept.
+    #[test]
+    fn rows_read_as_planes_and_one_phase_pixels_are_kept() {
+        let (luts, light) = models(0.8);
+        let slopes = [
+            (1.31f32, 0.0f32),
+            (0.2, 0.1),
+            (0.0, -1.5),
+            (1.4, 0.3),
+            (-1.2, 0.0),
+        ];
+        let (table, want, _) = read(&luts, &light, &slopes, true);
+        let rows: Vec<[[f32; 4]; 2]> = slopes
+            .iter()
+            .map(|&(p, q)| features(p, q).map(|[r, b]| [r, b, 0.5, 0.5]))
+            .collect();
+        // Pixel 3 is lit by the dx phase only (its dy row is missing).
+        let targets = [vec![0, 1, 2, 3, 4], vec![0, 1, 2, 4]];
+        let axis_rows = |a: usize| targets[a].iter().map(|&k| rows[k][a]).collect::<Vec<_>>();
+        let (rx, ry) = (axis_rows(0), axis_rows(1));
+        let (mut p, mut q): (Vec<f32>, Vec<f32>) = table.iter().map(|s| (s[0], s[1])).unzip();
+        let limits = ReachLimits::of([&luts[0], &luts[1]]).unwrap();
+        let reach = Reach::new(limits, [&light[0], &light[1]]);
+        let count = reach.extend_rows(
+            [&rx, &ry],
+            [&targets[0], &targets[1]],
+            [&mut p, &mut q],
+            3.0,
+        );
+        assert_eq!(count, 3);
+        for k in 0..slopes.len() {
+            let expected = if k == 3 { table[k] } else { want[k] };
+            assert_eq!([p[k], q[k]], expected, "{:?}", slopes[k]);
+        }
+        assert_ne!(
+            want[3], table[3],
+            "pixel 3 would have been read with both phases"
+        );
+        // Targets beyond the grids are skipped, never a panic.
+        let far = [vec![9], vec![9]];
+        let none = reach.extend_rows(
+            [&rx[..1], &ry[..1]],
+            [&far[0], &far[1]],
+            [&mut p, &mut q],
+            3.0,
+        );
+        assert_eq!(none, 0);
     }
 
     #[test]

@@ -201,8 +201,9 @@ pub struct Reconstruction {
     pub rejected_pixels: usize,
     /// Slopes replaced or clamped by the sanitiser.
     pub sanitized_slopes: usize,
-    /// Touched pixels whose lookup-table slopes reached the table's limit and were read
-    /// by the light model too ([`super::past_reach`]; 0 when that is off).
+    /// Touched pixels whose slopes (the lookup table's or the perceptron's) reached the
+    /// calibration's limit and were read by the light model too
+    /// ([`super::past_reach`]; 0 when that is off).
     pub past_reach_pixels: usize,
     /// Per phase (dx, dy), the fraction of the frame where the colour filter rejected it;
     /// above [`phase_check::MIN_LIT_FRACTION`]'s complement in either, the pair is not a
@@ -263,13 +264,20 @@ impl Reconstruction {
     }
 }
 
-/// Where the light model reads past the lookup table's reach: only with the table (its
-/// gains made, `lut`) and light models in the file.
-fn reach_limits_of(model: &TactileModel, lut: bool) -> Option<ReachLimits> {
-    match (lut, &model.dx.light, &model.dy.light) {
+/// Where the light model reads past the reach of the calibration's slopes: with the
+/// table (`reads`: its gains made) or the perceptron, and light models in the file; the
+/// limits are the table's (both models were fitted on the same presses).
+fn reach_limits_of(model: &TactileModel, reads: bool) -> Option<ReachLimits> {
+    match (reads, &model.dx.light, &model.dy.light) {
         (true, Some(_), Some(_)) => ReachLimits::of([&model.dx.lut, &model.dy.lut]),
         _ => None,
     }
+}
+
+/// Whether `kind` reads past the reach of the calibration's slopes: the lookup table
+/// (`lut_gains` made for it) and the perceptron.
+fn reads_past_reach(kind: ModelKind, lut_gains: bool) -> bool {
+    lut_gains || kind == ModelKind::Mlp
 }
 
 /// Share of the frame's blocks in contact above which the pair's phases are checked.
@@ -293,8 +301,8 @@ pub struct Reconstructor {
     /// The lookup table's position gain at every pixel, per axis (LUT only: computed
     /// once, so the model does not blend it per pixel).
     lut_gains: Option<Arc<[GainPlanes; 2]>>,
-    /// Where the light model reads the table's slopes too (LUT with light models only:
-    /// made once from the tables).
+    /// Where the light model reads the model's slopes too (the table or the perceptron,
+    /// with light models: made once from the tables; `None` when off).
     reach_limits: Option<ReachLimits>,
     slopes: Vec<f32>,
     /// The photometric model's four colours of each touched pixel.
@@ -438,7 +446,7 @@ impl Reconstructor {
                 }
             }
         }
-        let reach_limits = reach_limits_of(&model, lut_gains.is_some());
+        let reach_limits = reach_limits_of(&model, reads_past_reach(kind, lut_gains.is_some()));
         Ok(Self {
             lut_gains,
             reach_limits,
@@ -463,20 +471,24 @@ impl Reconstructor {
         &self.model
     }
 
-    /// Turns the light model's reading of slopes past the lookup table's reach
-    /// ([`super::past_reach`]) on (the default) or off (the table's slopes alone, as
+    /// Turns the light model's reading of slopes steeper than the calibration's
+    /// ([`super::past_reach`]) on (the default) or off (the model's slopes alone, as
     /// before; for a skin the light model over-reads). It can be on only with the lookup
-    /// table and a model file that has light models; returns whether it is on now.
+    /// table or the perceptron and a model file that has light models; returns whether
+    /// it is on now.
     pub fn set_past_reach(&mut self, on: bool) -> bool {
         self.reach_limits = if on {
-            reach_limits_of(&self.model, self.lut_gains.is_some())
+            reach_limits_of(
+                &self.model,
+                reads_past_reach(self.kind, self.lut_gains.is_some()),
+            )
         } else {
             None
         };
         self.reach_limits.is_some()
     }
 
-    /// Whether the light model reads slopes past the lookup table's reach
+    /// Whether the light model reads slopes steeper than the calibration's
     /// ([`Self::set_past_reach`]).
     pub fn reads_past_reach(&self) -> bool {
         self.reach_limits.is_some()
@@ -713,6 +725,17 @@ impl Reconstructor {
                     for (&k, &s) in features.targets.iter().zip(&self.slopes) {
                         values[k] = s;
                     }
+                }
+                // The perceptron saturates as the table does: past the calibration's
+                // slopes the light model reads as well.
+                if let (ModelKind::Mlp, Some(reach)) = (self.kind, &inputs.reach) {
+                    let [fx, fy] = &self.features.axes;
+                    out.past_reach_pixels += reach.extend_rows(
+                        [&fx.rows, &fy.rows],
+                        [&fx.targets, &fy.targets],
+                        [p.as_mut_slice(), q.as_mut_slice()],
+                        self.max_slope,
+                    );
                 }
             }
             let t2 = Instant::now();

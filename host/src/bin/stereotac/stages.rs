@@ -66,7 +66,7 @@ pub struct StageArgs {
     /// each pair's own (wrong as soon as the room's light changes).
     #[arg(long)]
     pub static_ambient: bool,
-    /// Keep the lookup table's slopes where they reach its limit (by default the model
+    /// Keep the model's slopes (lookup table or perceptron) where they reach the calibration's limit (by default the model
     /// file's light model reads steeper walls there; `process`: as the recording's run).
     #[arg(long)]
     pub no_past_reach: bool,
@@ -106,7 +106,7 @@ pub struct TactileSetup {
     /// The calibration's ambient light accepted in place of LEDs-off frames
     /// (`--static-ambient`; kept in the recording, so `process` does as `run` did).
     pub static_ambient: bool,
-    /// The light model reads slopes past the lookup table's reach (not with
+    /// The light model reads slopes steeper than the calibration's (not with
     /// `--no-past-reach`; kept in the recording too).
     pub past_reach: bool,
 }

@@ -46,7 +46,7 @@ pub struct EvalConfig {
     pub second_ball_mm: Option<f64>,
     /// Gradient model.
     pub model: ModelKind,
-    /// Let the light model read slopes past the lookup table's reach
+    /// Let the light model read slopes steeper than the calibration's
     /// ([`crate::tactile::past_reach`]; the default); `false`: the table alone.
     pub past_reach: bool,
     /// Solver.
@@ -148,7 +148,7 @@ pub struct FamilyReport {
     pub second_ball_mm: Option<f64>,
     /// LEDs-off frames used ([`EvalConfig::dark`]).
     pub dark: bool,
-    /// The light model read slopes past the lookup table's reach (asked for with
+    /// The light model read slopes steeper than the calibration's (asked for with
     /// [`EvalConfig::past_reach`], and the model is the table with light models).
     pub past_reach: bool,
     /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
