@@ -61,6 +61,15 @@ impl<'a> Reach<'a> {
         }
     }
 
+    /// The light models' reader in `slot`, made at the first pixel read (most runs read
+    /// none); `None` for a damaged light model, which reads nothing.
+    fn reader<'s>(&self, slot: &'s mut Option<PairReader<'a>>) -> Option<&'s mut PairReader<'a>> {
+        if slot.is_none() {
+            *slot = Some(PairReader::new(self.light)?);
+        }
+        slot.as_mut()
+    }
+
     /// Whether a table reading `slope` (with its pixel's gains `[positive, negative]`)
     /// reaches the table's limit on `axis`.
     #[inline(always)]
@@ -102,21 +111,15 @@ impl<'a> Reach<'a> {
         .min()
         .unwrap_or(0);
         let mut count = 0;
-        // Made at the first pixel read (most runs have none).
-        let mut reader = None;
+        let mut slot = None;
         for k in 0..n {
             if !(lit[0][k] && lit[1][k])
                 || !(self.reached(0, p[k], gains[0][k]) || self.reached(1, q[k], gains[1][k]))
             {
                 continue;
             }
-            let reader = match &mut reader {
-                Some(r) => r,
-                None => match PairReader::new(self.light) {
-                    Some(r) => reader.insert(r),
-                    // A damaged light model reads nothing.
-                    None => return count,
-                },
+            let Some(reader) = self.reader(&mut slot) else {
+                return count;
             };
             count += 1;
             let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
@@ -141,7 +144,7 @@ impl<'a> Reach<'a> {
         let [p, q] = slopes;
         let n = [0, 1].map(|a| rows[a].len().min(targets[a].len()));
         let (mut i, mut j, mut count) = (0, 0, 0);
-        let mut reader = None;
+        let mut slot = None;
         while i < n[0] && j < n[1] {
             let (a, b) = (targets[0][i], targets[1][j]);
             if a != b {
@@ -161,12 +164,8 @@ impl<'a> Reach<'a> {
             if !(self.reached(0, sp, [1.0; 2]) || self.reached(1, sq, [1.0; 2])) {
                 continue;
             }
-            let reader = match &mut reader {
-                Some(r) => r,
-                None => match PairReader::new(self.light) {
-                    Some(r) => reader.insert(r),
-                    None => return count,
-                },
+            let Some(reader) = self.reader(&mut slot) else {
+                return count;
             };
             count += 1;
             let read = reader.read([fx[0], fx[1]], [fy[0], fy[1]], fx[2], fx[3]);
