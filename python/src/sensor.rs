@@ -276,8 +276,8 @@ impl PySensor {
     /// paths (ROS), `units` the unit of an OpenCV file's `T`. A model calibrated with
     /// LEDs-off frames is refused in a mode without dark phases unless `static_ambient`
     /// (the ambient light measured at calibration is removed instead). `past_reach=False`
-    /// keeps the model's slopes (lookup table or perceptron) where they reach the calibration's limit (as
-    /// `TactileModel.reconstruct`).
+    /// keeps the model's slopes (lookup table or perceptron) where they reach the
+    /// calibration's limit (as `TactileModel.reconstruct`).
     #[pyo3(signature = (cameras = vec!["sim".to_string()], mode = "gradient", model = None, calib = None, units = "mm", duration_s = None, period_ms = 250, frames = false, kind = "lut", static_ambient = false, past_reach = true))]
     #[allow(clippy::too_many_arguments)]
     fn run(

@@ -180,9 +180,9 @@ impl PyTactileModel {
 
     /// Depth of one dx/dy pair. `ref`: no-contact frames `(dx, dy)` or `(dx, dy, dark)`
     /// to normalise by (otherwise the model's background); `dark`: the LEDs-off frame
-    /// taken with the pair. `past_reach=False` keeps the lookup table's slopes where they
-    /// reach its limit (by default the model file's light model reads steeper walls
-    /// there). For a stream with reference frames, make a `Reconstructor` once instead
+    /// taken with the pair. `past_reach=False` keeps the model's slopes (lookup table or
+    /// perceptron) where they reach the calibration's limit (by default the model file's
+    /// light model reads steeper walls there). For a stream with reference frames, make a `Reconstructor` once instead
     /// (references are prepared once, buffers reused).
     #[pyo3(signature = (dx, dy, r#ref = None, dark = None, kind = "lut", solver = "dct", past_reach = true))]
     #[allow(clippy::too_many_arguments)]

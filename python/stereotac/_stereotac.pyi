@@ -69,7 +69,8 @@ class TactileModel:
         past_reach: bool = True,
     ) -> TactileResult:
         """Depth of one pair; kind "lut", "mlp", "light" or "photometric", solver "dct" (Neumann) or "dst";
-        past_reach=False keeps the model's slopes (lookup table or perceptron) where they reach the calibration's limit."""
+        past_reach=False keeps the model's slopes (lookup table or perceptron) where they
+        reach the calibration's limit."""
     def reconstructor(
         self,
         ref: Optional[_Frames] = None,

@@ -265,19 +265,15 @@ impl Reconstruction {
 }
 
 /// Where the light model reads past the reach of the calibration's slopes: with the
-/// table (`reads`: its gains made) or the perceptron, and light models in the file; the
-/// limits are the table's (both models were fitted on the same presses).
-fn reach_limits_of(model: &TactileModel, reads: bool) -> Option<ReachLimits> {
+/// lookup table (`lut_gains`: its gains made) or the perceptron (`kind`), and light
+/// models in the file; the limits are the table's (both models were fitted on the same
+/// presses).
+fn reach_limits_of(model: &TactileModel, kind: ModelKind, lut_gains: bool) -> Option<ReachLimits> {
+    let reads = lut_gains || kind == ModelKind::Mlp;
     match (reads, &model.dx.light, &model.dy.light) {
         (true, Some(_), Some(_)) => ReachLimits::of([&model.dx.lut, &model.dy.lut]),
         _ => None,
     }
-}
-
-/// Whether `kind` reads past the reach of the calibration's slopes: the lookup table
-/// (`lut_gains` made for it) and the perceptron.
-fn reads_past_reach(kind: ModelKind, lut_gains: bool) -> bool {
-    lut_gains || kind == ModelKind::Mlp
 }
 
 /// Share of the frame's blocks in contact above which the pair's phases are checked.
@@ -446,7 +442,7 @@ impl Reconstructor {
                 }
             }
         }
-        let reach_limits = reach_limits_of(&model, reads_past_reach(kind, lut_gains.is_some()));
+        let reach_limits = reach_limits_of(&model, kind, lut_gains.is_some());
         Ok(Self {
             lut_gains,
             reach_limits,
@@ -478,10 +474,7 @@ impl Reconstructor {
     /// it is on now.
     pub fn set_past_reach(&mut self, on: bool) -> bool {
         self.reach_limits = if on {
-            reach_limits_of(
-                &self.model,
-                reads_past_reach(self.kind, self.lut_gains.is_some()),
-            )
+            reach_limits_of(&self.model, self.kind, self.lut_gains.is_some())
         } else {
             None
         };

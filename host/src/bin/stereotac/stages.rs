@@ -66,8 +66,9 @@ pub struct StageArgs {
     /// each pair's own (wrong as soon as the room's light changes).
     #[arg(long)]
     pub static_ambient: bool,
-    /// Keep the model's slopes (lookup table or perceptron) where they reach the calibration's limit (by default the model
-    /// file's light model reads steeper walls there; `process`: as the recording's run).
+    /// Keep the model's slopes (lookup table or perceptron) where they reach the
+    /// calibration's limit (by default the model file's light model reads steeper walls
+    /// there; `process`: as the recording's run).
     #[arg(long)]
     pub no_past_reach: bool,
 }

@@ -390,7 +390,7 @@ mod tests {
     }
 
     #[test]
-    fn reads_walls_steep_along_both_axes_from_matte_features() {
+    fn reads_walls_steep_along_both_axes_from_both_phases() {
         let k = 1.6f32;
         // Calibration-like samples: slopes up to 0.9 in any direction.
         let mut sets = [Vec::new(), Vec::new()];

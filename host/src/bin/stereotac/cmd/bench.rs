@@ -77,8 +77,9 @@ pub struct SkinsArgs {
     /// Gradient model.
     #[arg(long, default_value = "lut")]
     pub model: ModelKind,
-    /// Read with the model alone (lookup table or perceptron) where its slopes reach the calibration's limit (by default the
-    /// light model reads steeper walls there): to compare the two.
+    /// Read with the model alone (lookup table or perceptron) where its slopes reach the
+    /// calibration's limit (by default the light model reads steeper walls there): to
+    /// compare the two.
     #[arg(long)]
     pub no_past_reach: bool,
     /// Interleaved mode: calibrate on LED light (LEDs-off frames subtracted) and remove

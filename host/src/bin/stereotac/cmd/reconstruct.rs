@@ -51,9 +51,10 @@ pub struct Args {
     /// file that holds it; a missing one is named).
     #[arg(long = "model-kind", default_value = "lut")]
     pub model_kind: ModelKind,
-    /// Keep the model's slopes (lookup table or perceptron) where they reach the calibration's limit. By default the model
-    /// file's light model reads steeper walls there (summary.json's past_reach_pixels
-    /// counts them); turn it off for a skin where that over-reads.
+    /// Keep the model's slopes (lookup table or perceptron) where they reach the
+    /// calibration's limit. By default the model file's light model reads steeper walls
+    /// there (summary.json's past_reach_pixels counts them); turn it off for a skin where
+    /// that over-reads.
     #[arg(long)]
     pub no_past_reach: bool,
     /// Range of depth_colour.png, mm: `LO,HI` (to compare pictures), or `auto` (default:
