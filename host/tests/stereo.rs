@@ -628,3 +628,97 @@ fn calibrations_convert_between_formats_and_read_back() {
     assert!(!ok && err.contains("--force"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A stand-in for Python with OpenCV, for `stereo-eval --compare`'s plumbing: called as
+/// the interpreter with our script's path and its arguments, it reads the pairs file and
+/// writes, for StereoBM, the true disparity of a facing plane at `FAKE_DISTANCE_MM` as
+/// every pixel's (an .npy of the left PNG's size, from the PNG header); for StereoSGBM it
+/// fails as a missing module would.
+const FAKE_OPENCV: &str = r#"
+import json, os, struct, sys
+_, _script, pairs, num_disp, block, min_disp, repeats, mode = sys.argv
+if mode != "bm":
+    sys.exit("ModuleNotFoundError: No module named 'cv2' (fake sgbm)")
+d = float(os.environ["FAKE_DISPARITY"])
+for line in open(pairs, encoding="utf-8"):
+    left, right, out = line.rstrip("\n").split("\t")
+    with open(left, "rb") as f:
+        w, h = struct.unpack(">II", f.read(24)[16:24])
+    header = "{'descr': '<f4', 'fortran_order': False, 'shape': (%d, %d), }" % (h, w)
+    header += " " * ((64 - (10 + len(header) + 1) % 64) % 64) + "\n"
+    with open(out, "wb") as f:
+        f.write(b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode())
+        f.write(struct.pack("<f", d) * (w * h))
+print(json.dumps({"median_ms": 1.5, "opencv": "fake"}))
+"#;
+
+#[test]
+fn compare_runs_both_matchers_and_opencvs_on_the_same_captures() {
+    let dir = temp_dir("compare");
+    let fake = dir.join("fake_opencv.py");
+    std::fs::write(&fake, FAKE_OPENCV).unwrap();
+    let python = dir.join("python");
+    std::fs::write(
+        &python,
+        format!("#!/bin/sh\nexec python3 {} \"$@\"\n", fake.display()),
+    )
+    .unwrap();
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let rig = StereoRig::sensor();
+    let truth = rig.focal_px * rig.baseline_mm / 200.0;
+    let run = |python: &Path| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+            .args(["stereo-eval", "--compare", "--distances", "200"])
+            .args(["--frames", "2", "--json"])
+            .env("STEREOTAC_PYTHON", python)
+            .env("FAKE_DISPARITY", truth.to_string())
+            .output()
+            .expect("run stereotac");
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success(), "{err}");
+        let report: Value = serde_json::from_slice(&out.stdout).expect("JSON report");
+        (report, err)
+    };
+    let (report, err) = run(&python);
+    let rows = report["rows"].as_array().expect("rows");
+    let names: Vec<&str> = rows.iter().filter_map(|r| r["matcher"].as_str()).collect();
+    assert_eq!(
+        names,
+        ["bm", "sgm, 8 paths", "OpenCV StereoBM 9×9"],
+        "{report}"
+    );
+    // Ours measure the plane; the stand-in's exact disparity reads it exactly, with its
+    // time; StereoSGBM's failure is reported as skipped, with the reason.
+    for row in &rows[..2] {
+        assert!(get(row, "z_accuracy_pct").abs() < 0.5, "{row}");
+        assert!(get(row, "fill_rate_pct") > 95.0, "{row}");
+        assert!(get(row, "match_ms") > 0.0, "{row}");
+    }
+    let cv = &rows[2];
+    assert!(get(cv, "z_accuracy_pct").abs() < 1e-3, "{cv}");
+    assert!(get(cv, "rms_error_pct") < 1e-3, "{cv}");
+    assert_eq!(
+        (get(cv, "fill_rate_pct"), get(cv, "match_ms")),
+        (100.0, 1.5)
+    );
+    assert_eq!(report["opencv"].as_str(), Some("fake"));
+    let skipped = report["opencv_skipped"].as_str().unwrap_or("");
+    assert!(skipped.contains("fake sgbm"), "{report}");
+    assert!(err.contains("OpenCV's matchers skipped"), "{err}");
+    // No interpreter at all: our rows, OpenCV's skipped with the reason.
+    let (report, err) = run(&dir.join("no-such-python"));
+    assert_eq!(report["rows"].as_array().map(Vec::len), Some(2), "{report}");
+    assert!(report["opencv"].is_null());
+    assert!(
+        err.contains("OpenCV's matchers skipped") && err.contains("no-such-python"),
+        "{err}"
+    );
+    // The matchers are its own: --matcher does not go with it.
+    let (ok, _, err) = stereotac(&["stereo-eval", "--compare", "--matcher", "sgm"]);
+    assert!(!ok && err.contains("--matcher"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

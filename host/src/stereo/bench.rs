@@ -3,21 +3,16 @@
 //! OpenCV's StereoBM on the same images in the same run, with matching quality against
 //! the true disparity of the scene.
 
-use std::path::Path;
-
 use serde::Serialize;
 
 use super::block_match::{BlockMatchParams, BlockMatcher, Kernel, MatchError};
+use super::opencv::{self, OpenCvMatcher};
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::rectify::{Rectification, RectifyError};
 use super::sgm::{Paths, SemiGlobalMatcher, SgmParams};
 use super::synthetic::{Membrane, Plane, StereoRig, fisheye_calibration, render_pair};
 use crate::grid::Grid;
-use crate::output::{OutputError, read_npy, write_grey_png};
 use crate::timing::median_ms;
-
-/// The script that times OpenCV's StereoBM and StereoSGBM (run with `python3`).
-const OPENCV_SCRIPT: &str = include_str!("../../benches/opencv_stereobm.py");
 
 /// Why the benchmark could not run.
 #[derive(Debug, thiserror::Error)]
@@ -347,24 +342,14 @@ fn quality(disparity: &Grid<f32>, truth: &Grid<f32>) -> (f64, f64) {
     )
 }
 
-/// Which OpenCV matcher the script runs.
-#[derive(Debug, Clone, Copy)]
-enum OpenCvMatcher {
-    /// StereoBM with our block matcher's settings.
-    Bm { block: u32 },
-    /// StereoSGBM, 3-way, P1 = 8·block², P2 = 32·block².
-    Sgbm { block: u32 },
-}
-
 struct OpenCvResult {
     median_ms: f64,
     bad_1px_pct: f64,
     valid_pct: f64,
 }
 
-/// Times OpenCV's StereoBM through python3 (`host/benches/opencv_stereobm.py`) on the
-/// same images and scores its disparity against the same ground truth; the error says
-/// why it could not.
+/// Times OpenCV's `matcher` on the same images ([`opencv::run`]) and scores its
+/// disparity against the same ground truth; the error says why it could not.
 fn run_opencv(
     left: &Grid<u8>,
     right: &Grid<u8>,
@@ -373,73 +358,17 @@ fn run_opencv(
     matcher: OpenCvMatcher,
     repeats: usize,
 ) -> Result<OpenCvResult, String> {
-    let dir = std::env::temp_dir().join(format!("stereotac-bench-{}", std::process::id()));
-    let result = opencv_in(&dir, left, right, truth, params, matcher, repeats);
-    let _ = std::fs::remove_dir_all(&dir);
-    result
-}
-
-fn opencv_in(
-    dir: &Path,
-    left: &Grid<u8>,
-    right: &Grid<u8>,
-    truth: &Grid<f32>,
-    params: &BlockMatchParams,
-    matcher: OpenCvMatcher,
-    repeats: usize,
-) -> Result<OpenCvResult, String> {
-    let (mode, block) = match matcher {
-        OpenCvMatcher::Bm { block } => ("bm", block),
-        OpenCvMatcher::Sgbm { block } => ("sgbm", block),
-    };
-    let text = |e: OutputError| e.to_string();
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let (l, r, d, script) = (
-        dir.join("left.png"),
-        dir.join("right.png"),
-        dir.join("opencv_disparity.npy"),
-        dir.join("opencv_stereobm.py"),
-    );
-    write_grey_png(&l, left).map_err(text)?;
-    write_grey_png(&r, right).map_err(text)?;
-    std::fs::write(&script, OPENCV_SCRIPT).map_err(|e| format!("{}: {e}", script.display()))?;
-    let out = std::process::Command::new("python3")
-        .arg(&script)
-        .args([&l, &r, &d])
-        .args([
-            params.num_disparities.to_string(),
-            block.to_string(),
-            params.min_disparity.to_string(),
-            repeats.to_string(),
-            mode.to_string(),
-        ])
-        .output()
-        .map_err(|e| format!("running python3: {e}"))?;
-    if !out.status.success() {
-        return Err(String::from_utf8_lossy(&out.stderr).trim().to_string());
-    }
-    let reply: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| {
-        format!(
-            "reading the script's reply {:?}: {e}",
-            String::from_utf8_lossy(&out.stdout)
-        )
-    })?;
-    let median_ms = reply["median_ms"]
-        .as_f64()
-        .ok_or("no median_ms in the reply")?;
-    let disparity = read_npy(&d).map_err(text)?;
-    if (disparity.width(), disparity.height()) != (left.width(), left.height()) {
-        return Err(format!(
-            "{}: not a {}×{} array",
-            d.display(),
-            left.width(),
-            left.height()
-        ));
-    }
-    let (bad, valid) = quality(&disparity, truth);
+    let run = opencv::run(
+        &[(left, right)],
+        params.min_disparity,
+        params.num_disparities,
+        matcher,
+        repeats,
+    )?;
+    let (bad_1px_pct, valid_pct) = quality(&run.disparities[0], truth);
     Ok(OpenCvResult {
-        median_ms,
-        bad_1px_pct: bad,
-        valid_pct: valid,
+        median_ms: run.median_ms,
+        bad_1px_pct,
+        valid_pct,
     })
 }

@@ -13,15 +13,19 @@
 //! [`super::synthetic`]) and measures the pipeline with and without post-filters, either
 //! through an ideal rig (rectification is the identity) or through the sensor's wide
 //! lenses ([`Lens::Wide`]: raw fisheye frames, rectified by the pipeline as real ones
-//! are, with the target facing the rectified left camera).
+//! are, with the target facing the rectified left camera). [`run_comparison`] measures
+//! both our matchers and OpenCV's StereoBM and StereoSGBM on the same captures,
+//! unfiltered, with the time each takes to match a frame.
 
 use nalgebra::{Matrix3, Point3, Vector3};
 use serde::Serialize;
 
 use super::matcher::MatcherKind;
+use super::opencv::{self, OpenCvMatcher};
 use super::pipeline::{StereoConfig, StereoError, StereoPipeline};
 use super::postfilter::{SpatialFilter, TemporalParams};
 use super::rectify::Rectification;
+use super::reproject::depth_from_disparity;
 use super::sgm::Paths;
 use super::synthetic::{
     Membrane, Plane, RawRig, StereoRig, TexturedPlane, render_pair, wide_fisheye_calibration,
@@ -278,6 +282,56 @@ pub fn variants(base: StereoConfig) -> [(&'static str, StereoConfig); 2] {
     ]
 }
 
+/// The cameras of an evaluation, and where its depth maps are measured.
+struct Setup {
+    calib: super::StereoCalibration,
+    raw: Option<RawRig>,
+    rectification: Rectification,
+    roi: Region,
+    intrinsics: Intrinsics,
+}
+
+impl Setup {
+    fn new(eval: &SyntheticEval, rectify_scale: f64) -> Result<Self, StereoError> {
+        let (calib, raw) = match eval.lens {
+            Lens::Ideal => (eval.rig.calibration(), None),
+            Lens::Wide => {
+                let raw = RawRig::new(&wide_fisheye_calibration());
+                (*raw.calibration(), Some(raw))
+            }
+        };
+        // The rectified left camera the depth maps are in (as every pipeline has it).
+        let rectification = Rectification::bouguet(&calib, rectify_scale)?;
+        let (width, height) = (rectification.width as usize, rectification.height as usize);
+        Ok(Self {
+            calib,
+            raw,
+            roi: Region::central(width, height, eval.roi),
+            intrinsics: Intrinsics {
+                focal_px: rectification.focal(),
+                centre: (rectification.p1[(0, 2)], rectification.p1[(1, 2)]),
+            },
+            rectification,
+        })
+    }
+
+    /// The `eval.frames` captures of the target at `distance` mm.
+    fn captures(&self, eval: &SyntheticEval, distance: f64) -> Vec<(Grid<u8>, Grid<u8>)> {
+        // The wide lens's targets face the rectified left camera: Z_rect = distance.
+        let to_raw = self.rectification.r1.transpose();
+        let target = TexturedPlane {
+            point: Point3::from(to_raw * Vector3::new(0.0, 0.0, distance)),
+            normal: to_raw * Vector3::z(),
+        };
+        (0..eval.frames as u64)
+            .map(|k| match &self.raw {
+                None => render_pair(&eval.rig, &Plane::facing(distance), &eval.membrane, k + 1),
+                Some(raw) => raw.render(&target, &eval.membrane, k + 1),
+            })
+            .collect()
+    }
+}
+
 /// Runs the evaluation: for every distance and variant, `frames` captures through a
 /// fresh pipeline. `progress` is called after each distance and variant.
 pub fn run_synthetic(
@@ -285,37 +339,13 @@ pub fn run_synthetic(
     base: StereoConfig,
     mut progress: impl FnMut(&EvalRow),
 ) -> Result<Vec<EvalRow>, StereoError> {
-    let (calib, raw) = match eval.lens {
-        Lens::Ideal => (eval.rig.calibration(), None),
-        Lens::Wide => {
-            let raw = RawRig::new(&wide_fisheye_calibration());
-            (*raw.calibration(), Some(raw))
-        }
-    };
-    // The rectified left camera the depth maps are in (as every pipeline below has it).
-    let rectification = Rectification::bouguet(&calib, base.rectify_scale)?;
-    let (width, height) = (rectification.width as usize, rectification.height as usize);
-    let roi = Region::central(width, height, eval.roi);
-    let intrinsics = Intrinsics {
-        focal_px: rectification.focal(),
-        centre: (rectification.p1[(0, 2)], rectification.p1[(1, 2)]),
-    };
+    let setup = Setup::new(eval, base.rectify_scale)?;
+    let (roi, intrinsics) = (setup.roi, setup.intrinsics);
     let mut rows = Vec::new();
-    // The wide lens's targets face the rectified left camera: Z_rect = distance.
-    let to_raw = rectification.r1.transpose();
     for &distance in &eval.distances_mm {
-        let target = TexturedPlane {
-            point: Point3::from(to_raw * Vector3::new(0.0, 0.0, distance)),
-            normal: to_raw * Vector3::z(),
-        };
-        let captures: Vec<_> = (0..eval.frames as u64)
-            .map(|k| match &raw {
-                None => render_pair(&eval.rig, &Plane::facing(distance), &eval.membrane, k + 1),
-                Some(raw) => raw.render(&target, &eval.membrane, k + 1),
-            })
-            .collect();
+        let captures = setup.captures(eval, distance);
         for (variant, config) in variants(base) {
-            let mut pipeline = StereoPipeline::new(&calib, config)?;
+            let mut pipeline = StereoPipeline::new(&setup.calib, config)?;
             let mut depth = Vec::with_capacity(captures.len());
             let mut time = 0.0;
             for (l, r) in &captures {
@@ -343,6 +373,174 @@ pub fn run_synthetic(
         }
     }
     Ok(rows)
+}
+
+/// One matcher at one distance in [`run_comparison`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CompareRow {
+    /// `bm`, `sgm, N paths`, or OpenCV's matcher with its block size.
+    pub matcher: String,
+    /// Side of the matching window (OpenCV: its block), px.
+    pub window_px: u32,
+    /// The measures (unfiltered depth).
+    #[serde(flatten)]
+    pub metrics: PlaneMetrics,
+    /// Median time to match one frame, ms: our pipeline's matching stage, or one
+    /// `compute` of OpenCV's (on one thread, repeated [`OPENCV_REPEATS`] times a frame).
+    pub match_ms: f64,
+}
+
+/// What [`run_comparison`] measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Comparison {
+    /// Per distance: block matching, semi-global matching, then OpenCV's StereoBM and
+    /// StereoSGBM when they ran.
+    pub rows: Vec<CompareRow>,
+    /// OpenCV's version, when its matchers ran.
+    pub opencv: Option<String>,
+    /// Why OpenCV's matchers did not run (no Python, no OpenCV), when they did not.
+    pub opencv_skipped: Option<String>,
+}
+
+/// StereoSGBM's block side, as `bench stereo` runs it (OpenCV's usual choice).
+pub const SGBM_BLOCK: u32 = 5;
+/// Timed repeats of OpenCV's `compute` per frame.
+pub const OPENCV_REPEATS: usize = 3;
+
+/// Our two matchers (block matching, and semi-global along `base`'s paths) and, when
+/// `with_opencv`, OpenCV's StereoBM (our block matcher's window) and StereoSGBM 3-way
+/// ([`SGBM_BLOCK`]) on the same captures, all unfiltered (`base` without its spatial and
+/// temporal filters); OpenCV's matchers read the views our pipeline rectified and search
+/// block matching's disparities, and their depth keeps the same near–far range. Each
+/// matcher's window is its own default unless `base` sets one. `progress` is called
+/// after each distance and matcher.
+pub fn run_comparison(
+    eval: &SyntheticEval,
+    base: StereoConfig,
+    with_opencv: bool,
+    mut progress: impl FnMut(&CompareRow),
+) -> Result<Comparison, StereoError> {
+    let setup = Setup::new(eval, base.rectify_scale)?;
+    let (roi, intrinsics) = (setup.roi, setup.intrinsics);
+    let (focal, baseline) = (setup.rectification.focal(), setup.rectification.baseline());
+    let mut out = Comparison {
+        rows: Vec::new(),
+        opencv: None,
+        opencv_skipped: None,
+    };
+    for &distance in &eval.distances_mm {
+        let captures = setup.captures(eval, distance);
+        // The views block matching rectified and its disparities, for OpenCV.
+        let mut rectified = Vec::new();
+        let mut range = (0, 0);
+        for matcher in [MatcherKind::Bm, MatcherKind::Sgm] {
+            let config = StereoConfig {
+                matcher,
+                spatial: None,
+                temporal: None,
+                ..base
+            };
+            let mut pipeline = StereoPipeline::new(&setup.calib, config)?;
+            // Once untimed, as OpenCV's are: the first frame allocates the volumes.
+            if let Some((l, r)) = captures.first() {
+                pipeline.process(l, r)?;
+            }
+            let mut depth = Vec::with_capacity(captures.len());
+            let mut times = Vec::with_capacity(captures.len());
+            for (l, r) in &captures {
+                let f = pipeline.process(l, r)?;
+                times.push(f.timings.match_ms);
+                depth.push(f.depth_mm);
+                if matcher == MatcherKind::Bm {
+                    rectified.push((f.left, f.right));
+                }
+            }
+            let m = pipeline.matcher();
+            if matcher == MatcherKind::Bm {
+                range = (m.disparity_range().0, m.num_disparities());
+            }
+            let row = CompareRow {
+                matcher: match m.sgm_paths() {
+                    Some(p) => format!("sgm, {} paths", p.count()),
+                    None => m.kind().name().to_string(),
+                },
+                window_px: m.window(),
+                metrics: plane_metrics(&depth, distance, roi, intrinsics),
+                match_ms: median(&mut times),
+            };
+            progress(&row);
+            out.rows.push(row);
+        }
+        if !with_opencv || out.opencv_skipped.is_some() {
+            continue;
+        }
+        let bm_window = out.rows[out.rows.len() - 2].window_px;
+        let pairs: Vec<_> = rectified.iter().map(|(l, r)| (l, r)).collect();
+        for matcher in [
+            OpenCvMatcher::Bm { block: bm_window },
+            OpenCvMatcher::Sgbm { block: SGBM_BLOCK },
+        ] {
+            let run = match opencv::run(&pairs, range.0, range.1, matcher, OPENCV_REPEATS) {
+                Ok(run) => run,
+                Err(why) => {
+                    out.opencv_skipped = Some(why);
+                    break;
+                }
+            };
+            let depth: Vec<Grid<f32>> = run
+                .disparities
+                .iter()
+                .map(|d| within(depth_from_disparity(d, focal, baseline), &base))
+                .collect();
+            let row = CompareRow {
+                matcher: matcher.label(),
+                window_px: match matcher {
+                    OpenCvMatcher::Bm { block } | OpenCvMatcher::Sgbm { block } => block,
+                },
+                metrics: plane_metrics(&depth, distance, roi, intrinsics),
+                match_ms: run.median_ms,
+            };
+            out.opencv = Some(run.version);
+            progress(&row);
+            out.rows.push(row);
+        }
+    }
+    Ok(out)
+}
+
+/// `depth` with the depths outside `config`'s near–far range dropped (NaN), as our
+/// pipeline drops them.
+fn within(mut depth: Grid<f32>, config: &StereoConfig) -> Grid<f32> {
+    let (near, far) = (config.near_mm as f32, config.far_mm as f32);
+    for z in depth.as_mut_slice() {
+        if !(near..=far).contains(z) {
+            *z = f32::NAN;
+        }
+    }
+    depth
+}
+
+/// [`run_comparison`]'s rows as text.
+pub fn comparison_table(rows: &[CompareRow]) -> String {
+    let mut s = String::from(
+        "distance  matcher                       window  Z-accuracy  RMS error  temporal  fill rate  match\n\
+         (mm)                                    (px)    (%)         (%)        (%)       (%)        (ms)\n",
+    );
+    for r in rows {
+        let m = &r.metrics;
+        s.push_str(&format!(
+            "{:>8.0}  {:<30}  {:>5}  {:>+10.3}  {:>9.3}  {:>8.3}  {:>9.1}  {:>5.1}\n",
+            m.distance_mm,
+            r.matcher,
+            r.window_px,
+            m.z_accuracy_pct,
+            m.rms_error_pct,
+            m.temporal_noise_pct,
+            m.fill_rate_pct,
+            r.match_ms
+        ));
+    }
+    s
 }
 
 /// The table as text.

@@ -19,6 +19,7 @@
 //! - [`scene`]: renders surfaces through a calibrated camera, lens model and all.
 //! - [`synthetic`]: built-in captures of textured targets behind the skin.
 //! - [`eval`]: Z-accuracy, RMS error, temporal noise and fill rate of flat targets.
+//! - [`opencv`]: OpenCV's StereoBM and StereoSGBM run on the same images, as references.
 //! - [`output`]: a processed frame's files (depth and disparity as NPY and PNG, point
 //!   cloud as PLY, `summary.json`).
 //! - [`bench`]: the stereo benchmark (remap, matching per kernel, the whole frame,
@@ -33,6 +34,7 @@ pub mod calibration;
 pub mod camera;
 pub mod eval;
 pub mod matcher;
+pub mod opencv;
 pub mod outliers;
 pub mod output;
 pub mod pipeline;

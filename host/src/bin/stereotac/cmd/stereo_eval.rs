@@ -36,6 +36,12 @@ pub struct Args {
     pub lens: LensArg,
     #[command(flatten)]
     pub pipeline: PipelineArgs,
+    /// Compare matchers on the same captures, unfiltered, side by side: ours (`bm`, and
+    /// `sgm` along `--sgm-paths`) and OpenCV's StereoBM and StereoSGBM 3-way, run by
+    /// `python3` (or the interpreter `STEREOTAC_PYTHON` names) with opencv-python;
+    /// without them OpenCV's rows are reported as skipped, with the reason.
+    #[arg(long, conflicts_with = "matcher")]
+    pub compare: bool,
     /// Print JSON instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -79,6 +85,9 @@ pub fn run(a: Args) -> Result<()> {
         },
         ..SyntheticEval::default()
     };
+    if a.compare {
+        return compare(&a, &setup);
+    }
     let progress = bar(2 * a.distances.len() as u64, "rendering, matching");
     let config = a.pipeline.config()?;
     let rows = eval::run_synthetic(&setup, config, |_| progress.inc(1))?;
@@ -106,5 +115,47 @@ pub fn run(a: Args) -> Result<()> {
         );
         print!("{}", eval::table(&rows));
     }
+    Ok(())
+}
+
+/// `--compare`: both our matchers and OpenCV's on the same captures.
+fn compare(a: &Args, setup: &SyntheticEval) -> Result<()> {
+    // `--sgm-paths` is for the semi-global rows (block matching runs too).
+    let config = PipelineArgs {
+        matcher: MatcherKind::Sgm,
+        ..a.pipeline.clone()
+    }
+    .config()?;
+    let progress = bar(4 * a.distances.len() as u64, "rendering, matching");
+    let report = eval::run_comparison(setup, config, true, |_| progress.inc(1))?;
+    progress.finish_and_clear();
+    if let Some(why) = &report.opencv_skipped {
+        eprintln!(
+            "OpenCV's matchers skipped: {}",
+            why.lines().last().unwrap_or(why)
+        );
+    }
+    let json = json_report(&report, a.json_out.as_deref())?;
+    if a.json {
+        println!("{json}");
+        return Ok(());
+    }
+    println!(
+        "matchers compared, unfiltered, on synthetic flat targets: {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels{}",
+        match a.lens {
+            LensArg::Ideal => "ideal",
+            LensArg::Wide => "wide fisheye",
+        },
+        a.frames,
+        100.0 * a.roi,
+        a.haze,
+        a.noise,
+        report
+            .opencv
+            .as_ref()
+            .map(|v| format!("; OpenCV {v}, one thread"))
+            .unwrap_or_default()
+    );
+    print!("{}", eval::comparison_table(&report.rows));
     Ok(())
 }
