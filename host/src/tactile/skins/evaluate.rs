@@ -159,7 +159,8 @@ pub struct FamilyReport {
     pub disk: Option<Readings>,
     /// 1 mm disk, wall slope 1.31.
     pub steep_disk: Option<Readings>,
-    /// Ball centred on each frame edge: reconstructed / true peak (smallest of four).
+    /// Ball centred on each frame edge: reconstructed / true peak (of the four, the one
+    /// farthest from 1: short or over).
     pub edge_peak_ratio: Option<f64>,
     /// Skin at rest: frames reported as contact.
     pub rest_contacts: Option<usize>,
@@ -389,7 +390,7 @@ pub fn evaluate_skin(
     })
     .collect();
     let frames = render_all(&edge_scenes, 3000);
-    let mut ratio = f64::INFINITY;
+    let mut ratio = f64::NAN;
     for (scene, f) in edge_scenes.iter().zip(&frames) {
         let truth = scene.truth(w, h, ppm).depth;
         let true_peak = truth.as_slice().iter().copied().fold(0.0f32, f32::max) as f64;
@@ -397,8 +398,9 @@ pub fn evaluate_skin(
             Ok(r) => r.depth_mm.as_slice().iter().copied().fold(0.0f32, f32::max) as f64,
             Err(_) => 0.0,
         };
-        if true_peak > 0.0 {
-            ratio = ratio.min(peak / true_peak);
+        let r = peak / true_peak;
+        if true_peak > 0.0 && (ratio.is_nan() || (r - 1.0).abs() > (ratio - 1.0).abs()) {
+            ratio = r;
         }
     }
     report.edge_peak_ratio = ratio.is_finite().then_some(ratio);
@@ -547,18 +549,20 @@ pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)
         r.disk
             .map(|d| (d.mean - 1.0).abs() <= 0.02 && d.std <= 0.02),
     ));
+    // The issue bounds these two from below only; a reading as far above the truth is
+    // no better, so it is held to the same distance above (an over-read is a miss).
     rows.push((
         "1 mm disk, wall 1.31".to_string(),
-        "mean ≥ 0.90".to_string(),
+        "mean ≥ 0.90 (and ≤ 1.10)".to_string(),
         disk(&r.steep_disk),
-        r.steep_disk.map(|d| d.mean >= 0.90),
+        r.steep_disk.map(|d| (0.90..=1.10).contains(&d.mean)),
     ));
     rows.push((
         "ball centred on the edge".to_string(),
-        "≥ 0.95 of the true peak".to_string(),
+        "≥ 0.95 of the true peak (and ≤ 1.05)".to_string(),
         r.edge_peak_ratio
             .map_or("-".to_string(), |v| format!("{v:.3} (worst of 4 edges)")),
-        r.edge_peak_ratio.map(|v| v >= 0.95),
+        r.edge_peak_ratio.map(|v| (0.95..=1.05).contains(&v)),
     ));
     rows.push((
         "skin at rest".to_string(),
