@@ -249,6 +249,16 @@ fn no_past_reach_is_kept_by_the_recording_and_process_does_as_the_run_did() {
     let (ok, text, err) = stereotac(&["process", path(&rec), "--jsonl"]);
     assert!(ok, "{err}");
     assert_eq!(reached(&text), alone);
+    // Turned back on for that recording: the reading is made again.
+    let (ok, text, err) = stereotac(&["process", path(&rec), "--jsonl", "--past-reach"]);
+    assert!(ok, "{err}");
+    let again = reached(&text);
+    assert!(
+        again.len() == alone.len() && again.iter().any(|&n| n > 0),
+        "{again:?}"
+    );
+    let (ok, _, err) = stereotac(&["process", path(&rec), "--past-reach", "--no-past-reach"]);
+    assert!(!ok && err.contains("--no-past-reach"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -38,6 +38,11 @@ pub struct Args {
     /// Tactile model and stereo calibration (default: the ones the recording holds).
     #[command(flatten)]
     pub stages: StageArgs,
+    /// Read past the model's reach (the light model reads steeper walls where the
+    /// table's or perceptron's slopes reach the calibration's limit) even where the
+    /// recording's run had it off (`run --no-past-reach`).
+    #[arg(long, conflicts_with = "no_past_reach")]
+    pub past_reach: bool,
     /// Write the frames, depth maps, contact summaries and point clouds to this new
     /// MCAP file.
     #[arg(long, value_name = "FILE")]
@@ -323,12 +328,13 @@ fn setups(
         || recorded
             .and_then(|m| m.get("static_ambient"))
             .is_some_and(|v| v == "true");
-    // Off when asked, or when the run that made the recording had it off; on by default
-    // (a recording without the setting), as `reconstruct`.
-    let past_reach = !a.stages.no_past_reach
-        && recorded
-            .and_then(|m| m.get("past_reach"))
-            .is_none_or(|v| v != "false");
+    // As asked; else as the run that made the recording had it; on by default (a
+    // recording without the setting), as `reconstruct`.
+    let past_reach = a.past_reach
+        || !a.stages.no_past_reach
+            && recorded
+                .and_then(|m| m.get("past_reach"))
+                .is_none_or(|v| v != "false");
     let tactile = match (
         &a.stages.model,
         header.attachments.get(topics::MODEL_ATTACHMENT),
