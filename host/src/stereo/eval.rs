@@ -527,20 +527,24 @@ pub fn comparison_table(rows: &[CompareRow]) -> String {
          (mm)                                    (px)    (%)         (%)        (%)       (%)        (ms)\n",
     );
     for r in rows {
-        let m = &r.metrics;
         s.push_str(&format!(
-            "{:>8.0}  {:<30}  {:>5}  {:>+10.3}  {:>9.3}  {:>8.3}  {:>9.1}  {:>5.1}\n",
-            m.distance_mm,
+            "{:>8.0}  {:<30}  {:>5}  {}  {:>5.1}\n",
+            r.metrics.distance_mm,
             r.matcher,
             r.window_px,
-            m.z_accuracy_pct,
-            m.rms_error_pct,
-            m.temporal_noise_pct,
-            m.fill_rate_pct,
+            measures(&r.metrics),
             r.match_ms
         ));
     }
     s
+}
+
+/// The measures' columns of a row (Z-accuracy, RMS error, temporal noise, fill rate).
+fn measures(m: &PlaneMetrics) -> String {
+    format!(
+        "{:>+10.3}  {:>9.3}  {:>8.3}  {:>9.1}",
+        m.z_accuracy_pct, m.rms_error_pct, m.temporal_noise_pct, m.fill_rate_pct
+    )
 }
 
 /// The table as text.
@@ -550,15 +554,11 @@ pub fn table(rows: &[EvalRow]) -> String {
          (mm)                (%)         (%)        (%)       (%)        (ms)\n",
     );
     for r in rows {
-        let m = &r.metrics;
         s.push_str(&format!(
-            "{:>8.0}  {:<8}  {:>+10.3}  {:>9.3}  {:>8.3}  {:>9.1}  {:>5.1}\n",
-            m.distance_mm,
+            "{:>8.0}  {:<8}  {}  {:>5.1}\n",
+            r.metrics.distance_mm,
             r.variant,
-            m.z_accuracy_pct,
-            m.rms_error_pct,
-            m.temporal_noise_pct,
-            m.fill_rate_pct,
+            measures(&r.metrics),
             r.frame_ms
         ));
     }

@@ -75,34 +75,6 @@ pub fn run(
     matcher: OpenCvMatcher,
     repeats: usize,
 ) -> Result<OpenCvRun, String> {
-    let dir = std::env::temp_dir().join(format!(
-        "stereotac-opencv-{}-{}",
-        std::process::id(),
-        RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-    ));
-    let result = run_in(
-        &dir,
-        pairs,
-        min_disparity,
-        num_disparities,
-        matcher,
-        repeats,
-    );
-    let _ = std::fs::remove_dir_all(&dir);
-    result
-}
-
-/// Distinguishes the temporary folders of runs in one process.
-static RUNS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-
-fn run_in(
-    dir: &Path,
-    pairs: &[(&Grid<u8>, &Grid<u8>)],
-    min_disparity: u32,
-    num_disparities: u32,
-    matcher: OpenCvMatcher,
-    repeats: usize,
-) -> Result<OpenCvRun, String> {
     if pairs.is_empty() {
         return Err("no pairs to match".into());
     }
@@ -112,6 +84,12 @@ fn run_in(
         ));
     }
     let io = |path: &Path, e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let scratch = Scratch(std::env::temp_dir().join(format!(
+        "stereotac-opencv-{}-{}",
+        std::process::id(),
+        RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    )));
+    let dir = scratch.0.as_path();
     std::fs::create_dir_all(dir).map_err(|e| io(dir, &e))?;
     let mut list = String::new();
     let mut outs: Vec<PathBuf> = Vec::with_capacity(pairs.len());
@@ -179,6 +157,18 @@ fn run_in(
         version,
         disparities,
     })
+}
+
+/// Distinguishes the temporary folders of runs in one process.
+static RUNS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// A temporary folder, removed with what it holds when dropped (on every return).
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 #[cfg(test)]

@@ -102,17 +102,7 @@ pub fn run(a: Args) -> Result<()> {
         };
         let b = config.window();
         println!("matcher {matcher}, window {b}×{b}");
-        println!(
-            "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
-            match a.lens {
-                LensArg::Ideal => "ideal",
-                LensArg::Wide => "wide fisheye",
-            },
-            a.frames,
-            100.0 * a.roi,
-            a.haze,
-            a.noise
-        );
+        println!("{}", targets(&a));
         print!("{}", eval::table(&rows));
     }
     Ok(())
@@ -141,15 +131,8 @@ fn compare(a: &Args, setup: &SyntheticEval) -> Result<()> {
         return Ok(());
     }
     println!(
-        "matchers compared, unfiltered, on synthetic flat targets: {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels{}",
-        match a.lens {
-            LensArg::Ideal => "ideal",
-            LensArg::Wide => "wide fisheye",
-        },
-        a.frames,
-        100.0 * a.roi,
-        a.haze,
-        a.noise,
+        "matchers compared, unfiltered, on {}{}",
+        targets(a),
         report
             .opencv
             .as_ref()
@@ -158,4 +141,19 @@ fn compare(a: &Args, setup: &SyntheticEval) -> Result<()> {
     );
     print!("{}", eval::comparison_table(&report.rows));
     Ok(())
+}
+
+/// The captures, as the tables' headings name them.
+fn targets(a: &Args) -> String {
+    format!(
+        "synthetic flat targets, {} lens, {} frames each, ROI {:.0} % of each side, haze {}, noise {} grey levels",
+        match a.lens {
+            LensArg::Ideal => "ideal",
+            LensArg::Wide => "wide fisheye",
+        },
+        a.frames,
+        100.0 * a.roi,
+        a.haze,
+        a.noise
+    )
 }
