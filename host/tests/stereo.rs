@@ -714,7 +714,9 @@ fn compare_runs_both_matchers_and_opencvs_on_the_same_captures() {
     assert_eq!(report["rows"].as_array().map(Vec::len), Some(2), "{report}");
     assert!(report["opencv"].is_null());
     assert!(
-        err.contains("OpenCV's matchers skipped") && err.contains("no-such-python"),
+        err.contains("OpenCV's matchers skipped")
+            && err.contains("no-such-python")
+            && err.contains("STEREOTAC_PYTHON"),
         "{err}"
     );
     // The matchers are its own: --matcher does not go with it.

@@ -409,8 +409,8 @@ pub const OPENCV_REPEATS: usize = 3;
 
 /// Our two matchers (block matching, and semi-global along `base`'s paths) and, when
 /// `with_opencv`, OpenCV's StereoBM (our block matcher's window) and StereoSGBM 3-way
-/// ([`SGBM_BLOCK`]) on the same captures, all unfiltered (`base` without its spatial and
-/// temporal filters); OpenCV's matchers read the views our pipeline rectified and search
+/// ([`SGBM_BLOCK`]) on the same captures, all unfiltered (`base` without its spatial,
+/// temporal and hole-filling filters and outlier removal); OpenCV's matchers read the views our pipeline rectified and search
 /// block matching's disparities, and their depth keeps the same near–far range. Each
 /// matcher's window is its own default unless `base` sets one. `progress` is called
 /// after each distance and matcher.
@@ -438,6 +438,8 @@ pub fn run_comparison(
                 matcher,
                 spatial: None,
                 temporal: None,
+                hole_fill: None,
+                outliers: None,
                 ..base
             };
             let mut pipeline = StereoPipeline::new(&setup.calib, config)?;

@@ -18,6 +18,10 @@ const SCRIPT: &str = include_str!("../../benches/opencv_stereobm.py");
 /// The environment variable that names the Python interpreter (default `python3`).
 pub const PYTHON_VAR: &str = "STEREOTAC_PYTHON";
 
+/// What to do when the references cannot run.
+pub const SETUP_HINT: &str = "install OpenCV for Python (`pip install opencv-python-headless \
+     numpy`), or name an interpreter that has it in STEREOTAC_PYTHON";
+
 /// Which OpenCV matcher runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]

@@ -338,7 +338,11 @@ fn stereo(a: StereoArgs) -> Result<()> {
     progress.finish_and_clear();
     let report = report?;
     if let Some(why) = &report.opencv_skipped {
-        eprintln!("OpenCV reference skipped: {why}");
+        eprintln!(
+            "OpenCV reference skipped: {} ({})",
+            why.lines().last().unwrap_or(why),
+            stereotac::stereo::opencv::SETUP_HINT
+        );
     }
     let json = json_report(&report.rows, a.json_out.as_deref())?;
     if a.json {

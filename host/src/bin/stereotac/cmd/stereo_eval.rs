@@ -121,8 +121,9 @@ fn compare(a: &Args, setup: &SyntheticEval) -> Result<()> {
     progress.finish_and_clear();
     if let Some(why) = &report.opencv_skipped {
         eprintln!(
-            "OpenCV's matchers skipped: {}",
-            why.lines().last().unwrap_or(why)
+            "OpenCV's matchers skipped: {} ({})",
+            why.lines().last().unwrap_or(why),
+            stereotac::stereo::opencv::SETUP_HINT
         );
     }
     let json = json_report(&report, a.json_out.as_deref())?;
