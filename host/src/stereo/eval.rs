@@ -430,9 +430,9 @@ pub fn run_comparison(
     };
     for &distance in &eval.distances_mm {
         let captures = setup.captures(eval, distance);
-        // The views block matching rectified and its disparities, for OpenCV.
+        // The views block matching rectified, its disparities and window, for OpenCV.
         let mut rectified = Vec::new();
-        let mut range = (0, 0);
+        let (mut range, mut bm_window) = ((0, 0), 0);
         for matcher in [MatcherKind::Bm, MatcherKind::Sgm] {
             let config = StereoConfig {
                 matcher,
@@ -460,6 +460,7 @@ pub fn run_comparison(
             let m = pipeline.matcher();
             if matcher == MatcherKind::Bm {
                 range = (m.disparity_range().0, m.num_disparities());
+                bm_window = m.window();
             }
             let row = CompareRow {
                 matcher: match m.sgm_paths() {
@@ -476,7 +477,6 @@ pub fn run_comparison(
         if !with_opencv || out.opencv_skipped.is_some() {
             continue;
         }
-        let bm_window = out.rows[out.rows.len() - 2].window_px;
         let pairs: Vec<_> = rectified.iter().map(|(l, r)| (l, r)).collect();
         for matcher in [
             OpenCvMatcher::Bm { block: bm_window },
