@@ -9,6 +9,7 @@ use stereotac::rng::Rng;
 use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
 use stereotac::tactile::contact::{block_references, find_regions};
+use stereotac::tactile::crosstalk::Unmix;
 use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
 use stereotac::tactile::poisson::{PoissonSolver, SolverKind};
@@ -87,11 +88,10 @@ fn colour(c: &mut Criterion) {
     let img = image::RgbImage::from_fn(640, 480, |x, y| {
         image::Rgb([(100 + x % 50) as u8, 8, (90 + y % 60) as u8])
     });
-    let reference = Reference::from_image(&image::RgbImage::from_pixel(
-        640,
-        480,
-        image::Rgb([116, 6, 116]),
-    ));
+    let reference = Reference::from_image(
+        &image::RgbImage::from_pixel(640, 480, image::Rgb([116, 6, 116])),
+        Unmix::IDENTITY,
+    );
     let filter = ColourFilter::default();
     c.bench_function("colour_normalise_640x480", |b| {
         b.iter(|| {
@@ -131,7 +131,12 @@ fn scenes(c: &mut Criterion) {
             b.iter(|| rec.reconstruct(&pair.dx, &pair.dy).expect("valid pair"))
         });
         if name == "none" {
-            let block_refs = block_references(&refs.0, &refs.1, model.contact.coarse_step);
+            let block_refs = block_references(
+                &refs.0,
+                &refs.1,
+                model.contact.coarse_step,
+                model.filter.unmix,
+            );
             g.bench_function("detect_none", |b| {
                 b.iter(|| {
                     find_regions(

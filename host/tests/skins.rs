@@ -2,10 +2,11 @@
 //! chain (calibration from the family's own presses, reconstruction) holds on a small
 //! frame of a tuning family and of the independent renderer.
 
+use stereotac::tactile::crosstalk::measure;
 use stereotac::tactile::render::{Scene, Shape};
 use stereotac::tactile::skins::AmbientScale;
 use stereotac::tactile::skins::evaluate::{EvalConfig, evaluate, format_report};
-use stereotac::tactile::skins::families::{Role, families, family};
+use stereotac::tactile::skins::families::{Role, Skin, families, family};
 
 #[test]
 fn every_family_lights_a_ball_by_the_conventions() {
@@ -59,6 +60,58 @@ fn every_family_lights_a_ball_by_the_conventions() {
             );
         }
     }
+}
+
+/// The crosstalk measured from a skin's single-colour frames (only the blue strip lit,
+/// only the red) is the one its renderer mixes in, on our renderer and on the independent
+/// one (both with linear cameras); the chain holds with it undone, and without the
+/// measurement the filter is the identity.
+#[test]
+fn crosstalk_is_measured_from_single_colour_frames_and_undone() {
+    for name in ["ours-random", "phys-matte"] {
+        let skin = family(name).unwrap().skin(320, 240, 1);
+        // The shares of each LED's light in the other's channel difference, from the
+        // renderer's own parameters.
+        let want = match &skin {
+            Skin::Ours(o) => {
+                let s = ((o.cross_leak - o.green_leak) / (1.0 - o.green_leak)) as f32;
+                (s, s)
+            }
+            Skin::Physical(p) => {
+                let c = p.params().crosstalk;
+                (
+                    ((c[0][0] - c[1][0]) / (c[2][0] - c[1][0])) as f32,
+                    ((c[2][1] - c[1][1]) / (c[0][1] - c[1][1])) as f32,
+                )
+            }
+        };
+        let refs = skin.references(8);
+        let (blue_only, red_only) = skin.single_colour_references(8);
+        let got = measure(&refs.dx, &blue_only, &red_only).unwrap().shares();
+        assert!(
+            (got.0 - want.0).abs() < 0.01 && (got.1 - want.1).abs() < 0.01,
+            "{name}: measured {got:?}, the renderer's {want:?}"
+        );
+        assert!(
+            want.0.abs() > 0.01 || want.1.abs() > 0.01,
+            "{name}: no crosstalk to find"
+        );
+    }
+    let config = EvalConfig {
+        crosstalk: true,
+        ..small()
+    };
+    let r = evaluate(&family("phys-matte").unwrap(), &config, &mut |_| {});
+    let table = format_report(&r);
+    assert!(r.calibration.error.is_none(), "{table}");
+    assert!(r.unmix.is_some_and(|u| !u.is_identity()), "{table}");
+    assert!(table.contains("crosstalk measured and undone"), "{table}");
+    assert_eq!(r.rest_contacts, Some(0), "{table}");
+    assert!(r.beside_max_mm.unwrap() <= 0.02, "{table}");
+    let disk = r.disk.expect("disks fit the frame");
+    assert!((disk.mean - 1.0).abs() < 0.25, "{table}");
+    let plain = evaluate(&family("phys-matte").unwrap(), &small(), &mut |_| {});
+    assert!(plain.unmix.is_none());
 }
 
 fn small() -> EvalConfig {

@@ -1083,7 +1083,16 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 32] = [
+    let cases: [(&str, Damage); 34] = [
+        // A crosstalk no camera has, or one that cannot be undone.
+        (
+            "filter.unmix",
+            |m| m["filter"]["unmix"] = serde_json::json!({"red": [1.0, -0.9], "blue": [0.0, 1.0]}),
+        ),
+        (
+            "filter.unmix",
+            |m| m["filter"]["unmix"] = serde_json::json!({"red": [1.0, 1.0], "blue": [1.0, 1.0]}),
+        ),
         ("dx.lut.gain_negative", |m| {
             m["dx"]["lut"]["gain_negative"]
                 .as_array_mut()
@@ -2179,4 +2188,86 @@ fn the_cli_calibrates_from_folders_of_two_balls() {
     );
     assert!(!dir.join("again.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `calibrate --blue-only-dx F --red-only-dx F`: the camera's crosstalk is measured
+/// beside --ref-dx, said, kept in the model and undone; the two frames swapped, or one
+/// without the other, are refused.
+#[test]
+fn the_cli_measures_and_keeps_the_crosstalk() {
+    use stereotac::tactile::skins::evaluate::ball_presses;
+    use stereotac::tactile::skins::families::family;
+    let skin = family("phys-matte").unwrap().skin(320, 240, 1);
+    let dir = std::env::temp_dir().join(format!("stereotac-crosstalk-{}", std::process::id()));
+    let presses = dir.join("presses");
+    std::fs::create_dir_all(&presses).unwrap();
+    for p in ball_presses(&skin, 6.0, 10, 3, 0) {
+        p.dx.save(presses.join(format!("{}_dx.png", p.name)))
+            .unwrap();
+        p.dy.save(presses.join(format!("{}_dy.png", p.name)))
+            .unwrap();
+    }
+    let refs = skin.references(4);
+    let (blue, red) = skin.single_colour_references(4);
+    let path = |n: &str| dir.join(n).to_str().unwrap().to_string();
+    refs.dx.save(path("ref_dx.png")).unwrap();
+    refs.dy.save(path("ref_dy.png")).unwrap();
+    blue.save(path("blue.png")).unwrap();
+    red.save(path("red.png")).unwrap();
+    let calibrate = |extra: &[String]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+            .args(["calibrate", &path("presses"), "--ball-diameter-mm", "6"])
+            .args([
+                "--ref-dx",
+                &path("ref_dx.png"),
+                "--ref-dy",
+                &path("ref_dy.png"),
+            ])
+            .args(["--out", &path("model.json"), "--force"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let flags = |b: &str, r: &str| {
+        vec![
+            "--blue-only-dx".to_string(),
+            path(b),
+            "--red-only-dx".to_string(),
+            path(r),
+        ]
+    };
+    let out = calibrate(&flags("blue.png", "red.png"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("crosstalk: -1"), "{stderr}");
+    let model: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(path("model.json")).unwrap()).unwrap();
+    let red_row = model["filter"]["unmix"]["red"].as_array().unwrap();
+    // The blue LED's light is about 17 % of R − G on this skin: undone with +0.17.
+    let undo = red_row[1].as_f64().unwrap();
+    assert!((0.12..0.22).contains(&undo), "{model}");
+    TactileModel::load(&dir.join("model.json")).unwrap();
+    // Without the frames the model has no unmix (older binaries read it).
+    let out = calibrate(&[]);
+    assert!(out.status.success());
+    let model: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(path("model.json")).unwrap()).unwrap();
+    assert!(model["filter"].get("unmix").is_none(), "{model}");
+    // Swapped: the error names both files and says what to give.
+    let out = calibrate(&flags("red.png", "blue.png"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("red.png") && stderr.contains("only its blue strip lit"),
+        "{stderr}"
+    );
+    // One without the other.
+    let out = calibrate(&["--blue-only-dx".to_string(), path("blue.png")]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--red-only-dx"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }

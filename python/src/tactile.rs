@@ -467,11 +467,14 @@ impl PyTactileResult {
 /// `(dx, dy, dark)` uint8 (height, width, 3) arrays; `ref` the no-contact frames;
 /// `press_balls_mm` the ball of each press (mm) when they were made with more than one
 /// (presses of a smaller ball teach the steep walls a larger one cannot make), else
-/// every press is `ball_diameter_mm`'s.
+/// every press is `ball_diameter_mm`'s; `single_colour_dx` a `(blue_only, red_only)`
+/// pair of no-contact dx frames taken like `ref`'s but with only the blue strip (1) lit
+/// and only the red strip (3) lit: the camera's colour crosstalk is then measured and
+/// undone (needs `ref`).
 /// Returns the model and the report (a dict: presses used, presses set aside with
 /// reasons, fit per region, coverage, warnings), as `stereotac calibrate --report` writes.
 #[pyfunction]
-#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None))]
+#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None, single_colour_dx = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one per setting
 pub fn calibrate<'py>(
     py: Python<'py>,
@@ -482,6 +485,7 @@ pub fn calibrate<'py>(
     skin_thickness_mm: f64,
     min_presses: usize,
     press_balls_mm: Option<Vec<f64>>,
+    single_colour_dx: Option<(Bound<'py, PyAny>, Bound<'py, PyAny>)>,
 ) -> PyResult<(PyTactileModel, Bound<'py, PyAny>)> {
     let items: Vec<Bound<'py, PyAny>> = presses.try_iter()?.collect::<PyResult<_>>()?;
     if let Some(balls) = press_balls_mm.as_ref().filter(|b| b.len() != items.len()) {
@@ -506,13 +510,27 @@ pub fn calibrate<'py>(
         })
         .collect::<PyResult<Vec<_>>>()?;
     let refs = r#ref.map(|r| Frames::from_tuple("ref", r)).transpose()?;
-    let settings = CalibrationSettings {
+    let mut settings = CalibrationSettings {
         ball_diameter_mm,
         px_per_mm,
         skin_thickness_mm,
         min_presses,
         ..Default::default()
     };
+    if let Some((blue, red)) = &single_colour_dx {
+        let reference = refs.as_ref().ok_or_else(|| {
+            bad_input(
+                "single_colour_dx is measured beside the no-contact frames: give ref too"
+                    .to_string(),
+            )
+        })?;
+        let (blue, red) = (
+            crate::arrays::rgb_image("single_colour_dx[0]", blue)?,
+            crate::arrays::rgb_image("single_colour_dx[1]", red)?,
+        );
+        settings.filter.unmix = stereotac::tactile::crosstalk::measure(&reference.dx, &blue, &red)
+            .map_err(|e| bad_input(format!("single_colour_dx: {e}")))?;
+    }
     let result = py.detach(|| {
         cal::calibrate(
             &pairs,

@@ -178,3 +178,25 @@ def test_calibrate_equals_cli(cli, press_pairs, scene_pairs, tmp_path):
         stereotac.calibrate(presses, 6.0, press_balls_mm=[6.0] * (len(presses) - 1))
     with pytest.raises(stereotac.BadInputError, match="press002"):
         stereotac.calibrate(presses, 6.0, press_balls_mm=[6.0, 6.0, float("nan")] + [6.0] * (len(presses) - 3))
+
+
+def test_calibrate_measures_the_crosstalk_from_single_colour_frames(press_pairs, scene_pairs):
+    _, pairs = press_pairs
+    presses = [tuple(a for a in frames(p) if a is not None) for p in pairs]
+    ref = tuple(a for a in frames(scene_pairs[0]) if a is not None)
+    rdx = ref[0]
+    # A camera without crosstalk: with a strip dark its colour's channel falls to green.
+    blue_only, red_only = rdx.copy(), rdx.copy()
+    blue_only[..., 0] = np.minimum(rdx[..., 0], rdx[..., 1])
+    red_only[..., 2] = np.minimum(rdx[..., 2], rdx[..., 1])
+    plain, _ = stereotac.calibrate(presses, 6.0, ref=ref)
+    measured, _ = stereotac.calibrate(presses, 6.0, ref=ref, single_colour_dx=(blue_only, red_only))
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    np.testing.assert_array_equal(
+        measured.reconstruct(dx, dy, dark=dark).depth, plain.reconstruct(dx, dy, dark=dark).depth
+    )
+    with pytest.raises(stereotac.BadInputError, match="give ref too"):
+        stereotac.calibrate(presses, 6.0, single_colour_dx=(blue_only, red_only))
+    # Swapped: neither LED's light is left alone.
+    with pytest.raises(stereotac.BadInputError, match="single_colour_dx: only"):
+        stereotac.calibrate(presses, 6.0, ref=ref, single_colour_dx=(red_only, blue_only))

@@ -8,10 +8,15 @@
 //! green rose above the no-contact reference by more than the pixel's LED light (strong
 //! light that was not there at calibration; weaker white light is subtracted exactly). Accepted pixels are divided by the reference's LED light at the same
 //! pixel: flat skin reads `(1, 1)` anywhere in the frame, which removes the strips'
-//! fall-off and vignetting before any model sees the colour.
+//! fall-off and vignetting before any model sees the colour. A camera whose channels see
+//! both LEDs (crosstalk) has `(R − G, B − G)` unmixed first, when it was measured
+//! ([`ColourFilter::unmix`], [`crate::tactile::crosstalk`]); the rejections above look at
+//! the channels as they are.
 
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
+
+use super::crosstalk::Unmix;
 
 /// Thresholds of the colour filter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -26,6 +31,11 @@ pub struct ColourFilter {
     pub max_green_rise: f32,
     /// Any channel at or above this value is saturated.
     pub saturation: u8,
+    /// The LED light from `(R − G, B − G)`, undoing the camera's colour crosstalk
+    /// ([`crate::tactile::crosstalk`]); the identity (left out of model files) when none
+    /// was measured.
+    #[serde(default, skip_serializing_if = "Unmix::is_identity")]
+    pub unmix: Unmix,
 }
 
 impl Default for ColourFilter {
@@ -35,6 +45,7 @@ impl Default for ColourFilter {
             max_white_ratio: 0.6,
             max_green_rise: 1.0,
             saturation: 250,
+            unmix: Unmix::IDENTITY,
         }
     }
 }
@@ -49,6 +60,7 @@ pub struct Reference {
     green: Vec<f32>,
     weight_red: Vec<f32>,
     weight_blue: Vec<f32>,
+    unmix: Unmix,
 }
 
 /// The planes of a [`Reference`] over a run of indices, for loops that run in vector
@@ -65,6 +77,8 @@ pub struct ReferencePlanes<'a> {
     pub weight_red: &'a [f32],
     /// Weight of the blue departure.
     pub weight_blue: &'a [f32],
+    /// The LED light from `(R − G, B − G)`.
+    pub unmix: Unmix,
 }
 
 impl ReferencePlanes<'_> {
@@ -83,6 +97,7 @@ impl ReferencePlanes<'_> {
             & (led >= filter.min_led)
             & (g <= filter.max_white_ratio * r.max(b))
             & (g - self.green[i] <= filter.max_green_rise * led);
+        let (led_r, led_b) = self.unmix.apply(led_r, led_b);
         (
             [
                 led_r.max(0.0) * self.inv_red[i],
@@ -108,8 +123,9 @@ impl ReferencePlanes<'_> {
 const REFERENCE_FLOOR: f32 = 4.0;
 
 impl Reference {
-    /// Reference from a no-contact frame of the same phase.
-    pub fn from_image(image: &RgbImage) -> Self {
+    /// Reference from a no-contact frame of the same phase; its LED light and every
+    /// pixel's it normalises are `unmix`ed ([`ColourFilter::unmix`]).
+    pub fn from_image(image: &RgbImage, unmix: Unmix) -> Self {
         let (w, h) = image.dimensions();
         Self::from_planes(
             w as usize,
@@ -118,26 +134,30 @@ impl Reference {
                 let [red, green, blue] = px.0.map(f32::from);
                 [red - green, blue - green, green]
             }),
+            unmix,
         )
     }
 
     /// Reference from mean colours `[R, G, B]` (block or neighbourhood means of a
     /// no-contact frame), `width × height` of them.
-    pub fn from_means(width: usize, height: usize, means: &[[f32; 3]]) -> Self {
+    pub fn from_means(width: usize, height: usize, means: &[[f32; 3]], unmix: Unmix) -> Self {
         Self::from_planes(
             width,
             height,
             means
                 .iter()
                 .map(|&[red, green, blue]| [red - green, blue - green, green]),
+            unmix,
         )
     }
 
-    /// Reference from per-pixel LED light (`red`, `blue` after ambient removal, and green).
+    /// Reference from per-pixel planes `[R − G, B − G, G]` (`R`, `B` after ambient
+    /// removal when there is a LEDs-off frame).
     pub fn from_planes(
         width: usize,
         height: usize,
         planes: impl Iterator<Item = [f32; 3]>,
+        unmix: Unmix,
     ) -> Self {
         let mut r = Self {
             width,
@@ -147,6 +167,7 @@ impl Reference {
             green: Vec::with_capacity(width * height),
             weight_red: Vec::with_capacity(width * height),
             weight_blue: Vec::with_capacity(width * height),
+            unmix,
         };
         for [red, blue, green] in planes {
             r.push(red, blue, green);
@@ -156,6 +177,7 @@ impl Reference {
     }
 
     fn push(&mut self, red: f32, blue: f32, green: f32) {
+        let (red, blue) = self.unmix.apply(red, blue);
         let (ir, ib) = (
             1.0 / red.max(REFERENCE_FLOOR),
             1.0 / blue.max(REFERENCE_FLOOR),
@@ -198,6 +220,7 @@ impl Reference {
             green: &self.green[range.clone()],
             weight_red: &self.weight_red[range.clone()],
             weight_blue: &self.weight_blue[range],
+            unmix: self.unmix,
         }
     }
 
@@ -229,6 +252,7 @@ impl Reference {
         {
             return None;
         }
+        let (led_r, led_b) = self.unmix.apply(led_r, led_b);
         Some((
             led_r.max(0.0) * self.inv_red[i],
             led_b.max(0.0) * self.inv_blue[i],
@@ -263,7 +287,10 @@ mod tests {
     use super::*;
 
     fn reference(pixel: [u8; 3]) -> Reference {
-        Reference::from_image(&RgbImage::from_pixel(1, 1, image::Rgb(pixel)))
+        Reference::from_image(
+            &RgbImage::from_pixel(1, 1, image::Rgb(pixel)),
+            Unmix::IDENTITY,
+        )
     }
 
     #[test]

@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::union_find::DisjointSets;
 
 use super::colour::{ColourFilter, Reference};
+use super::crosstalk::Unmix;
 use super::poisson::SolverKind;
 use super::smooth::BlockMeans;
 
@@ -605,12 +606,13 @@ fn touched_with(touched: &[bool], labels: &[u32], pick: &dyn Fn(usize) -> bool) 
         .collect()
 }
 
-/// References at block resolution from no-contact frames.
-pub fn block_references(dx: &RgbImage, dy: &RgbImage, step: usize) -> References {
+/// References at block resolution from no-contact frames (LED light `unmix`ed: see
+/// [`crate::tactile::crosstalk`]).
+pub fn block_references(dx: &RgbImage, dy: &RgbImage, step: usize, unmix: Unmix) -> References {
     let (a, b) = (BlockMeans::of(dx, step), BlockMeans::of(dy, step));
     References {
-        dx: Reference::from_means(a.width, a.height, &a.means()),
-        dy: Reference::from_means(b.width, b.height, &b.means()),
+        dx: Reference::from_means(a.width, a.height, &a.means(), unmix),
+        dy: Reference::from_means(b.width, b.height, &b.means(), unmix),
     }
 }
 
@@ -815,7 +817,7 @@ mod tests {
         let (rdx, rdy) = (noisy([120.0, 30.0, 110.0]), noisy([100.0, 25.0, 130.0]));
         let filter = ColourFilter::default();
         for step in [4, 3] {
-            let refs = block_references(&rdx, &rdy, step);
+            let refs = block_references(&rdx, &rdy, step, Unmix::IDENTITY);
             let (a, b) = (BlockMeans::of(&dx, step), BlockMeans::of(&dy, step));
             let (fast, unlit) = block_departures(&a, &b, &refs, &filter);
             let mut want_unlit = [0; 2];
@@ -1096,7 +1098,7 @@ mod tests {
     fn regions_hold_the_clipped_blocks_a_contact_takes_in() {
         let (w, h) = (160u32, 96u32);
         let flat = RgbImage::from_pixel(w, h, image::Rgb([120, 30, 120]));
-        let refs = block_references(&flat, &flat, 4);
+        let refs = block_references(&flat, &flat, 4, Unmix::IDENTITY);
         let (mut dx, mut dy) = (flat.clone(), flat.clone());
         // A contact (x 40..56, y 40..56), and its wall clipped in the dx phase for 3
         // blocks beyond it (x 56..68).

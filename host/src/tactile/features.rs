@@ -389,8 +389,14 @@ mod tests {
         };
         let (dx, dy) = (noisy([120.0, 30.0, 110.0]), noisy([100.0, 25.0, 130.0]));
         let refs = References {
-            dx: crate::tactile::colour::Reference::from_image(&noisy([120.0, 30.0, 110.0])),
-            dy: crate::tactile::colour::Reference::from_image(&noisy([100.0, 25.0, 130.0])),
+            dx: crate::tactile::colour::Reference::from_image(
+                &noisy([120.0, 30.0, 110.0]),
+                crate::tactile::crosstalk::Unmix::IDENTITY,
+            ),
+            dy: crate::tactile::colour::Reference::from_image(
+                &noisy([100.0, 25.0, 130.0]),
+                crate::tactile::crosstalk::Unmix::IDENTITY,
+            ),
         };
         let roi = Roi {
             x: 2,

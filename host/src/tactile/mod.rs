@@ -16,6 +16,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod colour;
 pub mod contact;
+pub mod crosstalk;
 pub mod features;
 pub mod images;
 pub mod model;

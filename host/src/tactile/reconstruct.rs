@@ -397,18 +397,26 @@ impl Reconstructor {
                 }
                 (
                     References {
-                        dx: Reference::from_image(dx),
-                        dy: Reference::from_image(dy),
+                        dx: Reference::from_image(dx, model.filter.unmix),
+                        dy: Reference::from_image(dy, model.filter.unmix),
                     },
-                    contact::block_references(dx, dy, model.contact.coarse_step),
+                    contact::block_references(
+                        dx,
+                        dy,
+                        model.contact.coarse_step,
+                        model.filter.unmix,
+                    ),
                 )
             }
             None => (
-                model.background.references(model.width, model.height),
+                model
+                    .background
+                    .references(model.width, model.height, model.filter.unmix),
                 model.background.references_at(
                     model.width,
                     model.height,
                     model.contact.coarse_step,
+                    model.filter.unmix,
                 ),
             ),
         };

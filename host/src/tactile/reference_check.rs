@@ -77,7 +77,9 @@ pub fn press_in_references(
 ) -> Option<PressSeen> {
     let (w, h) = (dx.width() as usize, dx.height() as usize);
     let step = model.contact.coarse_step.max(1);
-    let background = model.background.references_at(w, h, step);
+    let background = model
+        .background
+        .references_at(w, h, step, model.filter.unmix);
     let seen = contact::find_regions(dx, dy, &background, &model.filter, &model.contact, solver);
     if seen.regions.is_empty() {
         return None;

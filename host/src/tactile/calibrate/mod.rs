@@ -503,8 +503,8 @@ pub fn calibrate(
         },
     )?;
     let refs = References {
-        dx: Reference::from_image(&ref_dx),
-        dy: Reference::from_image(&ref_dy),
+        dx: Reference::from_image(&ref_dx, settings.filter.unmix),
+        dy: Reference::from_image(&ref_dy, settings.filter.unmix),
     };
     let (w, h) = (want.0 as usize, want.1 as usize);
     let ball_mm =
@@ -566,7 +566,7 @@ pub fn calibrate(
     // when the one given is within the flat skin's noise.
     let mut contact_params = settings.contact;
     let step = contact_params.coarse_step.max(1);
-    let block_refs = contact::block_references(&ref_dx, &ref_dy, step);
+    let block_refs = contact::block_references(&ref_dx, &ref_dy, step, settings.filter.unmix);
     let blocks: Vec<Vec<f32>> = candidates
         .iter()
         .map(|&i| threshold::block_map(&pairs[i], &block_refs, &settings.filter, step))

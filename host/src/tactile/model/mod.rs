@@ -22,6 +22,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use super::crosstalk::Unmix;
+
 pub use light::LightModel;
 pub use lut::{GainPlanes, Lut};
 pub use mlp::{Mlp, MlpTraining};
@@ -221,7 +223,14 @@ impl Background {
 
     /// References at `cell`-pixel resolution over a `width × height` frame: full
     /// resolution with `cell = 1`, detection blocks with `cell = coarse_step`.
-    pub fn references_at(&self, width: usize, height: usize, cell: usize) -> References {
+    /// Colours are `unmix`ed ([`crate::tactile::crosstalk`]).
+    pub fn references_at(
+        &self,
+        width: usize,
+        height: usize,
+        cell: usize,
+        unmix: Unmix,
+    ) -> References {
         let cell = cell.max(1);
         let (cw, ch) = (width.div_ceil(cell), height.div_ceil(cell));
         let plane = |blocks: &[[f32; 3]]| {
@@ -236,6 +245,7 @@ impl Background {
                         self.sample(blocks, cx, cy)
                     })
                 }),
+                unmix,
             )
         };
         References {
@@ -245,8 +255,8 @@ impl Background {
     }
 
     /// Full-resolution references by bilinear interpolation between block centres.
-    pub fn references(&self, width: usize, height: usize) -> References {
-        self.references_at(width, height, 1)
+    pub fn references(&self, width: usize, height: usize, unmix: Unmix) -> References {
+        self.references_at(width, height, 1, unmix)
     }
 }
 

@@ -96,6 +96,9 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
             ),
         );
     }
+    if let Err(why) = f.unmix.check() {
+        return fail("filter.unmix", why);
+    }
     let c = &m.contact;
     if !(c.threshold.is_finite() && c.threshold > 0.0 && c.threshold <= MAX_THRESHOLD) {
         return fail(

@@ -16,6 +16,7 @@ use crate::tactile::ambient::PhaseFrames;
 use crate::tactile::bench::errors;
 use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate};
 use crate::tactile::contact::dilate;
+use crate::tactile::crosstalk::{Unmix, measure as measure_crosstalk};
 use crate::tactile::model::ModelKind;
 use crate::tactile::poisson::SolverKind;
 use crate::tactile::reconstruct::{Reconstruction, Reconstructor};
@@ -58,6 +59,10 @@ pub struct EvalConfig {
     /// Ambient light of the measured frames relative to the calibration's (the scene's
     /// light changing after calibration, and between the exposures of one cycle).
     pub ambient: AmbientScale,
+    /// Measure the camera's colour crosstalk from flat-skin frames with only the blue
+    /// strip lit and only the red ([`crate::tactile::crosstalk`]) and calibrate with it
+    /// undone; `false`: the colour filter's `R − G`, `B − G` as they are.
+    pub crosstalk: bool,
 }
 
 impl Default for EvalConfig {
@@ -77,6 +82,7 @@ impl Default for EvalConfig {
             solver: SolverKind::Dct,
             dark: false,
             ambient: AmbientScale::STEADY,
+            crosstalk: false,
         }
     }
 }
@@ -153,6 +159,8 @@ pub struct FamilyReport {
     pub past_reach: bool,
     /// Ambient light of the measured frames, dx/dy/LEDs-off ([`EvalConfig::ambient`]).
     pub ambient: [f64; 3],
+    /// The crosstalk measured and undone ([`EvalConfig::crosstalk`]), if asked for.
+    pub unmix: Option<Unmix>,
     /// Calibration.
     pub calibration: CalibrationOutcome,
     /// 1 mm disk, wall slope 0.79: plateau readings.
@@ -215,6 +223,7 @@ pub fn evaluate_skin(
         dark: config.dark,
         past_reach: false,
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
+        unmix: None,
         calibration: CalibrationOutcome {
             given: config.presses,
             used: 0,
@@ -266,12 +275,26 @@ pub fn evaluate_skin(
         dy: &refs.dy,
         dark: config.dark.then_some(&refs.dark),
     };
-    progress("calibrating");
-    let settings = CalibrationSettings {
+    let mut settings = CalibrationSettings {
         ball_diameter_mm,
         px_per_mm: ppm,
         ..Default::default()
     };
+    if config.crosstalk {
+        progress("measuring the crosstalk");
+        let (blue_only, red_only) = skin.single_colour_references(8);
+        match measure_crosstalk(&refs.dx, &blue_only, &red_only) {
+            Ok(unmix) => {
+                settings.filter.unmix = unmix;
+                report.unmix = Some(unmix);
+            }
+            Err(e) => {
+                report.calibration.error = Some(format!("crosstalk: {e}"));
+                return report;
+            }
+        }
+    }
+    progress("calibrating");
     let cal = match calibrate(&presses, Some(references), &settings, |_| {}) {
         Ok(cal) => cal,
         Err(e) => {
@@ -616,7 +639,7 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}, {} mm ball{}; {}{}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball{}; {}{}{}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
@@ -631,6 +654,11 @@ pub fn format_report(r: &FamilyReport) -> String {
         },
         if r.past_reach {
             ", light model past the table's reach"
+        } else {
+            ""
+        },
+        if r.unmix.is_some() {
+            ", crosstalk measured and undone"
         } else {
             ""
         },

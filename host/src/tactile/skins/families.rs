@@ -8,6 +8,8 @@
 
 use std::fmt;
 
+use image::RgbImage;
+
 use super::physical::{PhysicalParams, PhysicalSkin};
 use super::{AmbientScale, SkinFrames};
 use crate::tactile::render::{Optics, Scene, render_truth};
@@ -73,6 +75,38 @@ impl Skin {
     /// No-contact frames averaged over `count` exposures, as a careful user would capture
     /// the references.
     pub fn references(&self, count: usize) -> SkinFrames {
+        self.averaged(count, 500_000)
+    }
+
+    /// Flat-skin dx frames with only the blue strip (1) lit and with only the red strip
+    /// (3) lit, each averaged over `count` exposures of their own noise, as the
+    /// references are: what [`crate::tactile::crosstalk::measure`] reads beside the dx
+    /// reference.
+    pub fn single_colour_references(&self, count: usize) -> (RgbImage, RgbImage) {
+        (
+            self.with_strip_off(2).averaged(count, 600_000).dx,
+            self.with_strip_off(0).averaged(count, 700_000).dx,
+        )
+    }
+
+    /// The same skin with strip `index` (wiring order) dark.
+    fn with_strip_off(&self, index: usize) -> Skin {
+        match self {
+            Skin::Ours(o) => {
+                let mut o = o.clone();
+                o.strips[index].gain = 0.0;
+                Skin::Ours(o)
+            }
+            Skin::Physical(p) => {
+                let mut off = [false; 4];
+                off[index] = true;
+                Skin::Physical(Box::new(p.with_strips_off(off)))
+            }
+        }
+    }
+
+    /// No-contact frames averaged over `count` exposures numbered from `first_frame`.
+    fn averaged(&self, count: usize, first_frame: u64) -> SkinFrames {
         let count = count.max(1);
         let (w, h) = self.size();
         let mut sums = [
@@ -81,7 +115,11 @@ impl Skin {
             vec![0u32; w * h * 3],
         ];
         for k in 0..count {
-            let f = self.render(&Scene::default(), 500_000 + k as u64, AmbientScale::STEADY);
+            let f = self.render(
+                &Scene::default(),
+                first_frame + k as u64,
+                AmbientScale::STEADY,
+            );
             for (sum, img) in sums.iter_mut().zip([&f.dx, &f.dy, &f.dark]) {
                 for (s, v) in sum.iter_mut().zip(img.as_raw()) {
                     *s += u32::from(*v);

@@ -796,6 +796,20 @@ impl PhysicalSkin {
         }
     }
 
+    /// The same skin with the strips `off` (wiring order) dark and nothing else changed,
+    /// the exposure included: single-colour frames.
+    pub fn with_strips_off(&self, off: [bool; 4]) -> PhysicalSkin {
+        let mut skin = self.clone();
+        for (lights, off) in skin.prepared.strips.iter_mut().zip(off) {
+            if off {
+                for led in &mut lights.leds {
+                    led[3] = 0.0;
+                }
+            }
+        }
+        skin
+    }
+
     /// The parameters.
     pub fn params(&self) -> &PhysicalParams {
         &self.params

@@ -86,6 +86,11 @@ pub struct SkinsArgs {
     /// each pair's ambient light with its LEDs-off frame.
     #[arg(long)]
     pub dark: bool,
+    /// Measure the camera's colour crosstalk from flat-skin frames with only the blue
+    /// strip lit and only the red, and calibrate with it undone (`calibrate
+    /// --crosstalk`).
+    #[arg(long)]
+    pub crosstalk: bool,
     /// Ambient light of the measured frames relative to the calibration's, in the dx,
     /// dy and LEDs-off exposures: e.g. 2,2,2 (the room twice as bright), 1.3,0.8,1
     /// (light flickering between exposures).
@@ -218,6 +223,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 past_reach: !a.no_past_reach,
                 dark: a.dark,
                 ambient: a.ambient,
+                crosstalk: a.crosstalk,
                 ..Default::default()
             };
             let report = evaluate(f, &config, &mut |step| {

@@ -17,6 +17,7 @@ use stereotac::tactile::calibrate::{
     overlay,
 };
 use stereotac::tactile::contact::MAX_THRESHOLD;
+use stereotac::tactile::crosstalk::measure as measure_crosstalk;
 use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
 use stereotac::tactile::model::validate::{MAX_SCALE, valid_ball_diameter};
 
@@ -62,6 +63,15 @@ pub struct Args {
     /// LEDs-off frame taken with the no-contact frames (used when every press has one).
     #[arg(long, requires = "ref_dx")]
     pub ref_dark: Option<PathBuf>,
+    /// No-contact dx frame taken like --ref-dx but with only the blue strip (1) lit
+    /// (strip 3 set dark): with --red-only-dx, the camera's colour crosstalk is measured
+    /// and undone before any colour is read (a camera whose blue LED light reaches its
+    /// red channel otherwise reads slopes near the blue strips too steep).
+    #[arg(long, requires_all = ["ref_dx", "red_only_dx"])]
+    pub blue_only_dx: Option<PathBuf>,
+    /// No-contact dx frame with only the red strip (3) lit (strip 1 set dark).
+    #[arg(long, requires_all = ["ref_dx", "blue_only_dx"])]
+    pub red_only_dx: Option<PathBuf>,
     /// JSON file of contact circles to use instead of fitted ones:
     /// {"NAME": {"cx": px, "cy": px, "r": px}, ...} (a --with-ball press by its name
     /// with the folder's in front: "small-press01").
@@ -167,6 +177,24 @@ pub fn run(a: Args) -> Result<()> {
     // The references first: a folder's press of another size is set aside undecoded.
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
+    if let (Some((ref_dx, _)), Some(blue), Some(red)) = (&refs, &a.blue_only_dx, &a.red_only_dx) {
+        let context = || {
+            format!(
+                "measuring the crosstalk from --blue-only-dx {} and --red-only-dx {} beside --ref-dx",
+                blue.display(),
+                red.display()
+            )
+        };
+        let unmix =
+            measure_crosstalk(ref_dx, &load_rgb(blue)?, &load_rgb(red)?).with_context(context)?;
+        let (blue_in_red, red_in_blue) = unmix.shares();
+        eprintln!(
+            "crosstalk: {:.1}% of the blue LED's light in R - G, {:.1}% of the red LED's in B - G; undone before the colours are read",
+            100.0 * blue_in_red,
+            100.0 * red_in_blue
+        );
+        settings.filter.unmix = unmix;
+    }
     let want = refs.as_ref().map(|(dx, _)| dx.dimensions());
     let (mut pairs, mut unreadable) = load_presses(&a.dir, want, 0)?;
     // Every source's names, for a slip in the overrides file: (source, first names).
