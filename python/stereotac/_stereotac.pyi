@@ -87,9 +87,14 @@ def calibrate(
     skin_thickness_mm: float = 3.0,
     min_presses: int = 5,
     press_balls_mm: Optional[Sequence[float]] = None,
+    single_colour_dx: Optional[
+        Tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]
+    ] = None,
 ) -> Tuple[TactileModel, Dict[str, Any]]:
     """A model from ball presses, and the calibration report; `press_balls_mm` gives
-    each press's ball when they were made with more than one."""
+    each press's ball when they were made with more than one; `single_colour_dx`
+    `(blue_only, red_only)` no-contact dx frames with one strip dark, to measure and
+    undo the camera's colour crosstalk (needs `ref`)."""
 
 def load_rgb(path: _Path) -> npt.NDArray[np.uint8]:
     """An 8-bit image file as RGB (height, width, 3), read as the CLI reads it."""
