@@ -45,6 +45,7 @@ pub mod image_file;
 pub mod limits;
 pub mod live;
 pub mod matcher;
+pub mod median;
 pub mod out_dir;
 pub mod output;
 pub mod picture;

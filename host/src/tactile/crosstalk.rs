@@ -25,6 +25,8 @@
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
+use crate::median::median;
+
 /// A pixel counts when each LED alone brings at least this much light to its own
 /// channel (`R − G` for red, `B − G` for blue; DN): dimmer pixels' ratios are mostly
 /// noise.
@@ -196,14 +198,15 @@ pub fn measure(
         .chunks_exact(3)
         .zip(blue_only.as_raw().chunks_exact(3))
         .zip(red_only.as_raw().chunks_exact(3));
-    for ((both, blue_only), red_only) in pixels {
+    for ((both, blue_px), red_px) in pixels {
         // A clipped reference channel does not hold the LEDs' sum.
         if both.iter().any(|&v| v >= 250) {
             continue;
         }
-        // The reference minus the frame without the red LED is the red LED's light.
-        let (blue_r, blue_b) = light(both, red_only);
-        let (red_r, red_b) = light(both, blue_only);
+        // The reference minus the frame without the red LED (the blue-only frame) is the
+        // red LED's light, and the other way round.
+        let (blue_r, blue_b) = light(both, red_px);
+        let (red_r, red_b) = light(both, blue_px);
         if blue_b >= MIN_LED_DN && red_r >= MIN_LED_DN {
             blue_in_red.push(blue_r / blue_b);
             red_in_blue.push(red_b / red_r);
@@ -216,7 +219,8 @@ pub fn measure(
             need: 100.0 * MIN_SHARE,
         });
     }
-    let (blue_in_red, red_in_blue) = (median(&mut blue_in_red), median(&mut red_in_blue));
+    let upper = |v: &[f32]| median(v).expect("at least 5% of a frame's pixels counted");
+    let (blue_in_red, red_in_blue) = (upper(&blue_in_red), upper(&red_in_blue));
     for (led, other, channel, share) in [
         ("blue", "red", "R - G over B - G", blue_in_red),
         ("red", "blue", "B - G over R - G", red_in_blue),
@@ -234,18 +238,13 @@ pub fn measure(
     Ok(Unmix::from_shares(blue_in_red, red_in_blue).expect("shares within ±0.5 invert"))
 }
 
-fn median(v: &mut [f32]) -> f32 {
-    let k = v.len() / 2;
-    *v.select_nth_unstable_by(k, f32::total_cmp).1
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// A frame of `(w, h)` whose blue and red LED light vary across it (as strips on
-    /// opposite sides do), mixed into the camera's channels by `blue_rgb` and `red_rgb`
-    /// per unit of light, over grey ambient light `ambient`.
+    /// A 64×48 frame whose blue and red LED light vary across it (as strips on opposite
+    /// sides do), mixed into the camera's channels by `blue_rgb` and `red_rgb` per unit
+    /// of light, over grey ambient light of 12 DN.
     fn frame(blue_rgb: [f32; 3], red_rgb: [f32; 3], blue_on: bool, red_on: bool) -> RgbImage {
         let (w, h) = (64u32, 48u32);
         RgbImage::from_fn(w, h, |x, _| {
