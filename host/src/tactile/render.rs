@@ -240,6 +240,13 @@ pub struct Optics {
     pub cross_leak: f64,
     /// Per-strip variation, strips in order 1 (x−), 2 (y−), 3 (x+), 4 (y+).
     pub strips: [StripVariation; 4],
+    /// How far each strip runs past both ends of its frame side (mm; negative: it stops
+    /// short of them), or `None` for strips so long that every pixel is lit along the
+    /// phase's axis alone. A strip of finite length lights a pixel near one of its ends
+    /// from the side as well ([`side_light`]), so there a phase's colours also answer the
+    /// other axis' slope, as on a real sensor.
+    #[serde(default)]
+    pub strip_overhang_mm: Option<f64>,
     /// Colour of the ambient light (multiplier per channel R, G, B).
     pub ambient_colour: [f64; 3],
     /// Fraction of the ambient light (and spot) a touching object blocks where it
@@ -308,6 +315,7 @@ impl Optics {
             green_leak: 0.0,
             cross_leak: 0.0,
             strips: [StripVariation::NOMINAL; 4],
+            strip_overhang_mm: None,
             ambient_colour: [1.0; 3],
             ambient_block: 0.0,
             exposure: 1.0,
@@ -477,18 +485,29 @@ fn shade(
             let (blue, red) = match axis {
                 None => (0.0, 0.0),
                 Some(axis) => {
-                    // Distance to the blue strip (at the low side) and to the red one.
-                    let (d_blue, d_red, sign) = match axis {
-                        Axis::X => (mm(x), span_w - mm(x), [1.0, 0.0]),
-                        Axis::Y => (mm(y), span_h - mm(y), [0.0, 1.0]),
+                    // Distance to the blue strip (at the low side) and to the red one,
+                    // and the pixel's place along them.
+                    let (d_blue, d_red, along, length) = match axis {
+                        Axis::X => (mm(x), span_w - mm(x), mm(y), span_h),
+                        Axis::Y => (mm(y), span_h - mm(y), mm(x), span_w),
                     };
-                    let strip = |k: usize, d: f64, dir: [f64; 2]| {
+                    let strip = |k: usize, d: f64, towards: f64| {
                         let v = &optics.strips[k];
+                        // The light's horizontal direction: along the axis, turned
+                        // towards the middle of a strip of finite length.
+                        let side = optics.strip_overhang_mm.map_or(0.0, |o| {
+                            side_light(d, strip_elevation(optics, v, d), along, length, o)
+                        });
+                        let norm = (1.0 + side * side).sqrt();
+                        let dir = match axis {
+                            Axis::X => [towards / norm, side / norm],
+                            Axis::Y => [side / norm, towards / norm],
+                        };
                         v.gain * light(optics, v, &n, d, dir) * centre_gain
                     };
                     (
-                        strip(blue_strip, d_blue, [-sign[0], -sign[1]]),
-                        strip(red_strip, d_red, sign),
+                        strip(blue_strip, d_blue, -1.0),
+                        strip(red_strip, d_red, 1.0),
                     )
                 }
             };
@@ -547,16 +566,45 @@ fn falloff(d: f64, scale: f64) -> f64 {
     1.0 / (1.0 + (d / scale).powi(2))
 }
 
-/// Light from a strip at distance `d` mm in horizontal direction `dir`, reflected by a
-/// surface with normal `n`, relative to flat skin lit from the same place.
-fn light(optics: &Optics, strip: &StripVariation, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
+/// The elevation (radians) of a strip's light at distance `d` mm from it.
+fn strip_elevation(optics: &Optics, strip: &StripVariation, d: f64) -> f64 {
     let falloff_mm = optics.falloff_mm * strip.falloff;
     let blend = (-d / falloff_mm * 3.0).exp();
-    let elevation = (optics.elevation_far_deg
+    (optics.elevation_far_deg
         + (optics.elevation_near_deg - optics.elevation_far_deg) * blend
         + strip.elevation_deg)
         .clamp(5.0, 85.0)
-        .to_radians();
+        .to_radians()
+}
+
+/// The side component of a finite strip's light, relative to its component along the
+/// axis (the tangent of the angle by which the light turns towards the strip's middle),
+/// at a pixel `d` mm from the strip and `along` mm from the start of its frame side of
+/// `length` mm; the strip runs `overhang` mm past both ends.
+///
+/// The strip is a line of point sources at the height that makes the light's elevation
+/// `elevation`, each seen with inverse-square fall-off. With `c` the distance to the
+/// line and `s` the offset along it, the side and axial components of the summed unit
+/// directions are `∫ s/(c² + s²)^{3/2} ds` and `∫ d/(c² + s²)^{3/2} ds` over the strip,
+/// in closed form below. An infinite strip, or the pixel at its middle, has none.
+pub fn side_light(d: f64, elevation: f64, along: f64, length: f64, overhang: f64) -> f64 {
+    let d = d.max(1e-3);
+    let c2 = (d / elevation.cos().max(1e-3)).powi(2);
+    let (a, b) = (-overhang - along, length + overhang - along);
+    if b <= a {
+        return 0.0;
+    }
+    let r = |s: f64| (c2 + s * s).sqrt();
+    let side = 1.0 / r(a) - 1.0 / r(b);
+    let axial = d / c2 * (b / r(b) - a / r(a));
+    if axial > 0.0 { side / axial } else { 0.0 }
+}
+
+/// Light from a strip at distance `d` mm in horizontal direction `dir` (a unit vector),
+/// reflected by a surface with normal `n`, relative to flat skin lit from the same place.
+fn light(optics: &Optics, strip: &StripVariation, n: &[f64; 3], d: f64, dir: [f64; 2]) -> f64 {
+    let falloff_mm = optics.falloff_mm * strip.falloff;
+    let elevation = strip_elevation(optics, strip, d);
     let (se, ce) = elevation.sin_cos();
     let l = [dir[0] * ce, dir[1] * ce, se];
     let cos_i = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]).max(0.0);
@@ -662,6 +710,89 @@ pub fn disk(cx: f64, cy: f64, steep: bool) -> Shape {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`side_light`] by direct summation over 20 000 point sources along the strip.
+    fn side_light_summed(d: f64, elevation: f64, along: f64, length: f64, overhang: f64) -> f64 {
+        let height = d * elevation.tan();
+        let n = 20_000;
+        let (start, end) = (-overhang, length + overhang);
+        let (mut side, mut axial) = (0.0, 0.0);
+        for k in 0..n {
+            let s = start + (end - start) * (k as f64 + 0.5) / n as f64 - along;
+            let r2 = d * d + height * height + s * s;
+            // Unit direction times inverse-square intensity.
+            let w = 1.0 / (r2 * r2.sqrt());
+            side += s * w;
+            axial += d * w;
+        }
+        side / axial
+    }
+
+    #[test]
+    fn a_finite_strip_lights_from_the_side_as_its_point_sources_sum() {
+        let e = 30f64.to_radians();
+        for (d, along, overhang) in [
+            (20.0, 0.0, 3.0),
+            (3.0, 0.5, 3.0),
+            (10.0, 5.0, -1.0),
+            (25.0, 30.0, 0.0),
+        ] {
+            let exact = side_light(d, e, along, 32.0, overhang);
+            let summed = side_light_summed(d, e, along, 32.0, overhang);
+            assert!(
+                (exact - summed).abs() < 1e-3,
+                "{d} {along} {overhang}: {exact} vs {summed}"
+            );
+        }
+        // Near the start the light turns towards the strip's middle (+), near the end
+        // the other way, as much; none at the middle; a longer strip turns it less, and
+        // a very long one not at all.
+        let at = |along: f64, overhang: f64| side_light(20.0, e, along, 32.0, overhang);
+        assert!(at(0.0, 3.0) > 0.4, "{}", at(0.0, 3.0));
+        assert!((at(0.0, 3.0) + at(32.0, 3.0)).abs() < 1e-12);
+        assert!(at(16.0, 3.0).abs() < 1e-12);
+        assert!(at(0.0, 10.0) < at(0.0, 3.0) && at(0.0, 1e7).abs() < 1e-5);
+        // Degenerate strips and pixels on them give numbers, never NaN.
+        for v in [
+            side_light(0.0, e, 0.0, 32.0, 3.0),
+            side_light(5.0, e, 0.0, 32.0, -20.0),
+        ] {
+            assert!(v.is_finite(), "{v}");
+        }
+    }
+
+    #[test]
+    fn with_finite_strips_a_phase_answers_the_other_axis_slope_near_their_ends() {
+        let optics = |overhang| Optics {
+            noise: 0.0,
+            strip_overhang_mm: overhang,
+            ..Optics::standard()
+        };
+        // Skin sloping along y only (q = 0.4), seen in the dx phase.
+        let (w, h) = (640, 480);
+        let p = Grid::filled(w, h, 0.0f32);
+        let q = Grid::filled(w, h, 0.4f32);
+        let flat = Grid::filled(w, h, 0.0f32);
+        let red = |o: Option<f64>, slope: &Grid<f32>, x: u32, y: u32| {
+            render_slopes(&optics(o), &p, slope, 0).dx.get_pixel(x, y).0[0] as i32
+        };
+        let change = |o: Option<f64>, y: u32| red(o, &q, 320, y) - red(o, &flat, 320, y);
+        // Strips along the whole axis: the y slope only dims every pixel alike (|n|).
+        assert_eq!(change(None, 5), change(None, 240));
+        // Finite strips: near their top end their light comes from below as well, so a
+        // skin sloping down (+y) faces it and reads brighter than at the middle.
+        assert!(change(Some(2.0), 5) >= change(Some(2.0), 240) + 4);
+        // A strip running far past the frame lights as one along the whole axis.
+        let long = render_slopes(&optics(Some(1e6)), &p, &q, 0).dx;
+        let none = render_slopes(&optics(None), &p, &q, 0).dx;
+        let most = long
+            .as_raw()
+            .iter()
+            .zip(none.as_raw())
+            .map(|(a, b)| (*a as i32 - *b as i32).abs())
+            .max();
+        assert!(most <= Some(1), "{most:?}");
+    }
 
     #[test]
     fn flat_skin_is_balanced_in_the_middle_and_colours_follow_the_slope() {

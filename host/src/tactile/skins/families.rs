@@ -12,6 +12,7 @@ use image::RgbImage;
 
 use super::physical::{PhysicalParams, PhysicalSkin};
 use super::{AmbientScale, SkinFrames};
+use crate::rng::Rng;
 use crate::tactile::render::{Optics, Scene, render_truth};
 
 /// What a family may be used for.
@@ -178,6 +179,18 @@ pub fn families() -> Vec<Family> {
             ball_diameter_mm: 6.0,
             about: "our renderer, physics drawn at random (tuning draws)",
             build: |w, h, seed| Skin::Ours(Box::new(Optics::random(w, h, seed % HELD_OUT_SEEDS))),
+        },
+        Family {
+            name: "ours-finite-strips",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "ours-random's skins with strips of finite length (side light near their ends)",
+            build: |w, h, seed| {
+                let mut optics = Optics::random(w, h, seed % HELD_OUT_SEEDS);
+                let mut rng = Rng::new(seed ^ 0x51DE_116E_7000_0001);
+                optics.strip_overhang_mm = Some(rng.range(-1.5, 4.0));
+                Skin::Ours(Box::new(optics))
+            },
         },
         Family {
             name: "ours-held-out",

@@ -87,8 +87,8 @@ pub struct SkinsArgs {
     #[arg(long)]
     pub dark: bool,
     /// Measure the camera's colour crosstalk from flat-skin frames with only the blue
-    /// strip lit and only the red, and calibrate with it undone (`calibrate
-    /// --crosstalk`).
+    /// strip lit and only the red, and calibrate with it undone (as `calibrate
+    /// --blue-only-dx F --red-only-dx F` does).
     #[arg(long)]
     pub crosstalk: bool,
     /// Ambient light of the measured frames relative to the calibration's, in the dx,
@@ -179,9 +179,10 @@ pub fn run(a: Args) -> Result<()> {
 fn skins(a: SkinsArgs) -> Result<()> {
     let all = families();
     if a.list {
+        let width = all.iter().map(|f| f.name.len()).max().unwrap_or(0);
         for f in &all {
             println!(
-                "{:<14} {:<10} ball {:>4.1} mm  {}",
+                "{:<width$} {:<10} ball {:>4.1} mm  {}",
                 f.name,
                 f.role.to_string(),
                 f.ball_diameter_mm,
