@@ -2,10 +2,12 @@
 //! chain (calibration from the family's own presses, reconstruction) holds on a small
 //! frame of a tuning family and of the independent renderer.
 
+use stereotac::tactile::ambient::PhaseFrames;
+use stereotac::tactile::calibrate::{CalibrationSettings, calibrate};
 use stereotac::tactile::crosstalk::measure;
 use stereotac::tactile::render::{Scene, Shape};
 use stereotac::tactile::skins::AmbientScale;
-use stereotac::tactile::skins::evaluate::{EvalConfig, evaluate, format_report};
+use stereotac::tactile::skins::evaluate::{EvalConfig, ball_presses, evaluate, format_report};
 use stereotac::tactile::skins::families::{Role, Skin, families, family};
 
 #[test]
@@ -112,6 +114,61 @@ fn crosstalk_is_measured_from_single_colour_frames_and_undone() {
     assert!((disk.mean - 1.0).abs() < 0.25, "{table}");
     let plain = evaluate(&family("phys-matte").unwrap(), &small(), &mut |_| {});
     assert!(plain.unmix.is_none());
+}
+
+/// Strips of finite length (`ours-finite-strips`): calibration asked for the side light
+/// finds it, turning the light towards each strip's middle (the dy strips towards +x on
+/// the left of the frame and −x on the right, the dx strips likewise along y), and the
+/// chain holds with it; the nominal skin, matte with strips along the whole axis, keeps
+/// none.
+#[test]
+fn the_side_light_of_finite_strips_is_measured_and_of_long_ones_not() {
+    let config = EvalConfig {
+        side_light: true,
+        ..small()
+    };
+    let finite = family("ours-finite-strips").unwrap();
+    let skin = finite.skin(320, 240, 1);
+    let refs = skin.references(4);
+    let presses = ball_presses(&skin, finite.ball_diameter_mm, 12, 1, 0);
+    let settings = CalibrationSettings {
+        ball_diameter_mm: finite.ball_diameter_mm,
+        px_per_mm: skin.px_per_mm(),
+        side_light: true,
+        ..Default::default()
+    };
+    let references = PhaseFrames {
+        dx: &refs.dx,
+        dy: &refs.dy,
+        dark: None,
+    };
+    let cal = calibrate(&presses, Some(references), &settings, |_| {}).unwrap();
+    let side = cal
+        .model
+        .side_light
+        .expect("finite strips light from the side");
+    let [left, right, top, bottom] =
+        [(0.1, 0.5), (0.9, 0.5), (0.5, 0.1), (0.5, 0.9)].map(|(x, y)| side.at(x, y));
+    // (12 presses of a 320×240 frame cover its corners thinly: the signs and the
+    // change across the frame, not the values.)
+    assert!(
+        left[0] > 0.0 && right[0] < 0.0 && left[0] - right[0] > 0.15,
+        "{left:?} {right:?}"
+    );
+    assert!(
+        top[1] > 0.0 && bottom[1] < 0.0 && top[1] - bottom[1] > 0.15,
+        "{top:?} {bottom:?}"
+    );
+    let r = evaluate(&finite, &config, &mut |_| {});
+    let table = format_report(&r);
+    assert!(r.side_light.is_some_and(|k| k > 0.1), "{table}");
+    assert!(table.contains("side light up to"), "{table}");
+    assert_eq!(r.rest_contacts, Some(0), "{table}");
+    assert!(r.beside_max_mm.unwrap() <= 0.02, "{table}");
+    let disk = r.disk.expect("disks fit the frame");
+    assert!((disk.mean - 1.0).abs() < 0.25, "{table}");
+    let long = evaluate(&family("ours-nominal").unwrap(), &config, &mut |_| {});
+    assert_eq!(long.side_light, None, "{}", format_report(&long));
 }
 
 fn small() -> EvalConfig {

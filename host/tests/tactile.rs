@@ -1083,7 +1083,17 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 34] = [
+    let cases: [(&str, Damage); 36] = [
+        // A side light of the wrong shape, or one no strip makes.
+        (
+            "side_light.kappa",
+            |m| m["side_light"] = serde_json::json!({"kappa": [[0.1, 0.2, 0.3], vec![0.0; 12]]}),
+        ),
+        ("side_light.kappa", |m| {
+            let mut wild = vec![0.0; 12];
+            wild[3] = 1e6;
+            m["side_light"] = serde_json::json!({"kappa": [vec![0.0; 12], wild]})
+        }),
         // A crosstalk no camera has, or one that cannot be undone.
         (
             "filter.unmix",

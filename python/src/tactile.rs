@@ -470,11 +470,13 @@ impl PyTactileResult {
 /// every press is `ball_diameter_mm`'s; `single_colour_dx` a `(blue_only, red_only)`
 /// pair of no-contact dx frames taken like `ref`'s but with only the blue strip (1) lit
 /// and only the red strip (3) lit: the camera's colour crosstalk is then measured and
-/// undone (needs `ref`).
+/// undone (needs `ref`); `side_light` measures the strips' side light (strips of finite
+/// length light a pixel near their ends from the side too) and teaches and reads the
+/// lookup table with it taken out (off by default, as `stereotac calibrate --side-light`).
 /// Returns the model and the report (a dict: presses used, presses set aside with
 /// reasons, fit per region, coverage, warnings), as `stereotac calibrate --report` writes.
 #[pyfunction]
-#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None, single_colour_dx = None))]
+#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None, single_colour_dx = None, side_light = false))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one per setting
 pub fn calibrate<'py>(
     py: Python<'py>,
@@ -486,6 +488,7 @@ pub fn calibrate<'py>(
     min_presses: usize,
     press_balls_mm: Option<Vec<f64>>,
     single_colour_dx: Option<(Bound<'py, PyAny>, Bound<'py, PyAny>)>,
+    side_light: bool,
 ) -> PyResult<(PyTactileModel, Bound<'py, PyAny>)> {
     let items: Vec<Bound<'py, PyAny>> = presses.try_iter()?.collect::<PyResult<_>>()?;
     if let Some(balls) = press_balls_mm.as_ref().filter(|b| b.len() != items.len()) {
@@ -515,6 +518,7 @@ pub fn calibrate<'py>(
         px_per_mm,
         skin_thickness_mm,
         min_presses,
+        side_light,
         ..Default::default()
     };
     if let Some((blue, red)) = &single_colour_dx {

@@ -90,11 +90,13 @@ def calibrate(
     single_colour_dx: Optional[
         Tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]
     ] = None,
+    side_light: bool = False,
 ) -> Tuple[TactileModel, Dict[str, Any]]:
     """A model from ball presses, and the calibration report; `press_balls_mm` gives
     each press's ball when they were made with more than one; `single_colour_dx`
     `(blue_only, red_only)` no-contact dx frames with one strip dark, to measure and
-    undo the camera's colour crosstalk (needs `ref`)."""
+    undo the camera's colour crosstalk (needs `ref`); `side_light` measures the
+    strips' side light and reads the lookup table with it taken out."""
 
 def load_rgb(path: _Path) -> npt.NDArray[np.uint8]:
     """An 8-bit image file as RGB (height, width, 3), read as the CLI reads it."""

@@ -200,3 +200,19 @@ def test_calibrate_measures_the_crosstalk_from_single_colour_frames(press_pairs,
     # Swapped: neither LED's light is left alone.
     with pytest.raises(stereotac.BadInputError, match="single_colour_dx: only"):
         stereotac.calibrate(presses, 6.0, ref=ref, single_colour_dx=(red_only, blue_only))
+
+
+def test_calibrate_measures_the_side_light_only_when_asked(press_pairs, scene_pairs, tmp_path):
+    _, pairs = press_pairs
+    presses = [tuple(a for a in frames(p) if a is not None) for p in pairs]
+    ref = tuple(a for a in frames(scene_pairs[0]) if a is not None)
+    plain, _ = stereotac.calibrate(presses, 6.0, ref=ref)
+    asked, _ = stereotac.calibrate(presses, 6.0, ref=ref, side_light=True)
+    # The demo's strips run along the whole axis: nothing to take out, the same depth,
+    # and the model file has no side light.
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    np.testing.assert_array_equal(
+        asked.reconstruct(dx, dy, dark=dark).depth, plain.reconstruct(dx, dy, dark=dark).depth
+    )
+    asked.save(tmp_path / "m.json")
+    assert "side_light" not in (tmp_path / "m.json").read_text()

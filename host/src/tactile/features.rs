@@ -17,7 +17,7 @@ use image::RgbImage;
 
 use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
-use super::model::{GainPlanes, Lut, cross_factor};
+use super::model::{GainPlanes, Lut, cross_factor, side_light};
 use super::past_reach::Reach;
 use super::sanitize::sanitize;
 use super::shadowed;
@@ -70,6 +70,9 @@ pub struct Inputs<'a> {
     /// Position gains of every pixel of the frame per axis
     /// ([`super::model::Lut::gain_planes`]), or `None`.
     pub gains: Option<&'a [GainPlanes; 2]>,
+    /// The strips' side light `κ` at every pixel of the frame
+    /// ([`super::model::SideLight::planes`]) for the lookup tables, or `None`.
+    pub side: Option<&'a [[f32; 2]]>,
     /// Where the lookup tables' slopes are read by the light model as well
     /// ([`super::past_reach`]), or `None`.
     pub reach: Option<Reach<'a>>,
@@ -203,6 +206,19 @@ impl Features {
                 let fixed = sanitize(out, max_slope);
                 counts.sanitized += fixed.non_finite + fixed.clamped;
             }
+            // The other phase's strips light from the side too: the colours read again
+            // with the cross factor corrected by the slopes just read.
+            if let Some(side) = inputs.side {
+                side_light_reread(
+                    luts,
+                    &row.colour,
+                    [&row.lit[0], &row.lit[1]],
+                    &side[span.clone()],
+                    [&gains[0].0[span.clone()], &gains[1].0[span.clone()]],
+                    [&mut p[at.clone()], &mut q[at.clone()]],
+                    max_slope,
+                );
+            }
             // Where a strip of the other phase is in shadow the cross factor fell short:
             // those pixels' colours are made again from the frames and read again.
             let refs = [
@@ -246,6 +262,54 @@ impl Features {
             timings.model_ms += ms(t, clock);
         });
         (counts, timings)
+    }
+}
+
+/// The tables' slopes `[p, q]` of a run read again [`side_light::ROUNDS`] times from its
+/// model colours (`colour`, `[red, blue]` per phase) times the side light's factors
+/// ([`side_light::factors`]) from the last reading, where both phases are lit; `kappa`
+/// and `gains` per pixel of the run.
+fn side_light_reread(
+    luts: [&Lut; 2],
+    colour: &[[Vec<f32>; 2]; 2],
+    lit: [&[bool]; 2],
+    kappa: &[[f32; 2]],
+    gains: [&[[f32; 2]]; 2],
+    slopes: [&mut [f32]; 2],
+    max_slope: f32,
+) {
+    let [p, q] = slopes;
+    let [[xr, xb], [yr, yb]] = colour;
+    let n = [
+        p.len(),
+        q.len(),
+        kappa.len(),
+        lit[0].len(),
+        lit[1].len(),
+        xr.len(),
+        yr.len(),
+    ]
+    .into_iter()
+    .min()
+    .unwrap_or(0);
+    for k in 0..n {
+        if !(lit[0][k] && lit[1][k]) || kappa[k] == [0.0; 2] {
+            continue;
+        }
+        for _ in 0..side_light::ROUNDS {
+            let [fx, fy] = side_light::factors(kappa[k], p[k], q[k]);
+            if (fx - 1.0).abs() < 0.005 && (fy - 1.0).abs() < 0.005 {
+                break;
+            }
+            let sp = luts[0].eval_with_gains(xr[k] * fx, xb[k] * fx, gains[0][k]);
+            let sq = luts[1].eval_with_gains(yr[k] * fy, yb[k] * fy, gains[1][k]);
+            if sp.is_finite() {
+                p[k] = sp.clamp(-max_slope, max_slope);
+            }
+            if sq.is_finite() {
+                q[k] = sq.clamp(-max_slope, max_slope);
+            }
+        }
     }
 }
 
@@ -414,6 +478,7 @@ mod tests {
         let (dx, dy, refs, roi, mask) = scene();
         let filter = ColourFilter::default();
         let inputs = Inputs {
+            side: None,
             dx: &dx,
             dy: &dy,
             refs: &refs,
@@ -485,6 +550,7 @@ mod tests {
         let gain = lut.gain_planes(w, h).expect("a whole table");
         let gains = [gain.clone(), gain];
         let inputs = Inputs {
+            side: None,
             dx: &dx,
             dy: &dy,
             refs: &refs,

@@ -297,6 +297,9 @@ pub struct Reconstructor {
     /// The lookup table's position gain at every pixel, per axis (LUT only: computed
     /// once, so the model does not blend it per pixel).
     lut_gains: Option<Arc<[GainPlanes; 2]>>,
+    /// The strips' side light `κ` at every pixel (LUT only, when the model measured it;
+    /// [`side_light`](super::model::side_light)).
+    lut_side: Option<Arc<Vec<[f32; 2]>>>,
     /// Where the light model reads the model's slopes too (the table or the perceptron,
     /// with light models: made once from the tables; `None` when off).
     reach_limits: Option<ReachLimits>,
@@ -323,6 +326,7 @@ impl Reconstructor {
             features: Default::default(),
             unread_fill: UnreadFill::default(),
             lut_gains: self.lut_gains.clone(),
+            lut_side: self.lut_side.clone(),
             reach_limits: self.reach_limits,
             slopes: Vec::new(),
             joint_colours: Vec::new(),
@@ -450,9 +454,14 @@ impl Reconstructor {
                 }
             }
         }
+        let lut_side = match (&lut_gains, &model.side_light) {
+            (Some(_), Some(side)) => Some(Arc::new(side.planes(model.width, model.height))),
+            _ => None,
+        };
         let reach_limits = reach_limits_of(&model, kind, lut_gains.is_some());
         Ok(Self {
             lut_gains,
+            lut_side,
             reach_limits,
             model,
             kind,
@@ -629,6 +638,7 @@ impl Reconstructor {
             refs: &self.refs,
             filter: &filter,
             gains: self.lut_gains.as_deref(),
+            side: self.lut_side.as_deref().map(Vec::as_slice),
             // Slopes past the table's reach are read by the light model too, when the
             // model file has one.
             reach: match (

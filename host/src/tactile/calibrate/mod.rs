@@ -30,13 +30,14 @@ pub use report::{CalibrationReport, overlay};
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
+use super::model::side_light;
 use super::model::validate::{
     MAX_SCALE, MAX_SKIN_THICKNESS_MM, MIN_PX_PER_MM, MIN_SKIN_THICKNESS_MM, valid_ball_diameter,
 };
 use super::model::{
     AxisModel, Background, DEFAULT_SKIN_THICKNESS_MM, FitReport, JointSample, LUT_MAX_COLOUR,
     LightModel, Lut, MODEL_FORMAT, MODEL_VERSION, Mlp, MlpTraining, ModelKind, PhotometricModel,
-    Sample, TactileModel, colour_features,
+    Sample, SideLight, TactileModel, colour_features,
 };
 use super::phase_check::{self, PhaseImageError};
 
@@ -194,6 +195,9 @@ pub struct CalibrationSettings {
     pub background_factor: usize,
     /// Circles given by hand, by pair name.
     pub overrides: HashMap<String, Circle>,
+    /// Measure the strips' side light in the cross factor and teach and read the lookup
+    /// tables with it taken out ([`SideLight`]; off by default, see its measurements).
+    pub side_light: bool,
 }
 
 impl CalibrationSettings {
@@ -238,6 +242,7 @@ impl Default for CalibrationSettings {
             mlp: MlpTraining::default(),
             background_factor: 8,
             overrides: HashMap::new(),
+            side_light: false,
         }
     }
 }
@@ -786,6 +791,25 @@ pub fn calibrate(
         validation_pairs: (0..count).filter(|&i| holdout(i)).count(),
         ..Default::default()
     };
+    // Both phases at once, from the same presses.
+    let split = |keep: bool| -> Vec<JointSample> {
+        joint
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| holdout(*i) == keep)
+            .flat_map(|(_, s)| s.iter().copied())
+            .collect()
+    };
+    let (joint_train, joint_valid) = (split(false), split(true));
+    // The strips' side light in the cross factor, and the tables' samples corrected by
+    // it (every training and held-out sample: the report's fit per region is the
+    // table's).
+    let side_light = settings
+        .side_light
+        .then(|| SideLight::fit(&joint_train))
+        .flatten();
+    let [lut_train, lut_valid] =
+        [&joint_train, &joint_valid].map(|set| table_samples(set, side_light.as_ref()));
     let mut all_samples: [Vec<Sample>; 2] = [Vec::new(), Vec::new()];
     for (axis, all) in all_samples.iter_mut().enumerate() {
         let train: Vec<Sample> = per_pair
@@ -801,7 +825,7 @@ pub fn calibrate(
             .flat_map(|(_, s)| s[axis].iter().copied())
             .collect();
         let lut = Lut::fit(
-            &train,
+            &lut_train[axis],
             settings.lut_bins,
             LUT_MAX_COLOUR,
             settings.lut_cells.0,
@@ -822,7 +846,14 @@ pub fn calibrate(
             mlp,
             light: Some(light),
         };
-        let rms = |kind, set: &[Sample]| rms_error(&model, kind, set);
+        // The table is measured on its own (corrected) samples.
+        let rms = |kind, set: &[Sample], table: &[Sample]| {
+            rms_error(
+                &model,
+                kind,
+                if kind == ModelKind::Lut { table } else { set },
+            )
+        };
         fit_report.samples_per_axis = fit_report.samples_per_axis.max(train.len());
         // The worse of the two axes.
         for (kind, train_rms, validation_rms) in [
@@ -842,25 +873,15 @@ pub fn calibrate(
                 &mut fit_report.light_validation_rms,
             ),
         ] {
-            *train_rms = train_rms.max(rms(kind, &train));
-            *validation_rms = validation_rms.max(rms(kind, &valid));
+            *train_rms = train_rms.max(rms(kind, &train, &lut_train[axis]));
+            *validation_rms = validation_rms.max(rms(kind, &valid, &lut_valid[axis]));
         }
-        all.extend(train);
-        all.extend(valid);
+        all.extend_from_slice(&lut_train[axis]);
+        all.extend_from_slice(&lut_valid[axis]);
         axes.push(model);
     }
     let dy = axes.pop().expect("two axes");
     let dx = axes.pop().expect("two axes");
-    // Both axes at once, from the same presses.
-    let split = |keep: bool| -> Vec<JointSample> {
-        joint
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| holdout(*i) == keep)
-            .flat_map(|(_, s)| s.iter().copied())
-            .collect()
-    };
-    let (joint_train, joint_valid) = (split(false), split(true));
     let photometric =
         PhotometricModel::fit(&joint_train, settings.lut_cells.0, settings.lut_cells.1);
     fit_report.photometric_train_rms = photometric_rms(&photometric, &joint_train).0;
@@ -892,6 +913,7 @@ pub fn calibrate(
         dx,
         dy,
         photometric: Some(photometric),
+        side_light,
         fit: fit_report,
     };
     crate::tactile::model::validate::check(&model)
@@ -1105,6 +1127,32 @@ fn samples(
         }
     }
     (out, joint)
+}
+
+/// The lookup tables' samples of `joint` per axis: each phase's model colours
+/// ([`colour_features`]) where it was read, times the side light's factor with the true
+/// slopes where both phases were read.
+fn table_samples(joint: &[JointSample], side: Option<&SideLight>) -> [Vec<Sample>; 2] {
+    let mut out = [Vec::new(), Vec::new()];
+    for s in joint {
+        let [x, y] = s.position;
+        let features = colour_features(s.colours);
+        let factors = match (side, features) {
+            (Some(side), [Some(_), Some(_)]) => {
+                side_light::factors(side.at(x, y), s.slope[0], s.slope[1])
+            }
+            _ => [1.0; 2],
+        };
+        for (axis, f) in features.into_iter().enumerate() {
+            if let Some([r, b]) = f {
+                out[axis].push(Sample {
+                    features: [r * factors[axis], b * factors[axis], x, y],
+                    target: s.slope[axis],
+                });
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

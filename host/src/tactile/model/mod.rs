@@ -14,6 +14,7 @@ pub mod lut;
 pub mod mlp;
 pub mod photometric;
 pub mod response;
+pub mod side_light;
 pub mod validate;
 
 use std::fmt;
@@ -28,6 +29,7 @@ pub use light::LightModel;
 pub use lut::{GainPlanes, Lut};
 pub use mlp::{Mlp, MlpTraining};
 pub use photometric::{JointSample, PhotometricModel};
+pub use side_light::SideLight;
 
 use super::ambient::AmbientEstimate;
 use super::colour::{ColourFilter, Reference};
@@ -355,6 +357,12 @@ pub struct TactileModel {
     /// before it existed).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub photometric: Option<PhotometricModel>,
+    /// The side light of the strips in the cross factor, per cell of the frame
+    /// ([`side_light`]): the lookup tables were taught on colours corrected by it and
+    /// read corrected. `None` (left out of the file): none measured, as in model files
+    /// written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub side_light: Option<SideLight>,
     /// Fit quality.
     pub fit: FitReport,
 }

@@ -199,6 +199,10 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
     if let Some(photometric) = &m.photometric {
         check_photometric(photometric).map_err(|(f, why)| (format!("photometric.{f}"), why))?;
     }
+    if let Some(side) = &m.side_light {
+        side.check()
+            .map_err(|why| ("side_light.kappa".to_string(), why))?;
+    }
     Ok(())
 }
 

@@ -63,6 +63,9 @@ pub struct EvalConfig {
     /// strip lit and only the red ([`crate::tactile::crosstalk`]) and calibrate with it
     /// undone; `false`: the colour filter's `R − G`, `B − G` as they are.
     pub crosstalk: bool,
+    /// Calibrate with the strips' side light measured and taken out of the lookup
+    /// table's colours ([`crate::tactile::model::SideLight`]).
+    pub side_light: bool,
 }
 
 impl Default for EvalConfig {
@@ -83,6 +86,7 @@ impl Default for EvalConfig {
             dark: false,
             ambient: AmbientScale::STEADY,
             crosstalk: false,
+            side_light: false,
         }
     }
 }
@@ -161,6 +165,9 @@ pub struct FamilyReport {
     pub ambient: [f64; 3],
     /// The crosstalk measured and undone ([`EvalConfig::crosstalk`]), if asked for.
     pub unmix: Option<Unmix>,
+    /// The largest side light the calibration measured and took out (`None`: not asked
+    /// for, or none found).
+    pub side_light: Option<f32>,
     /// Calibration.
     pub calibration: CalibrationOutcome,
     /// 1 mm disk, wall slope 0.79: plateau readings.
@@ -224,6 +231,7 @@ pub fn evaluate_skin(
         past_reach: false,
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         unmix: None,
+        side_light: None,
         calibration: CalibrationOutcome {
             given: config.presses,
             used: 0,
@@ -278,6 +286,7 @@ pub fn evaluate_skin(
     let mut settings = CalibrationSettings {
         ball_diameter_mm,
         px_per_mm: ppm,
+        side_light: config.side_light,
         ..Default::default()
     };
     if config.crosstalk {
@@ -302,6 +311,7 @@ pub fn evaluate_skin(
             return report;
         }
     };
+    report.side_light = cal.model.side_light.as_ref().map(|s| s.largest());
     let c = &mut report.calibration;
     c.used = cal.presses.len();
     c.rejected = cal
@@ -639,7 +649,7 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}, {} mm ball{}; {}{}{}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball{}; {}{}{}{}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
@@ -662,6 +672,9 @@ pub fn format_report(r: &FamilyReport) -> String {
         } else {
             ""
         },
+        r.side_light
+            .map(|k| format!(", side light up to {k:.2} taken out"))
+            .unwrap_or_default(),
         r.ambient[0],
         r.ambient[1],
         r.ambient[2]

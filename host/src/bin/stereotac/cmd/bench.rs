@@ -91,6 +91,10 @@ pub struct SkinsArgs {
     /// --blue-only-dx F --red-only-dx F` does).
     #[arg(long)]
     pub crosstalk: bool,
+    /// Calibrate with the strips' side light measured and taken out of the lookup
+    /// table's colours (as `calibrate --side-light` does).
+    #[arg(long)]
+    pub side_light: bool,
     /// Ambient light of the measured frames relative to the calibration's, in the dx,
     /// dy and LEDs-off exposures: e.g. 2,2,2 (the room twice as bright), 1.3,0.8,1
     /// (light flickering between exposures).
@@ -225,6 +229,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 dark: a.dark,
                 ambient: a.ambient,
                 crosstalk: a.crosstalk,
+                side_light: a.side_light,
                 ..Default::default()
             };
             let report = evaluate(f, &config, &mut |step| {

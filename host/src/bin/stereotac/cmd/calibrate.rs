@@ -19,6 +19,7 @@ use stereotac::tactile::calibrate::{
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::crosstalk::measure as measure_crosstalk;
 use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
+use stereotac::tactile::model::side_light::MIN_KAPPA;
 use stereotac::tactile::model::validate::{MAX_SCALE, valid_ball_diameter};
 
 use crate::console::naming_file;
@@ -72,6 +73,14 @@ pub struct Args {
     /// No-contact dx frame with only the red strip (3) lit (strip 1 set dark).
     #[arg(long, requires_all = ["ref_dx", "blue_only_dx"])]
     pub red_only_dx: Option<PathBuf>,
+    /// Measure the strips' side light (strips of finite length light a pixel near their
+    /// ends from the side as well, so the other phase's brightness answers this axis'
+    /// slope) and teach and read the lookup table with it taken out. Off by default: on
+    /// our tuning skins with finite strips it brought steep walls from 0.79-0.86 to
+    /// 0.86-0.93 mm, on the independent renderer's glossy skins it over-read the frame
+    /// edges more (see the README).
+    #[arg(long)]
+    pub side_light: bool,
     /// JSON file of contact circles to use instead of fitted ones:
     /// {"NAME": {"cx": px, "cy": px, "r": px}, ...} (a --with-ball press by its name
     /// with the folder's in front: "small-press01").
@@ -156,6 +165,7 @@ pub fn run(a: Args) -> Result<()> {
         skin_thickness_mm: a.skin_thickness_mm,
         min_presses: a.min_presses,
         overrides,
+        side_light: a.side_light,
         ..Default::default()
     };
     if let Some(t) = a.contact_threshold {
@@ -404,6 +414,17 @@ pub fn run(a: Args) -> Result<()> {
             .collect::<Vec<_>>()
             .join(" | ")
     );
+    if a.side_light {
+        match &cal.model.side_light {
+            Some(side) => println!(
+                "side light of the strips: the other phase's brightness changes by up to {:.2} per unit slope (taken out of the lookup table's colours)",
+                side.largest()
+            ),
+            None => println!(
+                "side light of the strips: none measured (under {MIN_KAPPA} per unit slope everywhere, or too few pixels with every strip lit): the model reads as without --side-light"
+            ),
+        }
+    }
     for w in &rep.warnings {
         eprintln!("warning: {w}");
     }
