@@ -2281,3 +2281,74 @@ fn the_cli_measures_and_keeps_the_crosstalk() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `calibrate --side-light` on frames of strips of finite length keeps the side light in
+/// the model file and says how large it is; on the nominal skin (strips along the whole
+/// axis) it says none was measured and the file has none.
+#[test]
+fn the_cli_measures_the_side_light_when_asked() {
+    use stereotac::tactile::skins::evaluate::ball_presses;
+    use stereotac::tactile::skins::families::family;
+    let dir = std::env::temp_dir().join(format!("stereotac-side-light-{}", std::process::id()));
+    for (name, kept) in [("ours-finite-strips", true), ("ours-nominal", false)] {
+        let f = family(name).unwrap();
+        let skin = f.skin(320, 240, 1);
+        let presses = dir.join(name);
+        std::fs::create_dir_all(&presses).unwrap();
+        for p in ball_presses(&skin, f.ball_diameter_mm, 12, 1, 0) {
+            p.dx.save(presses.join(format!("{}_dx.png", p.name)))
+                .unwrap();
+            p.dy.save(presses.join(format!("{}_dy.png", p.name)))
+                .unwrap();
+        }
+        let refs = skin.references(4);
+        let path = |n: &str| {
+            dir.join(format!("{name}-{n}"))
+                .to_str()
+                .unwrap()
+                .to_string()
+        };
+        refs.dx.save(path("ref_dx.png")).unwrap();
+        refs.dy.save(path("ref_dy.png")).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+            .arg("calibrate")
+            .arg(&presses)
+            .args([
+                "--ball-diameter-mm",
+                "6",
+                "--px-per-mm",
+                "7.5",
+                "--side-light",
+            ])
+            .args([
+                "--ref-dx",
+                &path("ref_dx.png"),
+                "--ref-dy",
+                &path("ref_dy.png"),
+            ])
+            .args(["--out", &path("model.json")])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{name}: {stdout}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let model: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(path("model.json")).unwrap()).unwrap();
+        if kept {
+            assert!(stdout.contains("changes by up to"), "{name}: {stdout}");
+            let kappa = model["side_light"]["kappa"].as_array().expect("kept");
+            assert!(kappa.iter().all(|k| k.as_array().unwrap().len() == 12));
+        } else {
+            assert!(
+                stdout.contains("side light of the strips: none measured"),
+                "{name}: {stdout}"
+            );
+            assert!(model.get("side_light").is_none(), "{name}: {model}");
+        }
+        TactileModel::load(std::path::Path::new(&path("model.json"))).unwrap();
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
