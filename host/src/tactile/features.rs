@@ -298,7 +298,9 @@ fn side_light_reread(
         }
         for _ in 0..side_light::ROUNDS {
             let [fx, fy] = side_light::factors(kappa[k], p[k], q[k]);
-            if (fx - 1.0).abs() < 0.005 && (fy - 1.0).abs() < 0.005 {
+            if (fx - 1.0).abs() < side_light::NEGLIGIBLE
+                && (fy - 1.0).abs() < side_light::NEGLIGIBLE
+            {
                 break;
             }
             let sp = luts[0].eval_with_gains(xr[k] * fx, xb[k] * fx, gains[0][k]);

@@ -773,17 +773,17 @@ pub fn calibrate(
             rejected,
         });
     }
-    let (per_pair, joint): (Vec<[Vec<Sample>; 2]>, Vec<Vec<JointSample>>) = used
+    let joint: Vec<Vec<JointSample>> = used
         .iter()
         .zip(&presses)
         .map(|(pair, press)| {
             let ball_px = ball_px_of(pair);
             samples(pair, &refs, &settings.filter, press.circle, ball_px, w, h)
         })
-        .unzip();
+        .collect();
 
     // Hold out every fifth press for validation when there are enough.
-    let count = per_pair.len();
+    let count = joint.len();
     let holdout = |i: usize| count >= 5 && i % 5 == 4;
     let mut axes = Vec::with_capacity(2);
     let mut fit_report = FitReport {
@@ -801,29 +801,26 @@ pub fn calibrate(
             .collect()
     };
     let (joint_train, joint_valid) = (split(false), split(true));
+    // Each axis' samples, as the models read them.
+    let [plain_train, plain_valid] =
+        [&joint_train, &joint_valid].map(|set| table_samples(set, None));
     // The strips' side light in the cross factor, and the tables' samples corrected by
-    // it (every training and held-out sample: the report's fit per region is the
-    // table's).
+    // it when there is one (every training and held-out sample: the report's fit per
+    // region is the table's).
     let side_light = settings
         .side_light
         .then(|| SideLight::fit(&joint_train))
         .flatten();
-    let [lut_train, lut_valid] =
-        [&joint_train, &joint_valid].map(|set| table_samples(set, side_light.as_ref()));
+    let corrected = side_light
+        .as_ref()
+        .map(|side| [&joint_train, &joint_valid].map(|set| table_samples(set, Some(side))));
+    let [lut_train, lut_valid] = match &corrected {
+        Some([train, valid]) => [train, valid],
+        None => [&plain_train, &plain_valid],
+    };
     let mut all_samples: [Vec<Sample>; 2] = [Vec::new(), Vec::new()];
     for (axis, all) in all_samples.iter_mut().enumerate() {
-        let train: Vec<Sample> = per_pair
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| !holdout(*i))
-            .flat_map(|(_, s)| s[axis].iter().copied())
-            .collect();
-        let valid: Vec<Sample> = per_pair
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| holdout(*i))
-            .flat_map(|(_, s)| s[axis].iter().copied())
-            .collect();
+        let (train, valid) = (&plain_train[axis], &plain_valid[axis]);
         let lut = Lut::fit(
             &lut_train[axis],
             settings.lut_bins,
@@ -832,7 +829,7 @@ pub fn calibrate(
             settings.lut_cells.1,
         );
         let epochs = settings.mlp.epochs;
-        let mlp = Mlp::fit(&train, &settings.mlp, |epoch, rms| {
+        let mlp = Mlp::fit(train, &settings.mlp, |epoch, rms| {
             progress(CalibrationProgress::Mlp {
                 axis,
                 epoch,
@@ -840,7 +837,7 @@ pub fn calibrate(
                 rms,
             })
         });
-        let light = LightModel::fit(&train, settings.lut_cells.0, settings.lut_cells.1);
+        let light = LightModel::fit(train, settings.lut_cells.0, settings.lut_cells.1);
         let model = AxisModel {
             lut,
             mlp,
@@ -873,8 +870,8 @@ pub fn calibrate(
                 &mut fit_report.light_validation_rms,
             ),
         ] {
-            *train_rms = train_rms.max(rms(kind, &train, &lut_train[axis]));
-            *validation_rms = validation_rms.max(rms(kind, &valid, &lut_valid[axis]));
+            *train_rms = train_rms.max(rms(kind, train, &lut_train[axis]));
+            *validation_rms = validation_rms.max(rms(kind, valid, &lut_valid[axis]));
         }
         all.extend_from_slice(&lut_train[axis]);
         all.extend_from_slice(&lut_valid[axis]);
@@ -1080,7 +1077,8 @@ pub fn photometric_rms(model: &PhotometricModel, set: &[JointSample]) -> (f32, f
 }
 
 /// Training samples of one pair: pixels inside the contact with the sphere's slopes, and
-/// a ring of flat skin around it with slope 0; per axis, and for both axes at once.
+/// a ring of flat skin around it with slope 0, both axes at once (each axis' samples:
+/// [`table_samples`]).
 fn samples(
     pair: &CalibrationPair,
     refs: &References,
@@ -1089,8 +1087,7 @@ fn samples(
     ball_px: f64,
     w: usize,
     h: usize,
-) -> ([Vec<Sample>; 2], Vec<JointSample>) {
-    let mut out = [Vec::new(), Vec::new()];
+) -> Vec<JointSample> {
     let mut joint = Vec::new();
     let outer = c.r + 15.0;
     let x0 = (c.cx - outer).floor().max(0.0) as usize;
@@ -1116,22 +1113,14 @@ fn samples(
                 position,
                 slope: slopes.map(|s| s as f32),
             });
-            for (axis, f) in colour_features(colour).into_iter().enumerate() {
-                if let Some([r, b]) = f {
-                    out[axis].push(Sample {
-                        features: [r, b, position[0], position[1]],
-                        target: slopes[axis] as f32,
-                    });
-                }
-            }
         }
     }
-    (out, joint)
+    joint
 }
 
-/// The lookup tables' samples of `joint` per axis: each phase's model colours
-/// ([`colour_features`]) where it was read, times the side light's factor with the true
-/// slopes where both phases were read.
+/// The models' samples of `joint` per axis: each phase's model colours
+/// ([`colour_features`]) where it was read; with `side`, times the side light's factor
+/// with the true slopes where both phases were read (the lookup tables' samples).
 fn table_samples(joint: &[JointSample], side: Option<&SideLight>) -> [Vec<Sample>; 2] {
     let mut out = [Vec::new(), Vec::new()];
     for s in joint {

@@ -1,6 +1,7 @@
 //! Bilinear placement shared by the models: a value's two neighbouring entries along an
 //! axis, and a position's four neighbouring cells on a grid of cell centres (the lookup
-//! table's colour axes and position gains, the light model's response per cell).
+//! table's colour axes and position gains, the light model's response per cell), and
+//! a value at every pixel of a frame at the positions the models are given.
 
 /// Bilinear position along an axis of `n` entries: `(index, fraction)`.
 #[inline]
@@ -32,4 +33,17 @@ pub(super) fn cell_weights(x: f32, y: f32, cells_x: usize, cells_y: usize) -> [(
         (cyn * cells_x + cx, (1.0 - fx) * fy),
         (cyn * cells_x + cxn, fx * fy),
     ]
+}
+
+/// `at(x / width, y / height)` at every pixel of a `width × height` frame, row by row: a
+/// model's value per pixel at the positions reconstruction gives the models, made once
+/// so the hot loops do not blend per pixel.
+pub(super) fn frame_plane<T>(width: usize, height: usize, at: impl Fn(f32, f32) -> T) -> Vec<T> {
+    let (inv_w, inv_h) = (1.0 / width.max(1) as f32, 1.0 / height.max(1) as f32);
+    let mut plane = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let yn = y as f32 * inv_h;
+        plane.extend((0..width).map(|x| at(x as f32 * inv_w, yn)));
+    }
+    plane
 }

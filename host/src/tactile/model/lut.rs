@@ -28,7 +28,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Sample;
-use super::cells::{cell_weights, locate};
+use super::cells::{cell_weights, frame_plane, locate};
 use super::response::ResponseCurve;
 
 /// The table and its axes.
@@ -215,15 +215,9 @@ impl Lut {
     pub fn gain_planes(&self, width: usize, height: usize) -> Option<GainPlanes> {
         let (cells_x, cells_y) = (self.cells_x.max(1), self.cells_y.max(1));
         let plane = |gains: &[f32]| {
-            let (inv_w, inv_h) = (1.0 / width as f32, 1.0 / height as f32);
-            let mut plane = Vec::with_capacity(width * height);
-            for y in 0..height {
-                let yn = y as f32 * inv_h;
-                plane.extend(
-                    (0..width).map(|x| blended_gain(gains, x as f32 * inv_w, yn, cells_x, cells_y)),
-                );
-            }
-            plane
+            frame_plane(width, height, |x, y| {
+                blended_gain(gains, x, y, cells_x, cells_y)
+            })
         };
         let [positive, negative] = self.checked_gains()?;
         let positive = plane(positive);

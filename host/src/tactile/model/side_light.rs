@@ -17,18 +17,20 @@
 //! `κ(x, y)·own + λ(x, y)·other` (`own` this axis' slope; `λ`, the strips' own difference
 //! in elevation, is left to the table as before), `κ` and `λ` smooth over the frame:
 //! polynomials of degree 3 along the other phase's strips and 2 across them, in the
-//! frame's centred coordinates. (Per cell of 8×6 the fit left cells without presses at 0 beside cells at
-//! 0.5: a light that jumps.) A ridge of [`RIDGE`] of the normal equations' mean diagonal
-//! pulls it towards no side light where presses are few (12 presses of a 320×240 frame
-//! of `ours-random`, without side light, fitted `κ` up to 10 in a corner without it, 0.19
-//! with it; the tuning family's readings moved by at most 0.01 mm). A skin whose `κ` stays under [`MIN_KAPPA`] everywhere has no
-//! side light worth a reading: none is kept. The table is taught on colours times
+//! frame's centred coordinates. (Per cell of 8×6 the fit left cells without presses at
+//! 0 beside cells at 0.5: a light that jumps.) A ridge of [`RIDGE`] of the normal
+//! equations' mean diagonal pulls it towards no side light where presses are few (12
+//! presses of a 320×240 frame of `ours-random`, without side light, fitted `κ` up to 10
+//! in a corner without it, 0.19 with it; the tuning family's readings moved by at most
+//! 0.01 mm). A skin whose `κ` stays under [`MIN_KAPPA`] everywhere has no side light
+//! worth a reading: none is kept. The table is taught on colours times
 //! `1 + κ·p` with the true slopes; reading multiplies them by `1 + κ·p̂` with the table's
 //! own last reading, [`ROUNDS`] times.
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::cells::frame_plane;
 use super::light::SHADOWED;
 use super::photometric::JointSample;
 
@@ -46,10 +48,14 @@ const MAX_COEFFICIENT: f32 = 100.0;
 
 /// Readings of a pixel with the correction from the table's last reading. Chosen on the
 /// tuning families (`ours-finite-strips` skins 1–3, 10 placements, before the ridge;
-/// gentle disk / steep disk / edge ball): one reading 0.997 / 0.862 / 1.13, 0.951 / 0.908 / 1.11, 0.993 /
-/// 0.940 / 1.22; two 1.027 / 0.873 / 1.16, 0.961 / 0.920 / 1.15, 1.014 / 0.976 / 1.29;
+/// gentle disk / steep disk / edge ball): one reading 0.997 / 0.862 / 1.13, 0.951 /
+/// 0.908 / 1.11, 0.993 / 0.940 / 1.22; two 1.027 / 0.873 / 1.16, 0.961 / 0.920 / 1.15, 1.014 / 0.976 / 1.29;
 /// three as two. Our renderer's skins without side light do not keep one.
 pub const ROUNDS: usize = 1;
+
+/// A pixel whose factors are within this of 1 is not read again (its reading would move
+/// by less than this share).
+pub const NEGLIGIBLE: f32 = 0.005;
 
 /// Powers of the coordinate along the other phase's strips (their side light grows
 /// towards both ends, turning either way).
@@ -207,13 +213,7 @@ impl SideLight {
     /// [`Self::at`] at every pixel of a `width × height` frame, row by row, at the
     /// positions reconstruction gives the models (`x / width`, `y / height`).
     pub fn planes(&self, width: usize, height: usize) -> Vec<[f32; 2]> {
-        let (inv_w, inv_h) = (1.0 / width.max(1) as f32, 1.0 / height.max(1) as f32);
-        let mut out = Vec::with_capacity(width * height);
-        for y in 0..height {
-            let yn = y as f32 * inv_h;
-            out.extend((0..width).map(|x| self.at(x as f32 * inv_w, yn)));
-        }
-        out
+        frame_plane(width, height, |x, y| self.at(x, y))
     }
 
     /// What is wrong with a model file's entry, if anything.
