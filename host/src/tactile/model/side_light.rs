@@ -15,7 +15,8 @@
 //! Calibration knows both slopes of every press pixel, so `κ` is fitted by least squares
 //! of `S·|n| / 2 − 1` (`S` the other phase's colour sum, both of its strips lit) on
 //! `κ(x, y)·own + λ(x, y)·other` (`own` this axis' slope; `λ`, the strips' own difference
-//! in elevation, is left to the table as before), `κ` and `λ` smooth over the frame:
+//! in elevation, is left to the table as before) and terms even in the slopes (gloss,
+//! gamma: [`EVEN`], dropped too), `κ` and `λ` smooth over the frame:
 //! polynomials of degree 3 along the other phase's strips and 2 across them, in the
 //! frame's centred coordinates. (Per cell of 8×6 the fit left cells without presses at
 //! 0 beside cells at 0.5: a light that jumps.) A ridge of [`RIDGE`] of the normal
@@ -64,6 +65,18 @@ const ALONG: usize = 4;
 const ACROSS: usize = 3;
 /// Terms of one polynomial.
 pub const TERMS: usize = ALONG * ACROSS;
+
+/// Terms fitted beside `κ` and `λ` and dropped: `p²` and `q²`, constant over the frame.
+/// Gloss, gamma and crosstalk make the other phase's sum answer the slopes evenly
+/// (`S·|n|/2 − 1` grows with `p²` whichever way the skin faces), and where presses
+/// slope mostly one way (near the frame's edges, whose presses are partly outside it)
+/// `κ·p` took that up: `ours-random` skin 2, whose strips run the whole axis, fitted `κ`
+/// 0.30 without them, 0.05 with them (skin 1: 0.12 either way). With them, the tuning
+/// family `ours-finite-strips` (skins 1–3, 10 placements, gentle disk / steep disk / edge
+/// ball) read 0.990 / 0.862 / 1.12, 0.948 / 0.908 / 1.11, 0.989 / 0.930 / 1.21 →
+/// 0.989 / 0.861 / 1.10, 0.947 / 0.914 / 1.09, 0.989 / 0.930 / 1.21 (with their
+/// linear change over the frame as well, six terms: the same to 0.006, skin 1's `κ` 0.14).
+const EVEN: usize = 2;
 
 /// The ridge added to the normal equations' diagonal, as a share of its mean.
 const RIDGE: f64 = 0.01;
@@ -115,13 +128,13 @@ impl SideLight {
     /// strip lit to fit it (20 per unknown), or when it stays under [`MIN_KAPPA`]
     /// everywhere.
     pub fn fit(samples: &[JointSample]) -> Option<Self> {
-        let unknowns = 2 * TERMS;
+        let unknowns = 2 * TERMS + EVEN;
         let mut kappa: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
         for (phase, coefficients) in kappa.iter_mut().enumerate() {
             let mut ata = vec![0.0f64; unknowns * unknowns];
             let mut atb = vec![0.0f64; unknowns];
             let mut used = 0usize;
-            let mut row = [0.0f64; 2 * TERMS];
+            let mut row = [0.0f64; 2 * TERMS + EVEN];
             for s in samples {
                 let [x, y] = s.position;
                 let [p, q] = s.slope.map(f64::from);
@@ -147,6 +160,9 @@ impl SideLight {
                     row[j] = f64::from(b) * own;
                     row[TERMS + j] = f64::from(b) * other;
                 }
+                // Even in both slopes: gloss and gamma (a side light is odd in `own`).
+                row[2 * TERMS] = p * p;
+                row[2 * TERMS + 1] = q * q;
                 for i in 0..unknowns {
                     let ri = row[i];
                     for j in i..unknowns {
@@ -331,6 +347,42 @@ mod tests {
         few.truncate(1800);
         assert_eq!(SideLight::fit(&few), None);
         assert_eq!(SideLight::fit(&[]), None);
+    }
+
+    #[test]
+    fn light_even_in_the_slopes_is_not_taken_for_a_side_light() {
+        // Gloss or gamma: the other phase's sum times |n| grows with p² + q², and at every
+        // position the presses slope one way only (as near a frame edge).
+        let mut samples = Vec::new();
+        for iy in 0..24 {
+            for ix in 0..32 {
+                let (x, y) = ((ix as f32 + 0.5) / 32.0, (iy as f32 + 0.5) / 24.0);
+                for k in 0..5 {
+                    let (p, q) = (0.2 * k as f32, 0.15 * ((k + ix + iy) % 5) as f32);
+                    let n = (1.0 + p * p + q * q).sqrt();
+                    let half = (1.0 + 0.2 * (p * p + q * q)) / n;
+                    samples.push(JointSample {
+                        colours: [half; 4],
+                        position: [x, y],
+                        slope: [p, q],
+                    });
+                }
+            }
+        }
+        assert_eq!(SideLight::fit(&samples), None);
+        // A side light on top of it is still found.
+        for s in &mut samples {
+            let ([x, _], [p, q]) = (s.position, s.slope);
+            let n = (1.0 + p * p + q * q).sqrt();
+            let kappa = 0.6 * (1.0 - 2.0 * x);
+            s.colours[2] = (1.0 + kappa * p + 0.2 * (p * p + q * q)) / n;
+            s.colours[3] = s.colours[2];
+        }
+        let fit = SideLight::fit(&samples).expect("a side light");
+        for x in [0.1f32, 0.5, 0.9] {
+            let got = fit.at(x, 0.5)[0];
+            assert!((got - 0.6 * (1.0 - 2.0 * x)).abs() < 0.05, "{x}: {got}");
+        }
     }
 
     #[test]
