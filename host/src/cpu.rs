@@ -58,3 +58,35 @@ pub fn has_avx512_popcnt() -> bool {
 pub fn avx512_popcnt() -> bool {
     false
 }
+
+/// Asks the CPU to bring the cache line holding `bytes[at]` into its caches ahead of use
+/// (nothing when `at` is past the end, or on other architectures). A kernel that streams
+/// a frame written by another core or long ago computes too slowly per byte for the
+/// hardware's own prefetching to keep ahead: detection on a skin at rest took 0.24 ms on
+/// such frames and 0.115 ms on the same frames read once before.
+#[inline(always)]
+#[allow(unsafe_code)]
+pub fn prefetch(bytes: &[u8], at: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(byte) = bytes.get(at) {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        // SAFETY: SSE is part of x86-64, and a prefetch reads nothing the program sees
+        // (it cannot fault); the address is a byte of a live slice anyway.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(std::ptr::from_ref(byte).cast()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (bytes, at);
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn prefetch_past_the_end_or_of_nothing_is_harmless() {
+        let bytes = [1u8, 2, 3];
+        for at in [0, 2, 3, usize::MAX] {
+            super::prefetch(&bytes, at);
+        }
+        super::prefetch(&[], 0);
+        assert_eq!(bytes, [1, 2, 3]);
+    }
+}
