@@ -946,7 +946,12 @@ fn calibration_rejects_bad_input_with_clear_errors() {
         ),
         _ => panic!("{err}"),
     }
-    assert!(err.to_string().contains("--ball-diameter-mm"), "{err}");
+    // The fix named for the CLI and for Python.
+    let text = err.to_string();
+    assert!(
+        text.contains("--ball-diameter-mm") && text.contains("ball_diameter_mm"),
+        "{err}"
+    );
     // References that are not this sensor's phases are refused before anything else.
     let black = RgbImage::new(320, 240);
     let err = calibrate(&presses, Some((&refs.0, &black).into()), &s, |_| {}).unwrap_err();

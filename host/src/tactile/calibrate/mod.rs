@@ -127,7 +127,7 @@ impl fmt::Display for Rejection {
                 ball_mm,
             } => write!(
                 f,
-                "contact radius {contact_px:.1} px is larger than a {ball_mm} mm ball can make ({max_px:.1} px at 0.6 of its radius deep): wrong ball diameter (--ball-diameter-mm, or --with-ball for this press's folder) or --px-per-mm, or light spreading beyond the imprint"
+                "contact radius {contact_px:.1} px is larger than a {ball_mm} mm ball can make ({max_px:.1} px at 0.6 of its radius deep): wrong ball diameter (--ball-diameter-mm, or --with-ball for this press's folder; in Python, ball_diameter_mm or press_balls_mm) or pixels per mm (--px-per-mm; px_per_mm), or light spreading beyond the imprint"
             ),
             Rejection::TooSmall {
                 contact_px,
@@ -142,7 +142,7 @@ impl fmt::Display for Rejection {
                 ball_mm,
             } => write!(
                 f,
-                "with a {ball_mm} mm ball the circle means a press {depth_mm:.2} mm deep, deeper than the {skin_mm} mm skin: wrong --skin-thickness-mm, ball diameter (--ball-diameter-mm, or --with-ball for this press's folder) or --px-per-mm, or light spreading beyond the imprint"
+                "with a {ball_mm} mm ball the circle means a press {depth_mm:.2} mm deep, deeper than the {skin_mm} mm skin: wrong skin thickness (--skin-thickness-mm; in Python, skin_thickness_mm), ball diameter (--ball-diameter-mm, or --with-ball for this press's folder; ball_diameter_mm or press_balls_mm) or pixels per mm (--px-per-mm; px_per_mm), or light spreading beyond the imprint"
             ),
             Rejection::NotCircular {
                 rms_px,
@@ -272,7 +272,9 @@ pub enum CalibrationError {
     NoPairs,
     /// Without reference frames the background is a per-pixel median, which needs presses
     /// at three or more places.
-    #[error("{0} pair(s) and no reference frames: give --ref-dx/--ref-dy or at least 3 pairs")]
+    #[error(
+        "{0} pair(s) and no reference frames: give reference frames (--ref-dx/--ref-dy; in Python, ref) or at least 3 pairs"
+    )]
     TooFewForMedian(usize),
     /// An image differs in size from the first one.
     #[error("{name}: image is {got:?}, expected {want:?} like the first pair")]

@@ -171,7 +171,7 @@ impl CalibrationReport {
         for (axis, m) in ["x", "y"].iter().zip(max_slope) {
             if m < STEEP_SLOPE {
                 warnings.push(format!(
-                    "slopes along {axis} above {m:.2} were never seen: steeper walls will read shallow (press deeper, or add presses of a smaller ball with --with-ball)"
+                    "slopes along {axis} above {m:.2} were never seen: steeper walls will read shallow (press deeper, or add presses of a smaller ball with --with-ball; in Python, press_balls_mm)"
                 ));
             }
         }
@@ -266,9 +266,9 @@ fn press_depth_warnings(presses: &[PressFit], px_per_mm: f64) -> Vec<String> {
             });
             (lo <= hi).then(|| {
                 let (given, flag) = if two {
-                    (format!("the {ball} mm ball given"), "its --ball-diameter-mm or --with-ball")
+                    (format!("the {ball} mm ball given"), "its --ball-diameter-mm or --with-ball (in Python, ball_diameter_mm or press_balls_mm)")
                 } else {
-                    ("the ball diameter given".to_string(), "--ball-diameter-mm")
+                    ("the ball diameter given".to_string(), "--ball-diameter-mm (in Python, ball_diameter_mm)")
                 };
                 format!(
                     "with {given}, the presses' circles mean presses {lo:.2}-{hi:.2} mm deep: if they went deeper, the ball is smaller than {flag} says and every depth will read shallow"
@@ -462,7 +462,11 @@ mod tests {
         let w = press_depth_warnings(&presses, 30.0);
         assert_eq!(w.len(), 1, "{w:?}");
         assert!(w[0].contains("presses 0.36-0.50 mm deep"), "{}", w[0]);
-        assert!(w[0].contains("--ball-diameter-mm"), "{}", w[0]);
+        assert!(
+            w[0].contains("--ball-diameter-mm") && w[0].contains("Python, ball_diameter_mm"),
+            "{}",
+            w[0]
+        );
         // At 15 px/mm the same circles make slope 0.89: nothing to say.
         assert!(press_depth_warnings(&presses, 15.0).is_empty());
         // A second, smaller ball (rim slope 1.33) is not held against the first.
