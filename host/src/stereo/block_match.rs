@@ -209,7 +209,7 @@ pub enum MatchError {
         "no disparity range for --near-mm {near_mm} and --far-mm {far_mm} (focal \
          {focal_px} px, baseline {baseline_mm} mm): both must be positive and finite, \
          --near-mm below --far-mm, and the nearest depth's disparity at most 4096 px \
-         (--near-mm at least {:.1} mm with this rig)",
+         (--near-mm at least {:.1} mm with this rig; in Python, near_mm and far_mm)",
         focal_px * baseline_mm / 4095.0
     )]
     BadDepthRange {

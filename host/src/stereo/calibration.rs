@@ -801,8 +801,10 @@ impl StereoCalibration {
             extrinsics_from_rectification(&r1, &r2, &p2)
         };
         let hint = match unit {
-            LengthUnit::Mm => "pass --units m if the file is in metres",
-            LengthUnit::M => "pass --units mm if the file is in millimetres",
+            LengthUnit::Mm => "pass --units m (in Python, units=\"m\") if the file is in metres",
+            LengthUnit::M => {
+                "pass --units mm (in Python, units=\"mm\") if the file is in millimetres"
+            }
         };
         Self::checked(
             left,
@@ -1272,7 +1274,9 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("implausible baseline 0.014") && e.contains("--units m"),
+            e.contains("implausible baseline 0.014")
+                && e.contains("--units m")
+                && e.contains("units=\"m\""),
             "{e}"
         );
         let read =

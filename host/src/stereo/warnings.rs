@@ -67,7 +67,7 @@ pub fn of(
         out.push(format!(
             "{:.0}% of pixels matched at depths outside --near-mm {near_mm}..--far-mm \
              {far_mm} and were left without one: part of the scene lies outside the working \
-             range; widen it",
+             range; widen it (in Python, near_mm and far_mm)",
             100.0 * outside
         ));
     }
