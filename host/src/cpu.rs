@@ -16,6 +16,18 @@ pub fn avx2() -> bool {
     false
 }
 
+/// AVX2 with fused multiply-add (the perceptron's layers).
+#[cfg(target_arch = "x86_64")]
+pub fn avx2_fma() -> bool {
+    avx2() && std::is_x86_feature_detected!("fma")
+}
+
+/// AVX2 with fused multiply-add (never on other architectures).
+#[cfg(not(target_arch = "x86_64"))]
+pub fn avx2_fma() -> bool {
+    false
+}
+
 /// AVX2 with the bit-manipulation and counting instructions the stereo matchers' census
 /// and cost kernels use (BMI1/2, POPCNT, LZCNT).
 #[cfg(target_arch = "x86_64")]
