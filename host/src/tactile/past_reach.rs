@@ -124,7 +124,14 @@ impl<'a> Reach<'a> {
             count += 1;
             let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
             let [x, y] = position(k);
-            take_steeper([&mut p[k], &mut q[k]], reader.read(fx, fy, x, y), max_slope);
+            // Read a few pixels at a time; each pixel's table slopes stay as they were
+            // until its reading comes back (nothing else writes them).
+            reader.queue(k, fx, fy, x, y, |k, read| {
+                take_steeper([&mut p[k], &mut q[k]], read, max_slope);
+            });
+        }
+        if let Some(reader) = slot.as_mut() {
+            reader.flush(|k, read| take_steeper([&mut p[k], &mut q[k]], read, max_slope));
         }
         count
     }
@@ -168,8 +175,19 @@ impl<'a> Reach<'a> {
                 return count;
             };
             count += 1;
-            let read = reader.read([fx[0], fx[1]], [fy[0], fy[1]], fx[2], fx[3]);
-            take_steeper([&mut p[a], &mut q[a]], read, max_slope);
+            reader.queue(
+                a,
+                [fx[0], fx[1]],
+                [fy[0], fy[1]],
+                fx[2],
+                fx[3],
+                |k, read| {
+                    take_steeper([&mut p[k], &mut q[k]], read, max_slope);
+                },
+            );
+        }
+        if let Some(reader) = slot.as_mut() {
+            reader.flush(|k, read| take_steeper([&mut p[k], &mut q[k]], read, max_slope));
         }
         count
     }
