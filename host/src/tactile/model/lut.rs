@@ -236,6 +236,12 @@ impl Lut {
     }
 }
 
+/// The table's last bin index, `bins − 1`, as the table's lookups convert it.
+#[inline(always)]
+fn top_i32(bins: usize) -> i32 {
+    (bins - 1) as f32 as i32
+}
+
 /// The position gain at normalised position `(x, y)`, bilinear between cells (a single
 /// cell's gain as it is).
 #[inline]
@@ -275,7 +281,18 @@ impl Lut {
         };
         let n = out.len().min(red.len()).min(blue.len()).min(gains.len());
         let (red, blue, gains, out) = (&red[..n], &blue[..n], &gains[..n], &mut out[..n]);
-        for i in 0..n {
+        #[allow(unused_mut)]
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if crate::cpu::avx2() && i32::try_from(table.len()).is_ok() {
+            // SAFETY: `eval_planes_avx2` only needs AVX2, detected just above; its gathers
+            // stay inside `table` (see there), whose length fits its i32 indices.
+            #[allow(unsafe_code)]
+            {
+                done = unsafe { self.eval_planes_avx2(table, red, blue, gains, out) };
+            }
+        }
+        for i in done..n {
             out[i] = self.gained_colour(table, red[i], blue[i], gains[i]);
         }
     }
@@ -288,6 +305,74 @@ impl Lut {
         // Indexed rather than branched: on a flat contact the readings' signs are noise,
         // and a branch would be mispredicted on half of them.
         colour * gains[usize::from(colour < 0.0)]
+    }
+
+    /// [`Self::eval_planes`] eight pixels at a time in AVX2 lanes, the table's four
+    /// entries around each pixel gathered: the same operations in the same order as
+    /// [`Self::gained_colour`], so the same slopes. Returns how many pixels it did (the
+    /// whole groups of eight); `red`, `blue`, `gains` and `out` are as long as each
+    /// other and `table` is the checked table.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    fn eval_planes_avx2(
+        &self,
+        table: &[f32],
+        red: &[f32],
+        blue: &[f32],
+        gains: &[[f32; 2]],
+        out: &mut [f32],
+    ) -> usize {
+        use std::arch::x86_64::*;
+        let n = out.len().min(red.len()).min(blue.len()).min(gains.len()) / 8 * 8;
+        let bins = self.bins.max(2);
+        let top = (bins - 1) as f32;
+        let scale = _mm256_set1_ps(top / self.max_value);
+        let (zero, one, top) = (
+            _mm256_setzero_ps(),
+            _mm256_set1_ps(1.0),
+            _mm256_set1_ps(top),
+        );
+        let last = _mm256_set1_epi32((top_i32(bins) - 1).max(0));
+        let (stride, next) = (_mm256_set1_epi32(bins as i32), _mm256_set1_epi32(1));
+        // As `table_colour`'s split: `max` first with the value as its first operand, so
+        // NaN becomes 0 as `f32::max` makes it; then within [0, top], an exact conversion.
+        let split = |v: __m256| {
+            let v = _mm256_min_ps(_mm256_max_ps(v, zero), top);
+            let i = _mm256_min_epi32(_mm256_cvttps_epi32(v), last);
+            (i, _mm256_sub_ps(v, _mm256_cvtepi32_ps(i)))
+        };
+        let blend = |a: __m256, b: __m256, f: __m256| {
+            _mm256_add_ps(_mm256_mul_ps(a, _mm256_sub_ps(one, f)), _mm256_mul_ps(b, f))
+        };
+        // `[a0 a2 a1 a3]` (64-bit halves) back to `[a0 a1 a2 a3]`.
+        let in_order = |v: __m256| {
+            _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)))
+        };
+        for k in (0..n).step_by(8) {
+            // SAFETY: `k + 8 <= n` for every plane (gains are two floats a pixel); every
+            // index is at most `(bins − 2)·bins + (bins − 2) + bins + 1 = bins² − 1`, inside
+            // the checked table (`bins²` entries).
+            unsafe {
+                let r = _mm256_mul_ps(_mm256_loadu_ps(red.as_ptr().add(k)), scale);
+                let b = _mm256_mul_ps(_mm256_loadu_ps(blue.as_ptr().add(k)), scale);
+                let ((ir, fr), (ib, fb)) = (split(r), split(b));
+                let row = _mm256_add_epi32(_mm256_mullo_epi32(ir, stride), ib);
+                let below = _mm256_add_epi32(row, stride);
+                let at = |i: __m256i| _mm256_i32gather_ps::<4>(table.as_ptr(), i);
+                let upper = blend(at(row), at(_mm256_add_epi32(row, next)), fb);
+                let lower = blend(at(below), at(_mm256_add_epi32(below, next)), fb);
+                let colour = blend(upper, lower, fr);
+                let g = gains.as_ptr().add(k).cast::<f32>();
+                let (g0, g1) = (_mm256_loadu_ps(g), _mm256_loadu_ps(g.add(8)));
+                let positive = in_order(_mm256_shuffle_ps::<0b10_00_10_00>(g0, g1));
+                let negative = in_order(_mm256_shuffle_ps::<0b11_01_11_01>(g0, g1));
+                let below_zero = _mm256_cmp_ps::<_CMP_LT_OQ>(colour, zero);
+                let gain = _mm256_blendv_ps(positive, negative, below_zero);
+                _mm256_storeu_ps(out.as_mut_ptr().add(k), _mm256_mul_ps(colour, gain));
+            }
+        }
+        n
     }
 
     /// The table's largest reading and its most negative one, as magnitudes
@@ -314,7 +399,7 @@ impl Lut {
         let bins = self.bins.max(2);
         let top = (bins - 1) as f32;
         let scale = top / self.max_value;
-        let last = (top as i32 - 1).max(0);
+        let last = (top_i32(bins) - 1).max(0);
         // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
         // `v` is within [0, top] here, so the (cheaper) i32 conversion is exact.
         let split = |v: f32| {
@@ -409,6 +494,56 @@ fn fill_gaps(sum: &[f32], weight: &[f32], bins: usize) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn planes_read_as_one_pixel_at_a_time_in_every_lane_and_the_tail() {
+        // A table with entries of both signs and a few extreme values, colours inside,
+        // below and past its range, NaN and infinite, gains that differ by sign.
+        let mut rng = crate::rng::Rng::new(31);
+        for bins in [2usize, 3, 24, 61] {
+            let lut = Lut {
+                bins,
+                max_value: 2.5,
+                cells_x: 1,
+                cells_y: 1,
+                table: (0..bins * bins)
+                    .map(|_| rng.range(-2.0, 2.0) as f32)
+                    .collect(),
+                gain: vec![1.0],
+                gain_negative: Vec::new(),
+            };
+            let table = lut.checked_table().expect("a whole table");
+            for n in [0usize, 1, 7, 8, 9, 16, 100] {
+                let mut pick = |k: usize| match k % 13 {
+                    0 => f32::NAN,
+                    1 => f32::INFINITY,
+                    2 => -0.5,
+                    3 => 3.7,
+                    4 => 0.0,
+                    5 => 2.5,
+                    _ => rng.range(0.0, 2.6) as f32,
+                };
+                let red: Vec<f32> = (0..n).map(&mut pick).collect();
+                let blue: Vec<f32> = (0..n).map(|k| pick(k + 5)).collect();
+                let gains: Vec<[f32; 2]> = (0..n)
+                    .map(|k| [1.0 + k as f32 * 0.01, 0.5 + k as f32 * 0.02])
+                    .collect();
+                let mut out = vec![f32::NAN; n];
+                lut.eval_planes(&red, &blue, &gains, &mut out);
+                for k in 0..n {
+                    let want = lut.gained_colour(table, red[k], blue[k], gains[k]);
+                    assert_eq!(
+                        out[k].to_bits(),
+                        want.to_bits(),
+                        "{bins} bins, {n} pixels, pixel {k} ({}, {}): {} vs {want}",
+                        red[k],
+                        blue[k],
+                        out[k]
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn batch_evaluation_equals_one_by_one_including_nan_and_out_of_range() {
