@@ -660,13 +660,15 @@ impl StereoCalibration {
             }
             [] => {
                 return Err(CalibError::Files(
-                    "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS)"
+                    "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS); \
+                     in Python one path or a pair (left, right)"
                         .into(),
                 ));
             }
             _ => {
                 return Err(CalibError::Files(format!(
-                    "--calib takes one OpenCV file or two ROS files, found {}",
+                    "--calib takes one OpenCV file or two ROS files (in Python one path or a \
+                     pair (left, right)), found {}",
                     files.len()
                 )));
             }
@@ -740,7 +742,7 @@ impl StereoCalibration {
         if f.has("camera_matrix") && f.has("projection_matrix") && !f.has("K1") && !f.has("M1") {
             return Err(CalibError::Files(format!(
                 "{file} is a ROS camera_info file, one camera's: give the left and the right \
-                 camera's files, --calib LEFT --calib RIGHT"
+                 camera's files, --calib LEFT --calib RIGHT (in Python a pair (left, right))"
             )));
         }
         notes.extend(f.unknown_keys(&[OPENCV_KEYS_READ, OPENCV_KEYS_UNUSED], OPENCV_KEYS_READ));
@@ -1000,6 +1002,22 @@ pub(crate) mod tests {
     use nalgebra::Rotation3;
 
     use super::*;
+
+    /// No calibration file, or three, is refused naming the CLI flag and what Python takes.
+    #[test]
+    fn no_file_or_three_name_both_the_flag_and_pythons_argument() {
+        let none = StereoCalibration::load(&[]).unwrap_err().to_string();
+        assert!(
+            none.contains("--calib FILE") && none.contains("in Python one path or a pair"),
+            "{none}"
+        );
+        let three: Vec<std::path::PathBuf> = ["a.yaml", "b.yaml", "c.yaml"].map(Into::into).into();
+        let three = StereoCalibration::load(&three).unwrap_err().to_string();
+        assert!(
+            three.contains("found 3") && three.contains("in Python one path or a"),
+            "{three}"
+        );
+    }
 
     /// A calibration whose right camera sits to the left says so (the images are likely
     /// given the wrong way round); the usual one says nothing.
@@ -1467,7 +1485,8 @@ pub(crate) mod tests {
         assert!(
             e.to_string()
                 .contains("left.yaml is a ROS camera_info file")
-                && e.to_string().contains("--calib LEFT --calib RIGHT"),
+                && e.to_string().contains("--calib LEFT --calib RIGHT")
+                && e.to_string().contains("in Python a pair (left, right)"),
             "{e}"
         );
         let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", "")).unwrap_err();

@@ -120,7 +120,11 @@ pub enum OpenError {
         present: Vec<String>,
     },
     /// Several sensors and no serial number to choose.
-    #[error("{} sensors attached ({}); choose one with --serial", .0.len(), .0.join(", "))]
+    #[error(
+        "{} sensors attached ({}); choose one with --serial (in Python Sensor(serial=...))",
+        .0.len(),
+        .0.join(", ")
+    )]
     Ambiguous(Vec<String>),
     /// The OS refused access.
     #[error(
@@ -182,6 +186,6 @@ mod tests {
         let denied = OpenError::PermissionDenied { path: "1:5".into() };
         assert!(denied.to_string().contains(UDEV_RULES));
         let many = OpenError::Ambiguous(vec!["A".into(), "B".into()]);
-        assert!(many.to_string().contains("--serial"));
+        assert!(many.to_string().contains("--serial") && many.to_string().contains("serial=..."));
     }
 }
