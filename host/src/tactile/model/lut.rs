@@ -236,10 +236,16 @@ impl Lut {
     }
 }
 
-/// The table's last bin index, `bins − 1`, as the table's lookups convert it.
-#[inline(always)]
-fn top_i32(bins: usize) -> i32 {
-    (bins - 1) as f32 as i32
+/// The table's size and range as its bilinear lookups use them ([`Lut::lookup`]).
+struct Lookup {
+    /// Entries per colour axis (at least 2).
+    bins: usize,
+    /// The last bin's position, `bins − 1`.
+    top: f32,
+    /// Colour to bin position: `top / max_value`.
+    scale: f32,
+    /// The last bin an entry's lower corner may be (`bins − 2`, or 0).
+    last: i32,
 }
 
 /// The position gain at normalised position `(x, y)`, bilinear between cells (a single
@@ -325,15 +331,19 @@ impl Lut {
     ) -> usize {
         use std::arch::x86_64::*;
         let n = out.len().min(red.len()).min(blue.len()).min(gains.len()) / 8 * 8;
-        let bins = self.bins.max(2);
-        let top = (bins - 1) as f32;
-        let scale = _mm256_set1_ps(top / self.max_value);
+        let Lookup {
+            bins,
+            top,
+            scale,
+            last,
+        } = self.lookup();
+        let scale = _mm256_set1_ps(scale);
         let (zero, one, top) = (
             _mm256_setzero_ps(),
             _mm256_set1_ps(1.0),
             _mm256_set1_ps(top),
         );
-        let last = _mm256_set1_epi32((top_i32(bins) - 1).max(0));
+        let last = _mm256_set1_epi32(last);
         let (stride, next) = (_mm256_set1_epi32(bins as i32), _mm256_set1_epi32(1));
         // As `table_colour`'s split: `max` first with the value as its first operand, so
         // NaN becomes 0 as `f32::max` makes it; then within [0, top], an exact conversion.
@@ -393,13 +403,29 @@ impl Lut {
         self.table.get(..bins * bins)
     }
 
+    /// What the bilinear lookups need of the table's size and range (one place for
+    /// the scalar and the vector lookups, which must read the same entries).
+    #[inline(always)]
+    fn lookup(&self) -> Lookup {
+        let bins = self.bins.max(2);
+        let top = (bins - 1) as f32;
+        Lookup {
+            bins,
+            top,
+            scale: top / self.max_value,
+            last: (top as i32 - 1).max(0),
+        }
+    }
+
     /// The colour table at `(r, b)`, bilinear; `table` from [`Self::checked_table`].
     #[inline(always)]
     fn table_colour(&self, table: &[f32], r: f32, b: f32) -> f32 {
-        let bins = self.bins.max(2);
-        let top = (bins - 1) as f32;
-        let scale = top / self.max_value;
-        let last = (top_i32(bins) - 1).max(0);
+        let Lookup {
+            bins,
+            top,
+            scale,
+            last,
+        } = self.lookup();
         // `f32::max` drops NaN, so NaN features land on the first entry like `locate`.
         // `v` is within [0, top] here, so the (cheaper) i32 conversion is exact.
         let split = |v: f32| {
