@@ -1,6 +1,6 @@
 //! Criterion benches of the tactile kernels: Poisson solves (with a real 2-D FFT of the
 //! same size as reference, measured in the same run), gradient models, colour filter,
-//! contact detection and whole reconstructions of built-in scenes (a skin at rest, a
+//! contact detection (on a cached pair and on pairs read from memory) and whole reconstructions of built-in scenes (a skin at rest, a
 //! ball, the 13 mm disk) with the built-in calibration.
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
@@ -137,6 +137,24 @@ fn scenes(c: &mut Criterion) {
                 model.contact.coarse_step,
                 model.filter.unmix,
             );
+            // The same on frames not in any cache: a camera's frame is written by the
+            // decoder, and the pair's older frame waited a phase, so neither is cached
+            // when it is read. 24 pairs (44 MB) in turn, more than the caches hold.
+            let fresh: Vec<_> = (0..24).map(|k| render(&optics, scene, 100 + k)).collect();
+            let mut next = 0;
+            g.bench_function("detect_none_fresh", |b| {
+                b.iter(|| {
+                    next = (next + 1) % fresh.len();
+                    find_regions(
+                        &fresh[next].dx,
+                        &fresh[next].dy,
+                        &block_refs,
+                        &model.filter,
+                        &model.contact,
+                        SolverKind::Dct,
+                    )
+                })
+            });
             g.bench_function("detect_none", |b| {
                 b.iter(|| {
                     find_regions(
