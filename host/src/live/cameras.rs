@@ -58,7 +58,7 @@ pub enum CameraSetupError {
     /// A simulated camera without the simulated sensor.
     #[error(
         "camera {0}: the simulated camera renders the simulated sensor's LEDs: use the \
-         simulated sensor (--sim; Sensor(sim=True) in Python)"
+         simulated sensor (--sim; in Python, Sensor(sim=True))"
     )]
     SimNeedsSimSensor(usize),
     /// A V4L2 camera in a build without V4L2.

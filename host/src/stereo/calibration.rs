@@ -661,14 +661,14 @@ impl StereoCalibration {
             [] => {
                 return Err(CalibError::Files(
                     "give --calib FILE (OpenCV stereo YAML) or --calib LEFT --calib RIGHT (ROS); \
-                     in Python one path or a pair (left, right)"
+                     in Python, one path or a pair (left, right)"
                         .into(),
                 ));
             }
             _ => {
                 return Err(CalibError::Files(format!(
-                    "--calib takes one OpenCV file or two ROS files (in Python one path or a \
-                     pair (left, right)), found {}",
+                    "--calib takes one OpenCV file or two ROS files (in Python, one path or \
+                     a pair (left, right)), found {}",
                     files.len()
                 )));
             }
@@ -742,7 +742,7 @@ impl StereoCalibration {
         if f.has("camera_matrix") && f.has("projection_matrix") && !f.has("K1") && !f.has("M1") {
             return Err(CalibError::Files(format!(
                 "{file} is a ROS camera_info file, one camera's: give the left and the right \
-                 camera's files, --calib LEFT --calib RIGHT (in Python a pair (left, right))"
+                 camera's files, --calib LEFT --calib RIGHT (in Python, a pair (left, right))"
             )));
         }
         notes.extend(f.unknown_keys(&[OPENCV_KEYS_READ, OPENCV_KEYS_UNUSED], OPENCV_KEYS_READ));
@@ -1008,13 +1008,13 @@ pub(crate) mod tests {
     fn no_file_or_three_name_both_the_flag_and_pythons_argument() {
         let none = StereoCalibration::load(&[]).unwrap_err().to_string();
         assert!(
-            none.contains("--calib FILE") && none.contains("in Python one path or a pair"),
+            none.contains("--calib FILE") && none.contains("in Python, one path or a pair"),
             "{none}"
         );
         let three: Vec<std::path::PathBuf> = ["a.yaml", "b.yaml", "c.yaml"].map(Into::into).into();
         let three = StereoCalibration::load(&three).unwrap_err().to_string();
         assert!(
-            three.contains("found 3") && three.contains("in Python one path or a"),
+            three.contains("found 3") && three.contains("in Python, one path or a"),
             "{three}"
         );
     }
@@ -1486,7 +1486,7 @@ pub(crate) mod tests {
             e.to_string()
                 .contains("left.yaml is a ROS camera_info file")
                 && e.to_string().contains("--calib LEFT --calib RIGHT")
-                && e.to_string().contains("in Python a pair (left, right)"),
+                && e.to_string().contains("in Python, a pair (left, right)"),
             "{e}"
         );
         let e = StereoCalibration::from_ros_pair(("l.yaml", &left), ("r.yaml", "")).unwrap_err();

@@ -121,7 +121,7 @@ pub enum OpenError {
     },
     /// Several sensors and no serial number to choose.
     #[error(
-        "{} sensors attached ({}); choose one with --serial (in Python Sensor(serial=...))",
+        "{} sensors attached ({}); choose one with --serial (in Python, Sensor(serial=...))",
         .0.len(),
         .0.join(", ")
     )]
