@@ -1,7 +1,8 @@
 //! Criterion benches of the tactile kernels: Poisson solves (with a real 2-D FFT of the
 //! same size as reference, measured in the same run), gradient models, colour filter,
-//! contact detection (on a cached pair and on pairs read from memory) and whole reconstructions of built-in scenes (a skin at rest, a
-//! ball, the 13 mm disk) with the built-in calibration.
+//! contact detection (on a cached pair and on pairs read from memory) and whole
+//! reconstructions of built-in scenes (a skin at rest, a ball, the 13 mm disk) with the
+//! built-in calibration.
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};

@@ -58,14 +58,14 @@ impl BlockMeans {
             let y0 = by * step;
             let n_rows = step.min(h - y0);
             let next = (y0 + n_rows) * w * 3;
+            let band = &raw[y0 * w * 3..next];
+            let ahead = &raw[next..(next + step * w * 3).min(raw.len())];
             let full = 1.0 / (n_rows * step) as f32;
             // Four whole rows of whole blocks: the block sums straight from the bytes, in
             // vector lanes. A band with a clipped value is summed again below, where the
             // clipped values are counted (rare: a bright spot).
             if step == 4 && n_rows == 4 && w % 4 == 0 && w > 0 {
                 let at = out.red.len();
-                let band = &raw[y0 * w * 3..next];
-                let ahead = &raw[next..(next + step * w * 3).min(raw.len())];
                 if let Some(false) = four_row_band(band, ahead, full, &mut out) {
                     out.clipped.resize(at + bw, 0);
                     continue;
@@ -77,8 +77,8 @@ impl BlockMeans {
             // Whole blocks of four pixels (the default step) in vector lanes.
             let whole = if step == 4 { w / 4 } else { 0 };
             let any_clipped = sum_rows(
-                &raw[y0 * w * 3..next],
-                &raw[next..(next + step * w * 3).min(raw.len())],
+                band,
+                ahead,
                 w * 3,
                 &mut rows,
                 &mut row_max,
@@ -522,6 +522,30 @@ mod tests {
         RgbImage::from_fn(w, h, |x, y| image::Rgb([x as u8, y as u8, (x + y) as u8]))
     }
 
+    /// Block `(bx, by)` of `img` summed pixel by pixel: its channel sums, how many of its
+    /// pixel columns' channels reach 255 in some row ([`BlockMeans::clipped`]) and its
+    /// number of pixels.
+    fn direct_block(img: &RgbImage, step: usize, bx: usize, by: usize) -> ([u32; 3], u32, usize) {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let (xs, ys) = (
+            bx * step..((bx + 1) * step).min(w),
+            by * step..((by + 1) * step).min(h),
+        );
+        let mut sum = [0u32; 3];
+        let mut clipped = vec![[false; 3]; xs.len()];
+        for y in ys.clone() {
+            for (i, x) in xs.clone().enumerate() {
+                let p = img.get_pixel(x as u32, y as u32).0;
+                for c in 0..3 {
+                    sum[c] += u32::from(p[c]);
+                    clipped[i][c] |= p[c] == 255;
+                }
+            }
+        }
+        let clipped = clipped.iter().flatten().filter(|&&c| c).count() as u32;
+        (sum, clipped, xs.len() * ys.len())
+    }
+
     #[test]
     fn block_means_average_whole_and_partial_blocks() {
         let img = ramp(10, 6);
@@ -562,31 +586,18 @@ mod tests {
             let b = BlockMeans::of(&img, step);
             for by in 0..h.div_ceil(step) {
                 for bx in 0..w.div_ceil(step) {
-                    let (xs, ys) = (
-                        bx * step..((bx + 1) * step).min(w),
-                        by * step..((by + 1) * step).min(h),
-                    );
-                    let mut sum = [0u32; 3];
-                    let mut clipped = vec![[false; 3]; xs.len()];
-                    for y in ys.clone() {
-                        for (i, x) in xs.clone().enumerate() {
-                            let p = img.get_pixel(x as u32, y as u32).0;
-                            for c in 0..3 {
-                                sum[c] += u32::from(p[c]);
-                                clipped[i][c] |= p[c] == 255;
-                            }
-                        }
-                    }
-                    let n = (xs.len() * ys.len()) as f32;
+                    let (sum, clipped, n) = direct_block(&img, step, bx, by);
                     let i = by * b.width + bx;
                     for (got, want) in b.mean(i).iter().zip(sum) {
                         assert!(
-                            (got - want as f32 / n).abs() < 1e-4,
+                            (got - want as f32 / n as f32).abs() < 1e-4,
                             "step {step} block ({bx}, {by})"
                         );
                     }
-                    let want = clipped.iter().flatten().filter(|&&c| c).count() as u32;
-                    assert_eq!(b.clipped[i], want, "step {step} block ({bx}, {by}) clipped");
+                    assert_eq!(
+                        b.clipped[i], clipped,
+                        "step {step} block ({bx}, {by}) clipped"
+                    );
                 }
             }
         }
@@ -609,20 +620,10 @@ mod tests {
             assert_eq!((b.width, b.height, b.len()), (blocks, 4, blocks * 4));
             for by in 0..4 {
                 for bx in 0..blocks {
-                    let ys = by * 4..(by * 4 + 4).min(h);
-                    let mut sum = [0u32; 3];
-                    let mut clipped = 0;
-                    for y in ys.clone() {
-                        for x in bx * 4..bx * 4 + 4 {
-                            for (c, v) in img.get_pixel(x as u32, y as u32).0.iter().enumerate() {
-                                sum[c] += u32::from(*v);
-                            }
-                        }
-                    }
-                    if (by, bx) == (1, blocks - 1) {
-                        clipped = 1;
-                    }
-                    let inv = 1.0 / (4 * ys.len()) as f32;
+                    let (sum, clipped, n) = direct_block(&img, 4, bx, by);
+                    // The one clipped value, counted where it was put.
+                    assert_eq!(clipped, u32::from((by, bx) == (1, blocks - 1)));
+                    let inv = 1.0 / n as f32;
                     let i = by * blocks + bx;
                     assert_eq!(
                         b.mean(i),
