@@ -60,6 +60,34 @@ pub enum ImageFileError {
         /// Declared height.
         height: u32,
     },
+    /// Not a regular file (a folder, a FIFO, a device): reading it could block or mean
+    /// nothing.
+    #[error("{}: {kind}, not an image file: give the path of a PNG or JPEG file", path.display())]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is.
+        kind: &'static str,
+    },
+    /// An empty file.
+    #[error(
+        "{}: an empty file (0 bytes): the image was never written; take or export it again",
+        path.display()
+    )]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The bytes end before the image does.
+    #[error(
+        "{}: the file ends before its pixels do (cut short while written or copied); take or \
+         export it again",
+        path.display()
+    )]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+    },
     /// A colour type or bit depth this use cannot read.
     #[error("{}: {found} image, but {need}", path.display())]
     Colour {
@@ -101,6 +129,48 @@ fn check(c: ColorType, need: Need) -> Result<(), &'static str> {
     }
 }
 
+/// Bytes of a PNG up to its colour type (signature, the IHDR chunk's length and name,
+/// width, height, bit depth, colour type).
+const PNG_HEAD: usize = 26;
+
+/// Whether `head` (a file's first bytes) starts a PNG whose pixels are palette indices.
+fn png_indexed(head: &[u8]) -> bool {
+    head.len() >= PNG_HEAD
+        && head.starts_with(b"\x89PNG\r\n\x1a\n")
+        && &head[12..16] == b"IHDR"
+        && head[25] == 3
+}
+
+/// Refuses an indexed PNG for tactile frames: a palette keeps at most 256 colours, which
+/// the decoder expands to RGB without a word, and the skin's shading read from so few
+/// colours is wrong. Grey stereo images are often stored losslessly as palettes, so they
+/// pass.
+fn refuse_indexed(head: &[u8], path: &Path, need: Need) -> Result<(), ImageFileError> {
+    if need == Need::Colour && png_indexed(head) {
+        return Err(ImageFileError::Colour {
+            path: path.to_path_buf(),
+            found: "an indexed (palette) PNG".to_string(),
+            need: "tactile frames must keep every pixel's own 8-bit colour (RGB): a palette holds at most 256 colours, too few for the skin's shading; save it as RGB without reducing its colours",
+        });
+    }
+    Ok(())
+}
+
+/// A decoding error, said as a file cut short where the bytes ran out.
+fn decode_error(path: &Path) -> impl Fn(image::ImageError) -> ImageFileError + '_ {
+    move |source| match &source {
+        image::ImageError::IoError(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+            ImageFileError::Truncated {
+                path: path.to_path_buf(),
+            }
+        }
+        _ => ImageFileError::Decode {
+            path: path.to_path_buf(),
+            source,
+        },
+    }
+}
+
 fn limits() -> Limits {
     let mut l = Limits::default();
     l.max_image_width = Some(MAX_FRAME_SIDE as u32);
@@ -124,12 +194,8 @@ fn checked_decoder<'a, R: BufRead + Seek + 'a>(
     path: &Path,
     need: Need,
 ) -> Result<impl ImageDecoder + 'a, ImageFileError> {
-    let decode_error = |source| ImageFileError::Decode {
-        path: path.to_path_buf(),
-        source,
-    };
     reader.limits(header_limits());
-    let decoder = reader.into_decoder().map_err(decode_error)?;
+    let decoder = reader.into_decoder().map_err(decode_error(path))?;
     let (width, height) = decoder.dimensions();
     let side = 1..=MAX_FRAME_SIDE as u32;
     if !side.contains(&width) || !side.contains(&height) {
@@ -154,35 +220,60 @@ fn decode<R: BufRead + Seek>(
     path: &Path,
     need: Need,
 ) -> Result<DynamicImage, ImageFileError> {
-    let decode_error = |source| ImageFileError::Decode {
-        path: path.to_path_buf(),
-        source,
-    };
     let mut decoder = checked_decoder(reader, path, need)?;
-    decoder.set_limits(limits()).map_err(decode_error)?;
-    DynamicImage::from_decoder(decoder).map_err(decode_error)
+    decoder.set_limits(limits()).map_err(decode_error(path))?;
+    DynamicImage::from_decoder(decoder).map_err(decode_error(path))
 }
 
-fn open(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>, ImageFileError> {
+/// Opens an image file for `need`: a regular file with bytes in it (a FIFO would block
+/// the read), not an indexed PNG where colour is needed.
+fn open(
+    path: &Path,
+    need: Need,
+) -> Result<ImageReader<std::io::BufReader<std::fs::File>>, ImageFileError> {
+    use std::io::Read;
     let io = |source| ImageFileError::Io {
         path: path.to_path_buf(),
         source,
     };
-    ImageReader::open(path)
-        .map_err(io)?
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if !meta.is_file() {
+        return Err(ImageFileError::NotAFile {
+            path: path.to_path_buf(),
+            kind: if meta.is_dir() {
+                "a folder"
+            } else {
+                "a special file (a FIFO, a socket or a device)"
+            },
+        });
+    }
+    if meta.len() == 0 {
+        return Err(ImageFileError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut head = Vec::with_capacity(PNG_HEAD);
+    (&mut file)
+        .take(PNG_HEAD as u64)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    refuse_indexed(&head, path, need)?;
+    file.rewind().map_err(io)?;
+    ImageReader::new(std::io::BufReader::new(file))
         .with_guessed_format()
         .map_err(io)
 }
 
 /// Reads an image file for `need`, within the bounds above.
 pub fn read(path: &Path, need: Need) -> Result<DynamicImage, ImageFileError> {
-    decode(open(path)?, path, need)
+    decode(open(path, need)?, path, need)
 }
 
 /// The size `(width, height)` an image file declares, after the same checks as [`read`]
 /// and without decoding a pixel: to compare files before paying for them.
 pub fn header(path: &Path, need: Need) -> Result<(u32, u32), ImageFileError> {
-    Ok(checked_decoder(open(path)?, path, need)?.dimensions())
+    Ok(checked_decoder(open(path, need)?, path, need)?.dimensions())
 }
 
 /// Reads an 8-bit colour image (tactile frames).
@@ -197,9 +288,13 @@ pub fn decode_bytes(
     format: ImageFormat,
     need: Need,
 ) -> Result<DynamicImage, ImageFileError> {
+    let path = Path::new(name);
+    if format == ImageFormat::Png {
+        refuse_indexed(bytes, path, need)?;
+    }
     let mut reader = ImageReader::new(Cursor::new(bytes));
     reader.set_format(format);
-    decode(reader, Path::new(name), need)
+    decode(reader, path, need)
 }
 
 #[cfg(test)]
@@ -293,6 +388,93 @@ mod tests {
         let big = DynamicImage::ImageRgb8(RgbImage::new(w, h));
         let img = decode_bytes("big.png", &png(&big), ImageFormat::Png, Need::Colour).unwrap();
         assert_eq!((img.width(), img.height()), (w, h));
+    }
+
+    /// A PNG whose pixels are indices into a palette of `colours`, written by hand
+    /// (zlib's stored blocks: no compressor needed).
+    fn indexed_png(colours: &[[u8; 3]], w: u32, h: u32) -> Vec<u8> {
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+        let mut chunk = |name: &[u8], data: &[u8]| {
+            out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+            let start = out.len();
+            out.extend_from_slice(name);
+            out.extend_from_slice(data);
+            let sum = crc.checksum(&out[start..]);
+            out.extend_from_slice(&sum.to_be_bytes());
+        };
+        let mut ihdr = [w.to_be_bytes(), h.to_be_bytes()].concat();
+        ihdr.extend_from_slice(&[8, 3, 0, 0, 0]);
+        chunk(b"IHDR", &ihdr);
+        chunk(b"PLTE", &colours.concat());
+        // Each row: filter type 0, then one index per pixel.
+        let raw: Vec<u8> = (0..h)
+            .flat_map(|_| {
+                std::iter::once(0).chain((0..w).map(|x| (x as usize % colours.len()) as u8))
+            })
+            .collect();
+        let (mut a, mut b) = (1u32, 0u32);
+        for &byte in &raw {
+            a = (a + u32::from(byte)) % 65521;
+            b = (b + a) % 65521;
+        }
+        let len = raw.len() as u16;
+        let mut zlib = vec![0x78, 0x01, 0x01];
+        zlib.extend_from_slice(&len.to_le_bytes());
+        zlib.extend_from_slice(&(!len).to_le_bytes());
+        zlib.extend_from_slice(&raw);
+        zlib.extend_from_slice(&((b << 16) | a).to_be_bytes());
+        chunk(b"IDAT", &zlib);
+        chunk(b"IEND", &[]);
+        out
+    }
+
+    /// An indexed PNG is refused for tactile frames (the decoder would expand it to RGB
+    /// without a word) and read for stereo; a file cut short is said to be one.
+    #[test]
+    fn palettes_are_refused_for_colour_and_cut_files_are_named() {
+        let bytes = indexed_png(&[[200, 30, 120], [90, 40, 180]], 8, 6);
+        let e = decode_bytes("p.png", &bytes, ImageFormat::Png, Need::Colour).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("p.png: an indexed (palette) PNG") && text.contains("save it as RGB"),
+            "{text}"
+        );
+        let grey = decode_bytes("p.png", &bytes, ImageFormat::Png, Need::Grey).unwrap();
+        assert_eq!(grey.width(), 8);
+        let whole = png(&DynamicImage::ImageRgb8(RgbImage::from_pixel(
+            64,
+            48,
+            image::Rgb([1, 2, 3]),
+        )));
+        let cut = &whole[..whole.len() - 20];
+        let e = decode_bytes("cut.png", cut, ImageFormat::Png, Need::Colour).unwrap_err();
+        assert!(matches!(e, ImageFileError::Truncated { .. }), "{e}");
+        assert!(e.to_string().contains("ends before its pixels"), "{e}");
+    }
+
+    /// Files that are not images are refused before a byte is read: an empty one, a
+    /// folder, and a FIFO (whose read would block until someone writes to it).
+    #[test]
+    fn empty_files_folders_and_fifos_are_refused_by_what_they_are() {
+        let dir = std::env::temp_dir().join(format!("stereotac-notfile-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let empty = dir.join("empty.png");
+        std::fs::write(&empty, b"").unwrap();
+        let e = read(&empty, Need::Colour).unwrap_err();
+        assert!(matches!(e, ImageFileError::Empty { .. }), "{e}");
+        let e = read(&dir, Need::Grey).unwrap_err().to_string();
+        assert!(e.contains("a folder, not an image file"), "{e}");
+        #[cfg(unix)]
+        {
+            let fifo = dir.join("fifo.png");
+            let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+            if made.is_ok_and(|s| s.success()) {
+                let e = header(&fifo, Need::Colour).unwrap_err().to_string();
+                assert!(e.contains("a special file"), "{e}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -74,6 +74,22 @@ pub enum OutDirError {
         /// The file in its place, or in the place of one of its parents.
         blocker: PathBuf,
     },
+    /// A run allowed to write among its files would write through a link in it.
+    #[error(
+        "{}: holds a symbolic link, {} -> {}: a file written there would replace what \
+         the link points to, outside this folder; remove the link or choose another folder",
+        path.display(),
+        link.display(),
+        target.display()
+    )]
+    HoldsLink {
+        /// The directory.
+        path: PathBuf,
+        /// The link.
+        link: PathBuf,
+        /// What it points to.
+        target: PathBuf,
+    },
     /// It could not be read or created.
     #[error("{}: {source}", path.display())]
     Io {
@@ -171,6 +187,18 @@ impl OutDir {
                 forcible: replace != Replace::Never,
             });
         }
+        // Writing among files that are there: a file written through a link would
+        // replace the link's target (an input image, a model), so a link is refused.
+        if !entries.is_empty()
+            && let Some(link) = link_inside(path)
+        {
+            let target = std::fs::read_link(&link).unwrap_or_default();
+            return Err(OutDirError::HoldsLink {
+                path: path.to_path_buf(),
+                link,
+                target,
+            });
+        }
         // Forced into a folder that held other files and was not this command's: it
         // stays the user's, unmarked, so a later run without `--force` is refused again
         // rather than taking it for its own.
@@ -200,6 +228,41 @@ impl OutDir {
         self.kept = true;
         std::mem::take(&mut self.path)
     }
+}
+
+/// Folders below an output directory looked into for links (commands write into it and
+/// into folders one level down).
+const LINK_DEPTH: usize = 2;
+/// Entries looked at for links at most: a folder given by mistake (a home folder) is
+/// not walked whole.
+const LINK_ENTRIES: usize = 10_000;
+
+/// The first symbolic link in `dir` or in its folders down to [`LINK_DEPTH`] levels
+/// (links to folders are not followed), looking at [`LINK_ENTRIES`] entries at most.
+fn link_inside(dir: &Path) -> Option<PathBuf> {
+    let mut folders = vec![(dir.to_path_buf(), 1)];
+    let mut seen = 0;
+    while let Some((folder, depth)) = folders.pop() {
+        let Ok(read) = std::fs::read_dir(&folder) else {
+            continue;
+        };
+        for entry in read.flatten() {
+            seen += 1;
+            if seen > LINK_ENTRIES {
+                return None;
+            }
+            let Ok(kind) = entry.file_type() else {
+                continue;
+            };
+            if kind.is_symlink() {
+                return Some(entry.path());
+            }
+            if kind.is_dir() && depth < LINK_DEPTH {
+                folders.push((entry.path(), depth + 1));
+            }
+        }
+    }
+    None
 }
 
 /// Makes `path` and the folders above it that are missing, one level at a time; returns
@@ -361,5 +424,37 @@ mod tests {
         );
         let _ = std::fs::remove_dir_all(&d);
         let _ = std::fs::remove_dir_all(&e2);
+    }
+
+    /// A folder a run may write among the files of (forced, or its own) is refused when
+    /// it holds a link, here or one folder down: `--force` writing `depth16.png` through
+    /// a link replaced the input image it pointed to.
+    #[cfg(unix)]
+    #[test]
+    fn a_link_in_a_folder_written_among_its_files_is_refused() {
+        let d = scratch("links");
+        let out = d.join("out");
+        std::fs::create_dir_all(out.join("sub")).unwrap();
+        std::fs::write(d.join("input.png"), b"the user's image").unwrap();
+        std::fs::write(out.join("old.txt"), b"x").unwrap();
+        OutDir::prepare(&out, Replace::Force).unwrap().keep();
+        for link in [out.join("sub/depth16.png"), out.join("depth16.png")] {
+            std::os::unix::fs::symlink(d.join("input.png"), &link).unwrap();
+            let e = OutDir::prepare(&out, Replace::Force)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("depth16.png")
+                    && e.contains("input.png")
+                    && e.contains("remove the link"),
+                "{e}"
+            );
+            std::fs::remove_file(&link).unwrap();
+        }
+        assert_eq!(
+            std::fs::read(d.join("input.png")).unwrap(),
+            b"the user's image"
+        );
+        let _ = std::fs::remove_dir_all(&d);
     }
 }

@@ -190,6 +190,37 @@ fn image_files() {
     // Not an image at all.
     std::fs::write(presses.join("a_dy.png"), b"GIF89a, or so it says").unwrap();
     refused(&calibrate, &["a_dy.png"]);
+    // Nothing in it.
+    std::fs::write(presses.join("a_dy.png"), b"").unwrap();
+    refused(&calibrate, &["a_dy.png", "empty file"]);
+    // Its colours reduced to a palette: the decoder would expand it to RGB without a
+    // word, and the shading read from 256 colours is wrong.
+    let mut quantised = Vec::new();
+    {
+        use image::ImageEncoder;
+        let indices: Vec<u8> = (0..64 * 48).map(|i| (i % 7) as u8).collect();
+        let palette: Vec<u8> = (0..7u8).flat_map(|k| [200, 40 + k, 90]).collect();
+        let png = image::codecs::png::PngEncoder::new(&mut quantised);
+        // The `image` encoder writes no palettes: the indices as grey, then the header's
+        // colour type and a palette chunk patched in by hand.
+        png.write_image(&indices, 64, 48, image::ExtendedColorType::L8)
+            .unwrap();
+        let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+        quantised[25] = 3;
+        let sum = crc.checksum(&quantised[12..29]);
+        quantised[29..33].copy_from_slice(&sum.to_be_bytes());
+        let mut plte = (palette.len() as u32).to_be_bytes().to_vec();
+        plte.extend_from_slice(b"PLTE");
+        plte.extend_from_slice(&palette);
+        let sum = crc.checksum(&plte[4..]);
+        plte.extend_from_slice(&sum.to_be_bytes());
+        quantised.splice(33..33, plte);
+    }
+    std::fs::write(presses.join("a_dy.png"), &quantised).unwrap();
+    refused(
+        &calibrate,
+        &["a_dy.png", "indexed (palette) PNG", "save it as RGB"],
+    );
     assert!(!model.exists(), "no model written from refused input");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -200,6 +231,16 @@ fn arguments() {
     refused(
         &["--sim", "stream", "--duration-s", "1e15"],
         &["--duration-s"],
+    );
+    // A goal table from too few presses to calibrate, or from no placements, measures
+    // nothing: refused before any skin is drawn.
+    refused(
+        &["bench", "skins", "--presses", "1"],
+        &["--presses 1", "give at least 5"],
+    );
+    refused(
+        &["bench", "skins", "--placements", "0"],
+        &["--placements must be at least 1"],
     );
     refused(
         &["--sim", "stream", "--duration-s", "NaN"],
@@ -407,6 +448,20 @@ fn output_folders() {
     assert!(forced.status.success());
     assert!(out.join("summary.json").exists());
     assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"the user's");
+    // Forced into a folder holding a link named as an output, the run would write
+    // through it, over the file it points to: refused, the file untouched.
+    #[cfg(unix)]
+    {
+        let victim = dir.join("victim.png");
+        std::fs::write(&victim, b"an input image").unwrap();
+        std::fs::remove_file(out.join("depth16.png")).unwrap();
+        std::os::unix::fs::symlink(&victim, out.join("depth16.png")).unwrap();
+        let mut forced = args.to_vec();
+        forced.push("--force");
+        refused(&forced, &["depth16.png", "victim.png", "remove the link"]);
+        assert_eq!(std::fs::read(&victim).unwrap(), b"an input image");
+        std::fs::remove_file(out.join("depth16.png")).unwrap();
+    }
     // A PNG recording never writes into a folder with files (no --force there).
     refused(
         &[

@@ -337,6 +337,21 @@ fn export_writes_a_recordings_pairs_as_files_and_calibrate_reads_a_recording() {
     assert!(!ok && err.contains("--force"), "{err}");
     let (ok, _, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs), "--force"]);
     assert!(!ok && err.contains("never overwritten"), "{err}");
+    // Forced into a folder holding only the last pair's dx file, the export writes the
+    // pairs before it, stops there, and takes back what it wrote: half an export beside
+    // another file would be read as one set with it.
+    let last = names
+        .iter()
+        .filter(|n| n.ends_with("_dx.png"))
+        .max()
+        .unwrap();
+    for n in names.iter().filter(|n| *n != last) {
+        std::fs::remove_file(pairs.join(n)).unwrap();
+    }
+    let (ok, _, err) = stereotac(&["export", path(&rec), "--pairs", path(&pairs), "--force"]);
+    assert!(!ok && err.contains(last.as_str()), "{err}");
+    let left: Vec<_> = std::fs::read_dir(&pairs).unwrap().collect();
+    assert_eq!(left.len(), 1, "{left:?}");
 
     // calibrate takes the recording itself (its objects are not ball presses: the
     // error names the pair, by phase).
@@ -444,6 +459,45 @@ fn the_demo_recordings_calibrate_and_process_end_to_end() {
         !ok && err.contains("no press is named \"phase9999\""),
         "{err}"
     );
+    // A press's circle given twice, or far outside the frame, is refused by its name
+    // (read as given, the last one or the faraway circle was used without a word).
+    let mut names: Vec<String> = std::fs::read_dir(&folder)
+        .unwrap()
+        .filter_map(|e| {
+            let n = e.unwrap().file_name().to_string_lossy().into_owned();
+            n.strip_suffix("_dx.png").map(str::to_owned)
+        })
+        .filter(|n| n.starts_with("phase"))
+        .collect();
+    names.sort();
+    let name = &names[0];
+    for (given, expect) in [
+        (
+            format!(
+                r#"{{"{name}": {{"cx": 1, "cy": 2, "r": 30}}, "{name}": {{"cx": 4, "cy": 5, "r": 30}}}}"#
+            ),
+            "given twice".to_string(),
+        ),
+        (
+            format!(r#"{{"{name}": {{"cx": 1e9, "cy": 25, "r": 38}}}}"#),
+            format!(
+                "the circle given for {name} (cx 1000000000, cy 25, r 38 px) lies outside the frame"
+            ),
+        ),
+    ] {
+        std::fs::write(&overrides, given).unwrap();
+        let (ok, _, err) = stereotac(&[
+            "calibrate",
+            path(&folder),
+            "--ball-diameter-mm",
+            "6",
+            "--out",
+            path(&dir.join("unused.json")),
+            "--overrides",
+            path(&overrides),
+        ]);
+        assert!(!ok && err.contains(&expect), "{expect}: {err}");
+    }
     assert!(
         text.contains("16 presses") || text.matches("phase0").count() == 16,
         "{text}"

@@ -31,6 +31,21 @@ pub enum ImageError {
         /// The partner looked for.
         partner: String,
     },
+    /// Two files for one frame of a press (their suffixes differ only in case): which
+    /// one is the frame is not guessed.
+    #[error(
+        "{} and {} are both its {phase} frame (the suffixes differ only in case): keep one",
+        first.display(),
+        second.display()
+    )]
+    Twice {
+        /// One file.
+        first: PathBuf,
+        /// The other.
+        second: PathBuf,
+        /// "dx", "dy" or "LEDs-off".
+        phase: &'static str,
+    },
     /// A file of another size than the frames it goes with: set aside undecoded.
     #[error(
         "{}: {}×{} px, but {against} are {}×{} px; not decoded: give every frame from this \
@@ -168,6 +183,8 @@ pub fn load_more_pairs(
         source,
     };
     let mut found: BTreeMap<String, [Option<PathBuf>; 3]> = BTreeMap::new();
+    // A press with two files for one of its frames, and the first such pair of files.
+    let mut twice: BTreeMap<String, ImageError> = BTreeMap::new();
     for e in std::fs::read_dir(dir).map_err(dir_error)? {
         let path = e.map_err(dir_error)?.path();
         let file = path
@@ -178,7 +195,14 @@ pub fn load_more_pairs(
         for (slot, suffix) in ["_dx.png", "_dy.png", "_dark.png"].into_iter().enumerate() {
             if lower.ends_with(suffix) {
                 let name = file[..file.len() - suffix.len()].to_string();
-                found.entry(name).or_default()[slot] = Some(path.clone());
+                let place = &mut found.entry(name.clone()).or_default()[slot];
+                if let Some(first) = place.replace(path.clone()) {
+                    twice.entry(name).or_insert(ImageError::Twice {
+                        first,
+                        second: path.clone(),
+                        phase: ["dx", "dy", "LEDs-off"][slot],
+                    });
+                }
             }
         }
     }
@@ -225,6 +249,10 @@ pub fn load_more_pairs(
         set_aside: Vec::new(),
     };
     for (name, [dx, dy, dark]) in found {
+        if let Some(e) = twice.remove(&name) {
+            out.set_aside.push((name, e));
+            continue;
+        }
         let pair = match (dx, dy) {
             (Some(dx), Some(dy)) => (|| {
                 for path in [Some(&dx), Some(&dy), dark.as_ref()].into_iter().flatten() {
@@ -297,5 +325,36 @@ fn most_common<T>(
             .find(|(_, n, _)| *n == most)
             .map(|(v, _, _)| v)),
         _ => Err(counts),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A press with two files for one frame, their suffixes differing only in case, is
+    /// set aside naming both (one would have replaced the other without a word); the
+    /// others are read.
+    #[test]
+    fn two_files_for_one_frame_set_their_press_aside() {
+        let dir = std::env::temp_dir().join(format!("stereotac-twice-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let frame = RgbImage::from_pixel(8, 6, image::Rgb([180, 20, 150]));
+        for name in ["a_dx.png", "a_dy.png", "b_dx.png", "b_dy.png", "b_dx.PNG"] {
+            frame
+                .save_with_format(dir.join(name), image::ImageFormat::Png)
+                .unwrap();
+        }
+        let read = load_pairs(&dir, None).unwrap();
+        assert_eq!(read.pairs.len(), 1);
+        assert_eq!(read.pairs[0].name, "a");
+        let (name, why) = &read.set_aside[0];
+        let why = why.to_string();
+        assert_eq!(name, "b");
+        assert!(
+            why.contains("b_dx.png") && why.contains("b_dx.PNG") && why.contains("dx frame"),
+            "{why}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -23,6 +23,82 @@ pub struct Circle {
     pub r: f64,
 }
 
+/// Why a file of given circles (`calibrate --overrides`) was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum OverridesError {
+    /// Not JSON of the expected shape (a field misspelt or extra, a value not a number).
+    #[error("not {{\"NAME\": {{\"cx\": px, \"cy\": px, \"r\": px}}, ...}}: {0}")]
+    Shape(serde_json::Error),
+    /// A press named twice: which circle was meant is not guessed.
+    #[error("{0:?} is given twice: give each press one circle")]
+    Twice(String),
+}
+
+/// The circles of an overrides file, `{"NAME": {"cx": px, "cy": px, "r": px}, ...}`: a
+/// name given twice or a field other than the three is refused (a JSON reader would keep
+/// the last circle, or drop the field, without a word). Whether each circle fits the
+/// frames is checked by [`super::calibrate`].
+pub fn read_overrides(
+    bytes: &[u8],
+) -> Result<std::collections::HashMap<String, Circle>, OverridesError> {
+    /// A circle as given: exactly its three fields.
+    #[derive(Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Given {
+        cx: f64,
+        cy: f64,
+        r: f64,
+    }
+    /// The entries in the file's order, repeats kept.
+    struct Entries(Vec<(String, Given)>);
+    impl<'de> Deserialize<'de> for Entries {
+        fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            struct Visit;
+            impl<'de> serde::de::Visitor<'de> for Visit {
+                type Value = Entries;
+                fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                    f.write_str("an object of press names")
+                }
+                fn visit_map<A: serde::de::MapAccess<'de>>(
+                    self,
+                    mut map: A,
+                ) -> Result<Entries, A::Error> {
+                    let mut out = Vec::new();
+                    while let Some(entry) = map.next_entry::<String, Given>()? {
+                        out.push(entry);
+                    }
+                    Ok(Entries(out))
+                }
+            }
+            d.deserialize_map(Visit)
+        }
+    }
+    let Entries(entries) = serde_json::from_slice(bytes).map_err(OverridesError::Shape)?;
+    let mut out = std::collections::HashMap::with_capacity(entries.len());
+    for (name, Given { cx, cy, r }) in entries {
+        if out.insert(name.clone(), Circle { cx, cy, r }).is_some() {
+            return Err(OverridesError::Twice(name));
+        }
+    }
+    Ok(out)
+}
+
+/// Why a given circle cannot be a press in a `width × height` frame, if it cannot: not
+/// finite, a radius not above 0, or not overlapping the frame (a press centred on the
+/// border has its centre at the border, or just past it).
+pub fn given_circle_unfit(c: &Circle, width: usize, height: usize) -> Option<&'static str> {
+    let (w, h) = (width as f64, height as f64);
+    if !(c.cx.is_finite() && c.cy.is_finite() && c.r.is_finite()) {
+        Some("is not three finite numbers")
+    } else if c.r <= 0.0 {
+        Some("has no radius")
+    } else if c.cx <= -c.r || c.cx >= w + c.r || c.cy <= -c.r || c.cy >= h + c.r {
+        Some("lies outside the frame")
+    } else {
+        None
+    }
+}
+
 /// A circle fitted to an outline, with how well it fits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OutlineFit {
@@ -379,5 +455,47 @@ mod tests {
         let unknown: Vec<bool> = (0..w * h).map(|i| i % w >= 66).collect();
         let fit = fit_outline(mask, Some(&unknown), w, h).unwrap();
         assert!((fit.circle.cx - 45.0).abs() < 0.6, "{fit:?}");
+    }
+
+    /// An overrides file naming a press twice, or with a field other than the three, is
+    /// refused; circles that cannot be a press in the frame are said to be so.
+    #[test]
+    fn overrides_read_each_press_once_with_its_three_fields() {
+        let read = read_overrides(
+            br#"{"a": {"cx": 10, "cy": 20.5, "r": 30}, "b": {"cx": -5, "cy": 0, "r": 12}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            read["a"],
+            Circle {
+                cx: 10.0,
+                cy: 20.5,
+                r: 30.0
+            }
+        );
+        assert_eq!(read.len(), 2);
+        let twice = read_overrides(
+            br#"{"a": {"cx": 1, "cy": 2, "r": 3}, "a": {"cx": 4, "cy": 5, "r": 6}}"#,
+        );
+        assert!(
+            matches!(twice, Err(OverridesError::Twice(ref n)) if n == "a"),
+            "{twice:?}"
+        );
+        let extra =
+            read_overrides(br#"{"a": {"cx": 1, "cy": 2, "r": 3, "extra": 1}}"#).unwrap_err();
+        assert!(extra.to_string().contains("extra"), "{extra}");
+        assert!(read_overrides(br#"[1, 2]"#).is_err());
+        let at = |cx, cy, r| given_circle_unfit(&Circle { cx, cy, r }, 640, 480);
+        assert_eq!(
+            at(-1.0, 234.0, 40.0),
+            None,
+            "a press centred just past the border"
+        );
+        assert_eq!(at(1e9, 25.0, 38.0), Some("lies outside the frame"));
+        assert_eq!(at(100.0, 100.0, -5.0), Some("has no radius"));
+        assert_eq!(
+            at(f64::NAN, 100.0, 5.0),
+            Some("is not three finite numbers")
+        );
     }
 }

@@ -24,7 +24,7 @@ use std::fmt;
 use image::RgbImage;
 use serde::Serialize;
 
-pub use circle::{Circle, OutlineFit, fit_circle};
+pub use circle::{Circle, OutlineFit, OverridesError, fit_circle, read_overrides};
 pub use report::{CalibrationReport, overlay};
 
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
@@ -304,6 +304,26 @@ pub enum CalibrationError {
     /// Invalid settings.
     #[error("invalid setting: {0}")]
     Settings(String),
+    /// A circle given for a press (`--overrides`) cannot be one in these frames.
+    #[error(
+        "the circle given for {name} (cx {cx}, cy {cy}, r {r} px) {why}: give its centre in \
+         pixels of the {width}×{height} frames and a radius above 0",
+        cx = circle.cx,
+        cy = circle.cy,
+        r = circle.r
+    )]
+    GivenCircle {
+        /// The press.
+        name: String,
+        /// Its circle as given.
+        circle: Circle,
+        /// What is wrong with it.
+        why: &'static str,
+        /// Frame width.
+        width: usize,
+        /// Frame height.
+        height: usize,
+    },
     /// The model the presses gave fails the check every model file gets on loading
     /// ([`crate::tactile::model::validate::check`]): saved, it would be refused at once.
     #[error(
@@ -514,6 +534,20 @@ pub fn calibrate(
         dy: Reference::from_image(&ref_dy, settings.filter.unmix),
     };
     let (w, h) = (want.0 as usize, want.1 as usize);
+    // Names in order, so the same file always reports the same circle first.
+    let mut given: Vec<_> = settings.overrides.iter().collect();
+    given.sort_by(|a, b| a.0.cmp(b.0));
+    for (name, circle) in given {
+        if let Some(why) = circle::given_circle_unfit(circle, w, h) {
+            return Err(CalibrationError::GivenCircle {
+                name: name.clone(),
+                circle: *circle,
+                why,
+                width: w,
+                height: h,
+            });
+        }
+    }
     let ball_mm =
         |pair: &CalibrationPair| pair.ball_diameter_mm.unwrap_or(settings.ball_diameter_mm);
     let ball_px_of = |pair: &CalibrationPair| ball_mm(pair) / 2.0 * settings.px_per_mm;

@@ -211,6 +211,15 @@ fn skins(a: SkinsArgs) -> Result<()> {
             .collect::<Result<_>>()?
     };
     anyhow::ensure!(a.skins >= 1, "--skins must be at least 1");
+    // Fewer presses than calibration needs, or no placements, would print a table of
+    // failures and "n/a" that measured nothing.
+    let needed = stereotac::tactile::calibrate::CalibrationSettings::default().min_presses;
+    anyhow::ensure!(
+        a.presses >= needed,
+        "--presses {} is fewer than calibration needs ({needed}): give at least {needed}",
+        a.presses
+    );
+    anyhow::ensure!(a.placements >= 1, "--placements must be at least 1");
     let total = chosen.len() as u64 * a.skins;
     let progress = bar(total, "skins");
     let mut reports = Vec::new();

@@ -14,7 +14,7 @@ use stereotac::live::replay;
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::calibrate::{
     Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
-    overlay,
+    overlay, read_overrides,
 };
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::crosstalk::measure as measure_crosstalk;
@@ -148,15 +148,10 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let overrides: HashMap<String, Circle> = match &a.overrides {
-        Some(path) => serde_json::from_slice(
+        Some(path) => read_overrides(
             &std::fs::read(path).with_context(|| format!("reading {}", path.display()))?,
         )
-        .with_context(|| {
-            format!(
-                "{}: expected {{\"NAME\": {{\"cx\": px, \"cy\": px, \"r\": px}}, ...}}",
-                path.display()
-            )
-        })?,
+        .with_context(|| format!("--overrides {}", path.display()))?,
         None => HashMap::new(),
     };
     let mut settings = CalibrationSettings {

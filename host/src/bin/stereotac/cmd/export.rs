@@ -42,27 +42,42 @@ pub fn run(a: Args) -> Result<()> {
     let out = OutDir::prepare(&a.pairs, Replace::force_if(a.force))?;
     let progress = spinner("exporting");
     let (mut gradient, mut stereo) = (0u64, 0u64);
-    let truncated = pairs(&a.recording, |pair| -> Result<()> {
+    // What this run wrote, taken back if it fails: in a folder forced into, half an
+    // export beside the files there would be read as one set with them.
+    let mut written: Vec<PathBuf> = Vec::new();
+    let mut write = |name: String, img: &RgbImage| -> Result<()> {
+        let path = a.pairs.join(name);
+        write_new(&path, img)?;
+        written.push(path);
+        Ok(())
+    };
+    let exported = pairs(&a.recording, |pair| -> Result<()> {
         match pair {
             RecordedPair::Gradient { name, dx, dy, dark } => {
-                write_new(&a.pairs.join(format!("{name}_dx.png")), &dx)?;
-                write_new(&a.pairs.join(format!("{name}_dy.png")), &dy)?;
+                write(format!("{name}_dx.png"), &dx)?;
+                write(format!("{name}_dy.png"), &dy)?;
                 if let Some(dark) = dark {
-                    write_new(&a.pairs.join(format!("{name}_dark.png")), &dark)?;
+                    write(format!("{name}_dark.png"), &dark)?;
                 }
                 gradient += 1;
             }
             RecordedPair::Stereo { name, left, right } => {
-                write_new(&a.pairs.join(format!("{name}_left.png")), &left)?;
-                write_new(&a.pairs.join(format!("{name}_right.png")), &right)?;
+                write(format!("{name}_left.png"), &left)?;
+                write(format!("{name}_right.png"), &right)?;
                 stereo += 1;
             }
         }
         progress.set_message(format!("{gradient} dx/dy pairs, {stereo} stereo pairs"));
         Ok(())
     })
-    .with_context(|| format!("exporting {}", a.recording.display()))?;
+    .with_context(|| format!("exporting {}", a.recording.display()));
     progress.finish_and_clear();
+    if exported.is_err() || gradient + stereo == 0 {
+        for path in &written {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+    let truncated = exported?;
     if let Some(why) = truncated {
         eprintln!("warning: {}: {why}", a.recording.display());
     }
