@@ -113,6 +113,41 @@ fn calibrated_pipeline_reads_a_ball_with_both_models_and_solvers() {
     }
 }
 
+/// dx and dy of two moments (a ball in one, a disk in the other) give a plausible depth
+/// whose slopes are not one surface's, and the reconstruction says so; each moment's own
+/// pair is one surface, with every model.
+#[test]
+fn phases_of_two_moments_are_said_to_be_no_surface() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let (a, b) = (
+        render(&optics, &ball(4.0, 4.0, 1.0), 3),
+        render(&optics, &disk(0.79), 3),
+    );
+    for kind in ModelKind::ALL {
+        let mut rec = reconstructor(&model, &refs, kind, SolverKind::Dct);
+        for pair in [&a, &b] {
+            let r = rec.reconstruct(&pair.dx, &pair.dy).unwrap();
+            assert!(
+                !r.not_one_surface() && r.unexplained_share < 0.05 && r.surface_warning().is_none(),
+                "{kind}: one moment {}",
+                r.unexplained_share
+            );
+        }
+        let r = rec.reconstruct(&a.dx, &b.dy).unwrap();
+        assert!(
+            !r.no_contact() && r.not_one_surface(),
+            "{kind}: {}",
+            r.unexplained_share
+        );
+        let note = r.surface_warning().unwrap();
+        assert!(
+            note.contains("not those of one surface") && note.contains("same moment"),
+            "{note}"
+        );
+    }
+}
+
 /// The model without its light models: the lookup table alone, as model files written
 /// before the light model read (nothing past the table's reach).
 fn table_alone(model: &TactileModel) -> TactileModel {

@@ -137,6 +137,9 @@ fn run(py: Python<'_>, rec: &mut Reconstructor, frames: &Frames) -> PyResult<PyT
                 })
         })
         .map_err(crate::errors::IntoPyErr::into_py_err)?;
+    if let Some(note) = r.surface_warning() {
+        crate::errors::warn(py, &note)?;
+    }
     Ok(PyTactileResult::new(py, r, summary))
 }
 
@@ -375,6 +378,10 @@ pub struct PyTactileResult {
     /// Touched pixels the light model read past the calibration's slopes.
     #[pyo3(get)]
     past_reach_pixels: usize,
+    /// The largest share of a region's slopes its solved surface does not explain; above
+    /// `MAX_UNEXPLAINED` (0.15) they are not one surface's and the depth is not reliable.
+    #[pyo3(get)]
+    unexplained_share: f32,
     /// Live results: when the pair's second (dy) exposure ended, host µs; `None` offline.
     #[pyo3(get)]
     timestamp_us: Option<f64>,
@@ -417,6 +424,7 @@ impl PyTactileResult {
             ambient: r.ambient.name().to_string(),
             sanitized_slopes: s.sanitized_slopes,
             past_reach_pixels: s.past_reach_pixels,
+            unexplained_share: s.unexplained_share,
             timestamp_us: None,
             record: None,
             summary: s,

@@ -31,6 +31,10 @@ class TactileResult:
     sanitized_slopes: int
     past_reach_pixels: int
     """Touched pixels the light model read past the calibration's slopes."""
+    unexplained_share: float
+    """The largest share of a region's slopes its solved surface does not explain: above
+    0.15 they are not one surface's (dx and dy of different moments) and
+    the depth is not reliable."""
     timestamp_us: Optional[float]
     """Live results: end of the dy exposure, host µs (None offline)."""
     record: Optional[Dict[str, Any]]

@@ -45,6 +45,8 @@ def test_reconstruct_equals_cli(cli, model_path, scene_pairs, tmp_path, which):
     assert r.area_mm2 == pytest.approx(summary["contact_area_mm2"])
     assert r.volume_mm3 == pytest.approx(summary["volume_mm3"])
     assert r.past_reach_pixels == summary["past_reach_pixels"]
+    assert np.float32(r.unexplained_share) == np.float32(summary["unexplained_share"])
+    assert r.unexplained_share < 0.15, "one skin's slopes are one surface's"
     assert r.contact_mask.dtype == np.bool_ and r.contact_mask.shape == r.depth.shape
     assert set(r.timings) == {"detect_ms", "colour_ms", "model_ms", "solve_ms", "total_ms"}
     if which == "contact":
@@ -67,6 +69,17 @@ def test_past_reach_off_equals_cli(cli, model_path, scene_pairs, tmp_path):
     np.testing.assert_array_equal(r.depth, expected)
     rec = model.reconstructor(past_reach=False)
     np.testing.assert_array_equal(rec.reconstruct(dx_img, dy_img, dark=dark_img).depth, expected)
+
+
+def test_phases_of_two_moments_warn_that_the_slopes_are_no_surface(model_path, scene_pairs):
+    # dx of the ball, dy of the disk: each phase shows its own contact, and the depth
+    # solved from them looks plausible; its slopes are not one surface's, and it says so.
+    model = stereotac.TactileModel.load(model_path)
+    dx, _, dark = frames(scene_pairs[1])
+    _, dy, _ = frames(scene_pairs[2])
+    with pytest.warns(UserWarning, match="not those of one surface"):
+        r = model.reconstruct(dx, dy, dark=dark)
+    assert r.contact and r.unexplained_share > 0.15
 
 
 def test_reconstructor_and_model_agree(model_path, scene_pairs):

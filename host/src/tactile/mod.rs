@@ -19,6 +19,7 @@ pub mod contact;
 pub mod crosstalk;
 pub mod features;
 pub mod images;
+pub mod integrable;
 pub mod model;
 pub mod output;
 pub mod past_reach;

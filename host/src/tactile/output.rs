@@ -100,6 +100,9 @@ pub struct Summary {
     pub past_reach_pixels: usize,
     /// Which ambient light was removed (see [`crate::tactile::ambient`]).
     pub ambient: AmbientSource,
+    /// The largest share of a region's slopes its surface does not explain (see
+    /// [`crate::tactile::integrable`]).
+    pub unexplained_share: f32,
     /// Stage timings (ms).
     pub timings: StageTimings,
 }
@@ -141,6 +144,7 @@ impl Summary {
             sanitized_slopes: r.sanitized_slopes,
             past_reach_pixels: r.past_reach_pixels,
             ambient: r.ambient,
+            unexplained_share: r.unexplained_share,
             timings: r.timings,
         }
     }
@@ -184,8 +188,9 @@ pub struct Written {
     pub summary: Summary,
     /// The range `depth_colour.png` shows (also in its legend).
     pub colour_range: ColourRange,
-    /// Warnings: the caller's (`earlier`), then a given colour range that shows none of
-    /// the depths.
+    /// Warnings: the caller's (`earlier`), slopes that are not one surface's
+    /// ([`Reconstruction::surface_warning`]), then a given colour range that shows none
+    /// of the depths.
     pub warnings: Vec<String>,
 }
 
@@ -208,6 +213,7 @@ pub fn write_all(
     picture::write_png(&dir.join("depth_colour.png"), &r.depth_mm, &colour_range)?;
     // The automatic range always shows the depths; a given one may miss them all.
     let mut warnings = earlier;
+    warnings.extend(r.surface_warning());
     warnings.extend(
         range.and_then(|_| picture::none_within(&colour_range, &r.depth_mm, "depth_colour.png")),
     );

@@ -211,6 +211,11 @@ pub struct Reconstruction {
     pub unlit_fraction: [f32; 2],
     /// Which ambient light was removed.
     pub ambient: AmbientSource,
+    /// The largest share of a region's slopes that its solved surface does not explain
+    /// ([`super::integrable`]; 0 without contact). Above
+    /// [`super::integrable::MAX_UNEXPLAINED`] the slopes are not one surface's
+    /// ([`Self::not_one_surface`]).
+    pub unexplained_share: f32,
     /// Stage timings.
     pub timings: StageTimings,
 }
@@ -234,6 +239,28 @@ impl Reconstruction {
     /// `true` when nothing touched the skin.
     pub fn no_contact(&self) -> bool {
         self.regions.is_empty()
+    }
+
+    /// `true` when a region's slopes are not the gradient of one surface (more than
+    /// [`super::integrable::MAX_UNEXPLAINED`] of them unexplained): dx and dy taken at
+    /// different moments, or a frame mirrored or rotated. The depth is then not reliable.
+    pub fn not_one_surface(&self) -> bool {
+        self.unexplained_share > super::integrable::MAX_UNEXPLAINED
+    }
+
+    /// What to tell the reader of the depth when [`Self::not_one_surface`].
+    pub fn surface_warning(&self) -> Option<String> {
+        self.not_one_surface().then(|| {
+            format!(
+                "the slopes are not those of one surface: the depth solved from them leaves \
+                 {:.0} % of them unexplained (above {:.0} %; one skin's readings left at most \
+                 11 % on every skin family measured), so the depth is not reliable; are dx \
+                 and dy from the same moment, and neither frame mirrored, rotated or of \
+                 another sensor?",
+                100.0 * self.unexplained_share,
+                100.0 * super::integrable::MAX_UNEXPLAINED
+            )
+        })
     }
 
     /// `true` when most of the frame shows no usable LED light (black, white, saturated
@@ -604,6 +631,7 @@ impl Reconstructor {
             past_reach_pixels: 0,
             unlit_fraction: detection.unlit_fraction,
             ambient,
+            unexplained_share: 0.0,
             timings: StageTimings {
                 detect_ms: ms(start, Instant::now()),
                 ..Default::default()
@@ -765,6 +793,10 @@ impl Reconstructor {
                 .fill(grid.as_mut_slice(), roi.width, unread);
         }
         let depth_px = self.solver.integrate(self.solver_kind, &p, &q)?;
+        // Slopes of frames that do not belong together are no surface's: said, not
+        // hidden behind the depth the solve makes of them all the same.
+        let share = super::integrable::unexplained_share(&depth_px, &p, &q);
+        out.unexplained_share = out.unexplained_share.max(share);
         // The imprint is the touched pixels with the holes they enclose (a flat-bottomed
         // object's plateau has no slope but is pressed in). Skin outside it is at rest:
         // its depth is zero, and the imprint's depth is measured from the ring of skin
