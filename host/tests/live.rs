@@ -226,6 +226,14 @@ fn no_past_reach_is_kept_by_the_recording_and_process_does_as_the_run_did() {
         args.extend_from_slice(extra);
         let (ok, text, err) = stereotac(&args);
         assert!(ok, "{err}");
+        // Each record says how much of its slopes the depth leaves unexplained: the
+        // simulated sensor's pairs are one surface each, and nothing is warned.
+        for l in text.lines() {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            let share = v["unexplained_share"].as_f64().unwrap();
+            assert!((0.0..0.15).contains(&share), "{l}");
+        }
+        assert!(!err.contains("one surface"), "{err}");
         text
     };
     // The simulated scenes include a wall steeper than the built-in ball's slopes.

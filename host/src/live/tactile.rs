@@ -157,6 +157,7 @@ impl TactileStage {
             max_depth_mm: summary.max_depth_mm,
             volume_mm3: summary.volume_mm3,
             past_reach_pixels: summary.past_reach_pixels as u64,
+            unexplained_share: summary.unexplained_share,
             stage_ms: summary.timings,
             latency_ms: ready_us.map(|t| (t - dy_end) / 1000.0),
             frames_dropped,

@@ -254,6 +254,11 @@ pub struct TactileRecord {
     /// `--no-past-reach`).
     #[serde(default)]
     pub past_reach_pixels: u64,
+    /// The largest share of a region's slopes its solved surface does not explain
+    /// (`tactile::integrable`): above 0.15 they are not one surface's (dx and dy of two
+    /// moments) and the depth is not reliable. Records written before it read 0.
+    #[serde(default)]
+    pub unexplained_share: f32,
     /// Time per stage of the reconstruction, ms.
     pub stage_ms: StageTimings,
     /// From the end of the dy exposure to the depth being ready, ms (host clock); none

@@ -3,6 +3,7 @@
 use anyhow::Result;
 use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
 use stereotac::tactile::ambient::AmbientSource;
+use stereotac::tactile::integrable::MAX_UNEXPLAINED;
 use stereotac::timing::quantiles;
 
 use crate::console::emit;
@@ -26,6 +27,8 @@ pub struct Report {
     dark_refused: u64,
     /// Stereo frames with warnings (almost nothing matched, a scene outside the range).
     stereo_warned: u64,
+    /// Tactile pairs whose slopes were not one surface's.
+    no_surface: u64,
 }
 
 impl Report {
@@ -39,6 +42,7 @@ impl Report {
             skipped: (0, 0),
             dark_refused: 0,
             stereo_warned: 0,
+            no_surface: 0,
         }
     }
 
@@ -54,6 +58,21 @@ impl Report {
                         eprintln!("warning: {DARK_REFUSED}");
                     }
                     self.dark_refused += 1;
+                }
+                if record.unexplained_share > MAX_UNEXPLAINED {
+                    if self.no_surface == 0 {
+                        eprintln!(
+                            "warning: tactile pair {}: its slopes are not those of one surface \
+                             ({:.0} % unexplained by its depth, above {:.0} %): its depth is not \
+                             reliable; are dx and dy from the same moment? (said once; the \
+                             closing figures count such pairs, each record holds its \
+                             \"unexplained_share\")",
+                            record.sequence,
+                            100.0 * record.unexplained_share,
+                            100.0 * MAX_UNEXPLAINED
+                        );
+                    }
+                    self.no_surface += 1;
                 }
                 if self.jsonl {
                     emit(format_args!("{}", serde_json::to_string(record)?))
@@ -95,6 +114,14 @@ impl Report {
                 t.refused(),
                 self.skipped.0,
                 fmt(self.tactile_latency)
+            );
+        }
+        if self.no_surface > 0 {
+            let n = self.no_surface;
+            eprintln!(
+                "warning: {n} {} slopes were not those of one surface (their depth is not \
+                 reliable)",
+                if n == 1 { "pair's" } else { "pairs'" }
             );
         }
         if self.dark_refused > 0 {
