@@ -845,6 +845,39 @@ fn presses_without_led_light_leave_the_threshold_alone_and_a_noisy_threshold_is_
         "{}",
         with_bad.rejected[2].reason
     );
+    // A pair whose dx and dy frames show two different presses is set aside saying so,
+    // and the calibration is made again without it: its second press no longer counts
+    // as flat skin, so the threshold and the model are the good presses' own.
+    let mut two = good.clone();
+    two.insert(
+        2,
+        CalibrationPair {
+            name: "two presses".into(),
+            dx: good[3].dx.clone(),
+            dy: good[5].dy.clone(),
+            dark: None,
+            ball_diameter_mm: None,
+        },
+    );
+    let without = calibrate(&two, refs(), &s, |_| {}).unwrap();
+    assert_eq!(without.rejected.len(), 1, "{:?}", without.rejected);
+    let why = without.rejected[0].reason.to_string();
+    assert!(
+        without.rejected[0].name == "two presses" && why.contains("show different presses"),
+        "{why}"
+    );
+    assert_eq!(without.model.contact.threshold, cal.model.contact.threshold);
+    assert_eq!(without.presses, cal.presses);
+    assert_eq!(without.report.presses_given, good.len() + 1);
+    assert!(
+        without
+            .report
+            .warnings
+            .iter()
+            .any(|w| w.starts_with(&format!("1 of {} presses set aside", good.len() + 1))),
+        "{:?}",
+        without.report.warnings
+    );
     // A threshold given below the flat skin's noise is used, with a warning that names
     // the measured one; the measured threshold itself gets none.
     let says = "contact threshold given";

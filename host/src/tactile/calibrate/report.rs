@@ -76,7 +76,23 @@ pub struct CalibrationReport {
     pub warnings: Vec<String>,
 }
 
+/// The warning that `count` of `given` presses were set aside.
+fn set_aside_warning(count: usize, given: usize) -> String {
+    format!("{count} of {given} presses set aside (reasons listed per press)")
+}
+
 impl CalibrationReport {
+    /// The report of a calibration made again without some of the `given` presses: it
+    /// counts them all, and `rejected` set aside.
+    pub(super) fn count_all(&mut self, given: usize, rejected: usize) {
+        let said = |w: &String| w.ends_with("presses set aside (reasons listed per press)");
+        self.warnings.retain(|w| !said(w));
+        self.presses_given = given;
+        if rejected > 0 {
+            self.warnings.push(set_aside_warning(rejected, given));
+        }
+    }
+
     /// Builds the report; `samples` are every training and held-out sample per axis.
     pub(super) fn new(
         model: &TactileModel,
@@ -95,10 +111,7 @@ impl CalibrationReport {
             ));
         }
         if !rejected.is_empty() {
-            warnings.push(format!(
-                "{} of {given} presses set aside (reasons listed per press)",
-                rejected.len()
-            ));
+            warnings.push(set_aside_warning(rejected.len(), given));
         }
         let threshold = model.contact.threshold;
         if let Some(n) = noise.filter(|n| n.unbounded > MAX_THRESHOLD) {
