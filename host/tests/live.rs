@@ -232,8 +232,12 @@ fn no_past_reach_is_kept_by_the_recording_and_process_does_as_the_run_did() {
             let v: serde_json::Value = serde_json::from_str(l).unwrap();
             let share = v["unexplained_share"].as_f64().unwrap();
             assert!((0.0..0.15).contains(&share), "{l}");
+            assert_eq!(v["no_skin_at_rest"], false, "{l}");
         }
-        assert!(!err.contains("one surface"), "{err}");
+        assert!(
+            !err.contains("one surface") && !err.contains("no zero"),
+            "{err}"
+        );
         text
     };
     // The simulated scenes include a wall steeper than the built-in ball's slopes.

@@ -148,6 +148,45 @@ fn phases_of_two_moments_are_said_to_be_no_surface() {
     }
 }
 
+/// Warm room light added to a skin at rest after calibration reads as contact over the
+/// frame; the imprint fills its region, with no skin at rest around it to measure from,
+/// and the reconstruction says its depth has no zero.
+#[test]
+fn a_contact_with_no_skin_at_rest_around_it_is_said_to_have_no_zero() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let rest = render(&optics, &Scene::default(), 3);
+    let warm = |img: &RgbImage| {
+        let mut out = img.clone();
+        for p in out.pixels_mut() {
+            for (c, add) in p.0.iter_mut().zip([25u8, 18, 10]) {
+                *c = c.saturating_add(add);
+            }
+        }
+        out
+    };
+    let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
+    let r = rec.reconstruct(&rest.dx, &rest.dy).unwrap();
+    assert!(r.no_contact() && !r.no_skin_at_rest && r.warnings().is_empty());
+    let ball = render(&optics, &ball(10.0, 8.0, 1.0), 3);
+    let pressed = rec.reconstruct(&ball.dx, &ball.dy).unwrap();
+    assert!(
+        !pressed.no_contact() && !pressed.no_skin_at_rest,
+        "a ball has skin around it"
+    );
+    match rec.reconstruct(&warm(&rest.dx), &warm(&rest.dy)) {
+        Ok(r) => {
+            assert!(!r.no_contact() && r.no_skin_at_rest, "{:?}", r.regions);
+            assert!(
+                r.warnings().iter().any(|w| w.contains("no skin at rest")),
+                "{:?}",
+                r.warnings()
+            );
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
 /// The model without its light models: the lookup table alone, as model files written
 /// before the light model read (nothing past the table's reach).
 fn table_alone(model: &TactileModel) -> TactileModel {

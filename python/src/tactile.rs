@@ -137,7 +137,7 @@ fn run(py: Python<'_>, rec: &mut Reconstructor, frames: &Frames) -> PyResult<PyT
                 })
         })
         .map_err(crate::errors::IntoPyErr::into_py_err)?;
-    if let Some(note) = r.surface_warning() {
+    for note in r.warnings() {
         crate::errors::warn(py, &note)?;
     }
     Ok(PyTactileResult::new(py, r, summary))

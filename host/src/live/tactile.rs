@@ -158,6 +158,7 @@ impl TactileStage {
             volume_mm3: summary.volume_mm3,
             past_reach_pixels: summary.past_reach_pixels as u64,
             unexplained_share: summary.unexplained_share,
+            no_skin_at_rest: r.no_skin_at_rest,
             stage_ms: summary.timings,
             latency_ms: ready_us.map(|t| (t - dy_end) / 1000.0),
             frames_dropped,

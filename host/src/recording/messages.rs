@@ -259,6 +259,11 @@ pub struct TactileRecord {
     /// moments) and the depth is not reliable. Records written before it read 0.
     #[serde(default)]
     pub unexplained_share: f32,
+    /// A contact filled its region with no skin at rest around it, so its depth has no
+    /// zero (the skin covered whole, or room light that changed since the references read
+    /// as contact everywhere). Records written before it read `false`.
+    #[serde(default)]
+    pub no_skin_at_rest: bool,
     /// Time per stage of the reconstruction, ms.
     pub stage_ms: StageTimings,
     /// From the end of the dy exposure to the depth being ready, ms (host clock); none

@@ -188,9 +188,9 @@ pub struct Written {
     pub summary: Summary,
     /// The range `depth_colour.png` shows (also in its legend).
     pub colour_range: ColourRange,
-    /// Warnings: the caller's (`earlier`), slopes that are not one surface's
-    /// ([`Reconstruction::surface_warning`]), then a given colour range that shows none
-    /// of the depths.
+    /// Warnings: the caller's (`earlier`), the reconstruction's own
+    /// ([`Reconstruction::warnings`]), then a given colour range that shows none of the
+    /// depths.
     pub warnings: Vec<String>,
 }
 
@@ -213,7 +213,7 @@ pub fn write_all(
     picture::write_png(&dir.join("depth_colour.png"), &r.depth_mm, &colour_range)?;
     // The automatic range always shows the depths; a given one may miss them all.
     let mut warnings = earlier;
-    warnings.extend(r.surface_warning());
+    warnings.extend(r.warnings());
     warnings.extend(
         range.and_then(|_| picture::none_within(&colour_range, &r.depth_mm, "depth_colour.png")),
     );

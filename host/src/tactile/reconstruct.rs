@@ -216,6 +216,10 @@ pub struct Reconstruction {
     /// [`super::integrable::MAX_UNEXPLAINED`] the slopes are not one surface's
     /// ([`Self::not_one_surface`]).
     pub unexplained_share: f32,
+    /// An imprint filled its whole region, with no skin at rest around it to measure its
+    /// depth from (the contact covers the skin, or light that changed since the
+    /// references were taken reads as contact everywhere): its depth has no zero.
+    pub no_skin_at_rest: bool,
     /// Stage timings.
     pub timings: StageTimings,
 }
@@ -246,6 +250,23 @@ impl Reconstruction {
     /// different moments, or a frame mirrored or rotated. The depth is then not reliable.
     pub fn not_one_surface(&self) -> bool {
         self.unexplained_share > super::integrable::MAX_UNEXPLAINED
+    }
+
+    /// What to tell the reader of the depth: slopes that are not one surface's
+    /// ([`Self::surface_warning`]), an imprint with no skin at rest around it
+    /// ([`Self::no_skin_at_rest`]).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out: Vec<String> = self.surface_warning().into_iter().collect();
+        if self.no_skin_at_rest {
+            out.push(
+                "the contact fills its region with no skin at rest around it, so its depth \
+                 has no zero (it is measured from the frame's border): is the skin covered \
+                 whole, or has the room's light changed since the reference frames were taken \
+                 (LEDs-off frames remove it: interleaved mode)?"
+                    .to_string(),
+            );
+        }
+        out
     }
 
     /// What to tell the reader of the depth when [`Self::not_one_surface`].
@@ -632,6 +653,7 @@ impl Reconstructor {
             unlit_fraction: detection.unlit_fraction,
             ambient,
             unexplained_share: 0.0,
+            no_skin_at_rest: false,
             timings: StageTimings {
                 detect_ms: ms(start, Instant::now()),
                 ..Default::default()
@@ -803,7 +825,13 @@ impl Reconstructor {
         // just around it rather than from the region's border.
         let mut imprint = mask.clone();
         contact::fill_holes(&mut imprint, roi.width, roi.height);
-        let anchor = ring_median(depth_px.as_slice(), &imprint, roi.width, roi.height);
+        // No skin at rest around the imprint (it fills its region): its depth has no
+        // zero, and is measured from the region's border (the solve's level).
+        let anchor = ring_median(depth_px.as_slice(), &imprint, roi.width, roi.height)
+            .unwrap_or_else(|| {
+                out.no_skin_at_rest = true;
+                0.0
+            });
         let scale = 1.0 / self.model.px_per_mm as f32;
         // The deepest (or highest) point, to hold against the skin's thickness.
         let mut extreme = (0.0f32, 0usize, 0usize);
@@ -910,7 +938,10 @@ fn update_extreme(extreme: &mut (f32, usize, usize), row: &[f32], x0: usize, y: 
     }
 }
 
-fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
+/// The median depth of the pixels next to the imprint (left, right, above or below one of
+/// its pixels) but not in it: the skin at rest around it. `None` when there are none (the
+/// imprint fills the region, or is empty).
+fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> Option<f32> {
     let mut ring = Vec::new();
     let mut near = vec![false; w];
     for (y, inside) in imprint.chunks_exact(w.max(1)).enumerate() {
@@ -941,10 +972,10 @@ fn ring_median(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
         }
     }
     if ring.is_empty() {
-        return 0.0;
+        return None;
     }
     let k = ring.len() / 2;
-    *ring.select_nth_unstable_by(k, f32::total_cmp).1
+    Some(*ring.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
 #[cfg(test)]
@@ -979,7 +1010,7 @@ mod tests {
     /// The row-wise ring equals the pixel-by-pixel definition on random imprints.
     #[test]
     fn ring_median_matches_its_definition() {
-        fn direct(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> f32 {
+        fn direct(depth: &[f32], imprint: &[bool], w: usize, h: usize) -> Option<f32> {
             let mut ring = Vec::new();
             for y in 0..h {
                 for x in 0..w {
@@ -994,7 +1025,7 @@ mod tests {
                 }
             }
             ring.sort_by(f32::total_cmp);
-            ring.get(ring.len() / 2).copied().unwrap_or(0.0)
+            ring.get(ring.len() / 2).copied()
         }
         let mut rng = crate::rng::Rng::new(6);
         let mut rings = 0;
@@ -1003,7 +1034,7 @@ mod tests {
                 let imprint: Vec<bool> = (0..w * h).map(|_| rng.uniform() < density).collect();
                 let depth: Vec<f32> = (0..w * h).map(|_| rng.range(-1.0, 1.0) as f32).collect();
                 let want = direct(&depth, &imprint, w, h);
-                rings += usize::from(want != 0.0);
+                rings += usize::from(want.is_some());
                 assert_eq!(
                     ring_median(&depth, &imprint, w, h),
                     want,

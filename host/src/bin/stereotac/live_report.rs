@@ -29,6 +29,8 @@ pub struct Report {
     stereo_warned: u64,
     /// Tactile pairs whose slopes were not one surface's.
     no_surface: u64,
+    /// Tactile pairs with a contact and no skin at rest around it.
+    no_zero: u64,
 }
 
 impl Report {
@@ -43,6 +45,7 @@ impl Report {
             dark_refused: 0,
             stereo_warned: 0,
             no_surface: 0,
+            no_zero: 0,
         }
     }
 
@@ -73,6 +76,19 @@ impl Report {
                         );
                     }
                     self.no_surface += 1;
+                }
+                if record.no_skin_at_rest {
+                    if self.no_zero == 0 {
+                        eprintln!(
+                            "warning: tactile pair {}: its contact fills the region with no skin \
+                             at rest around it, so its depth has no zero: is the skin covered \
+                             whole, or has the room's light changed since the reference frames \
+                             were taken? (said once; the closing figures count such pairs, each \
+                             record holds its \"no_skin_at_rest\")",
+                            record.sequence
+                        );
+                    }
+                    self.no_zero += 1;
                 }
                 if self.jsonl {
                     emit(format_args!("{}", serde_json::to_string(record)?))
@@ -121,6 +137,13 @@ impl Report {
             eprintln!(
                 "warning: {n} {} slopes were not those of one surface (their depth is not \
                  reliable)",
+                if n == 1 { "pair's" } else { "pairs'" }
+            );
+        }
+        if self.no_zero > 0 {
+            let n = self.no_zero;
+            eprintln!(
+                "warning: {n} {} contact had no skin at rest around it (its depth has no zero)",
                 if n == 1 { "pair's" } else { "pairs'" }
             );
         }
