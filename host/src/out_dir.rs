@@ -74,6 +74,19 @@ pub enum OutDirError {
         /// The file in its place, or in the place of one of its parents.
         blocker: PathBuf,
     },
+    /// A symbolic link whose target is missing (an unmounted drive, a moved folder).
+    #[error(
+        "{}: a symbolic link to {}, which does not exist: give a folder for the outputs \
+         (or make the one it points to)",
+        path.display(),
+        target.display()
+    )]
+    DanglingLink {
+        /// The directory asked for.
+        path: PathBuf,
+        /// Where the link points.
+        target: PathBuf,
+    },
     /// A run allowed to write among its files would write through a link in it.
     #[error(
         "{}: holds a symbolic link, {} -> {}: a file written there would replace what \
@@ -159,6 +172,14 @@ impl OutDir {
             // Not made by this run although it was not there as written (`new/../old`
             // reaches a folder that was, or one appeared meanwhile): checked as any
             // folder that was there.
+        }
+        if std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink())
+            && std::fs::metadata(path).is_err()
+        {
+            return Err(OutDirError::DanglingLink {
+                path: path.to_path_buf(),
+                target: std::fs::read_link(path).unwrap_or_default(),
+            });
         }
         let entries: Vec<String> = std::fs::read_dir(path)
             .map_err(io)?
@@ -355,7 +376,15 @@ mod tests {
         {
             let link = d.join("dangling");
             std::os::unix::fs::symlink(d.join("unmounted/out"), &link).unwrap();
-            assert!(OutDir::prepare(&link, Replace::Never).is_err());
+            let e = OutDir::prepare(&link, Replace::Never)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("a symbolic link to")
+                    && e.contains("unmounted/out")
+                    && e.contains("does not exist"),
+                "{e}"
+            );
             assert!(
                 std::fs::symlink_metadata(&link).is_ok(),
                 "the link was removed"

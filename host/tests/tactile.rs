@@ -1648,6 +1648,30 @@ fn reconstruct_pictures_state_their_range_and_meshes_cover_the_frame() {
     let (out, _, _) = run(&Scene::default(), "fixed", &["--force"]);
     assert!(!out.join("depth_mesh.ply").exists(), "a stale mesh is left");
     assert!(out.join("summary.json").exists());
+    // Reference frames of another size are refused naming the files given.
+    let small = dir.join("small.png");
+    RgbImage::new(32, 24).save(&small).unwrap();
+    let refused = std::process::Command::new(env!("CARGO_BIN_EXE_stereotac"))
+        .args(["reconstruct", "--model", model_path.to_str().unwrap()])
+        .args(["--dx", dir.join("dx.png").to_str().unwrap()])
+        .args(["--dy", dir.join("dy.png").to_str().unwrap()])
+        .args([
+            "--ref-dx",
+            small.to_str().unwrap(),
+            "--ref-dy",
+            small.to_str().unwrap(),
+        ])
+        .args(["--out-dir", dir.join("refs").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success()
+            && err.contains("--ref-dx")
+            && err.contains("small.png")
+            && err.contains("(32, 24)"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

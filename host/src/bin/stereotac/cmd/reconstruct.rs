@@ -99,7 +99,16 @@ pub fn run(a: Args) -> Result<()> {
             dy,
             dark: ref_dark.as_ref(),
         }),
-    )?;
+    )
+    .with_context(|| match (&a.ref_dx, &a.ref_dy) {
+        (Some(dx), Some(dy)) => format!(
+            "--model {} with the reference frames --ref-dx {} / --ref-dy {}",
+            a.model.display(),
+            dx.display(),
+            dy.display()
+        ),
+        _ => format!("--model {}", a.model.display()),
+    })?;
     rec.set_past_reach(!a.no_past_reach);
     let r = rec
         .reconstruct_frames(PhaseFrames {
