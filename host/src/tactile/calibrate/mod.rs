@@ -535,6 +535,7 @@ enum Attempt {
     Again(Vec<(usize, RejectedPress)>),
 }
 
+/// One pass of [`calibrate`]: the calibration, or the presses to leave out of another.
 fn calibrate_once(
     pairs: &[CalibrationPair],
     references: Option<PhaseFrames<'_>>,
