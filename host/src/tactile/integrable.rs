@@ -20,6 +20,27 @@ use crate::grid::Grid;
 /// surface").
 pub const MAX_UNEXPLAINED: f32 = 0.15;
 
+/// Whether slopes with `share` of them unexplained are not one surface's (above
+/// [`MAX_UNEXPLAINED`]).
+pub fn not_one_surface(share: f32) -> bool {
+    share > MAX_UNEXPLAINED
+}
+
+/// What to tell the reader of a depth whose slopes left `share` unexplained, when they
+/// are not one surface's.
+pub fn surface_warning(share: f32) -> Option<String> {
+    not_one_surface(share).then(|| {
+        format!(
+            "the slopes are not those of one surface: the depth solved from them leaves {:.0} % \
+             of them unexplained (above {:.0} %; one skin's readings left at most 11 % on every \
+             skin family measured), so the depth is not reliable; are dx and dy from the same \
+             moment, and neither frame mirrored, rotated or of another sensor?",
+            100.0 * share,
+            100.0 * MAX_UNEXPLAINED
+        )
+    })
+}
+
 /// The share of the slopes' energy `Σ |g|²` that the surface `z` (px) does not explain,
 /// `Σ |∇z − g|² / Σ |g|²`, with `g` the slopes `p`, `q` averaged between neighbours and
 /// `∇z` the differences of `z` there (see the module documentation). 0 when there are

@@ -187,6 +187,13 @@ pub struct StageTimings {
     pub total_ms: f64,
 }
 
+/// What a reconstruction says when a contact had no skin at rest around it
+/// ([`Reconstruction::no_skin_at_rest`]).
+pub const NO_SKIN_AT_REST: &str = "the contact fills its region with no skin at rest around \
+    it, so its depth has no zero (it is measured from the frame's border): is the skin \
+    covered whole, or has the room's light changed since the reference frames were taken \
+    (LEDs-off frames remove it: interleaved mode)?";
+
 /// The result for one frame pair.
 #[derive(Debug, Clone)]
 pub struct Reconstruction {
@@ -247,9 +254,9 @@ impl Reconstruction {
 
     /// `true` when a region's slopes are not the gradient of one surface (more than
     /// [`super::integrable::MAX_UNEXPLAINED`] of them unexplained): dx and dy taken at
-    /// different moments, or a frame mirrored or rotated. The depth is then not reliable.
+    /// different moments. The depth is then not reliable.
     pub fn not_one_surface(&self) -> bool {
-        self.unexplained_share > super::integrable::MAX_UNEXPLAINED
+        super::integrable::not_one_surface(self.unexplained_share)
     }
 
     /// What to tell the reader of the depth: slopes that are not one surface's
@@ -258,30 +265,14 @@ impl Reconstruction {
     pub fn warnings(&self) -> Vec<String> {
         let mut out: Vec<String> = self.surface_warning().into_iter().collect();
         if self.no_skin_at_rest {
-            out.push(
-                "the contact fills its region with no skin at rest around it, so its depth \
-                 has no zero (it is measured from the frame's border): is the skin covered \
-                 whole, or has the room's light changed since the reference frames were taken \
-                 (LEDs-off frames remove it: interleaved mode)?"
-                    .to_string(),
-            );
+            out.push(NO_SKIN_AT_REST.to_string());
         }
         out
     }
 
     /// What to tell the reader of the depth when [`Self::not_one_surface`].
     pub fn surface_warning(&self) -> Option<String> {
-        self.not_one_surface().then(|| {
-            format!(
-                "the slopes are not those of one surface: the depth solved from them leaves \
-                 {:.0} % of them unexplained (above {:.0} %; one skin's readings left at most \
-                 11 % on every skin family measured), so the depth is not reliable; are dx \
-                 and dy from the same moment, and neither frame mirrored, rotated or of \
-                 another sensor?",
-                100.0 * self.unexplained_share,
-                100.0 * super::integrable::MAX_UNEXPLAINED
-            )
-        })
+        super::integrable::surface_warning(self.unexplained_share)
     }
 
     /// `true` when most of the frame shows no usable LED light (black, white, saturated

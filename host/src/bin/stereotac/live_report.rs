@@ -3,7 +3,8 @@
 use anyhow::Result;
 use stereotac::live::{Output, Pipeline, StereoRecord, TactileRecord};
 use stereotac::tactile::ambient::AmbientSource;
-use stereotac::tactile::integrable::MAX_UNEXPLAINED;
+use stereotac::tactile::integrable;
+use stereotac::tactile::reconstruct::NO_SKIN_AT_REST;
 use stereotac::timing::quantiles;
 
 use crate::console::emit;
@@ -62,17 +63,12 @@ impl Report {
                     }
                     self.dark_refused += 1;
                 }
-                if record.unexplained_share > MAX_UNEXPLAINED {
+                if let Some(note) = integrable::surface_warning(record.unexplained_share) {
                     if self.no_surface == 0 {
                         eprintln!(
-                            "warning: tactile pair {}: its slopes are not those of one surface \
-                             ({:.0} % unexplained by its depth, above {:.0} %): its depth is not \
-                             reliable; are dx and dy from the same moment? (said once; the \
-                             closing figures count such pairs, each record holds its \
-                             \"unexplained_share\")",
-                            record.sequence,
-                            100.0 * record.unexplained_share,
-                            100.0 * MAX_UNEXPLAINED
+                            "warning: tactile pair {}: {note} (said once; the closing figures \
+                             count such pairs, each record holds its \"unexplained_share\")",
+                            record.sequence
                         );
                     }
                     self.no_surface += 1;
@@ -80,11 +76,8 @@ impl Report {
                 if record.no_skin_at_rest {
                     if self.no_zero == 0 {
                         eprintln!(
-                            "warning: tactile pair {}: its contact fills the region with no skin \
-                             at rest around it, so its depth has no zero: is the skin covered \
-                             whole, or has the room's light changed since the reference frames \
-                             were taken? (said once; the closing figures count such pairs, each \
-                             record holds its \"no_skin_at_rest\")",
+                            "warning: tactile pair {}: {NO_SKIN_AT_REST} (said once; the closing \
+                             figures count such pairs, each record holds its \"no_skin_at_rest\")",
                             record.sequence
                         );
                     }
