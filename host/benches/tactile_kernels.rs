@@ -9,7 +9,7 @@ use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use stereotac::rng::Rng;
 use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
-use stereotac::tactile::contact::{block_references, find_regions};
+use stereotac::tactile::contact::{block_references, find_regions, look_at_every_row};
 use stereotac::tactile::crosstalk::Unmix;
 use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
@@ -161,6 +161,32 @@ fn scenes(c: &mut Criterion) {
                     find_regions(
                         &pair.dx,
                         &pair.dy,
+                        &block_refs,
+                        &model.filter,
+                        &model.contact,
+                        SolverKind::Dct,
+                    )
+                })
+            });
+            // The reference: detection that reads every row, without the glance.
+            g.bench_function("detect_none_every_row", |b| {
+                b.iter(|| {
+                    look_at_every_row(
+                        &pair.dx,
+                        &pair.dy,
+                        &block_refs,
+                        &model.filter,
+                        &model.contact,
+                        SolverKind::Dct,
+                    )
+                })
+            });
+            g.bench_function("detect_none_fresh_every_row", |b| {
+                b.iter(|| {
+                    next = (next + 1) % fresh.len();
+                    look_at_every_row(
+                        &fresh[next].dx,
+                        &fresh[next].dy,
                         &block_refs,
                         &model.filter,
                         &model.contact,

@@ -32,7 +32,7 @@ pub struct BlockMeans {
 impl BlockMeans {
     /// Block means of `image`. For the default step of 4 on a CPU with AVX2, each band
     /// of four rows is summed block by block straight from its bytes
-    /// ([`four_row_band`]); otherwise, and in a band with a clipped value, the rows of a
+    /// ([`band_sums`]); otherwise, and in a band with a clipped value, the rows of a
     /// block are first summed channel by channel ([`sum_rows`]), then the columns of
     /// every block at once ([`sum_blocks_of_four`] for the step of 4), both in vector
     /// lanes. Both give the same integer sums.
@@ -66,7 +66,7 @@ impl BlockMeans {
             // clipped values are counted (rare: a bright spot).
             if step == 4 && n_rows == 4 && w % 4 == 0 && w > 0 {
                 let at = out.red.len();
-                if let Some(false) = four_row_band(band, ahead, full, &mut out) {
+                if let Some(false) = band_sums(band, ahead, w * 3, [0, 1, 2, 3], full, &mut out) {
                     out.clipped.resize(at + bw, 0);
                     continue;
                 }
@@ -130,6 +130,55 @@ impl BlockMeans {
         out
     }
 
+    /// Block means over the middle half of each block's rows (rows 1 and 2 of the
+    /// default step of 4; of a block `n` rows tall, its `⌈n/2⌉` middle ones): half the
+    /// bytes of [`BlockMeans::of`], centred where its means are, so the light's slow
+    /// gradients across flat skin give the same means. Detection's first look at a pair
+    /// ([`crate::tactile::contact::find_regions`]). `clipped` counts the values of the
+    /// rows read.
+    pub fn of_middle_rows(image: &RgbImage, step: usize) -> Self {
+        let step = step.clamp(1, 256);
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
+        let (raw, stride) = (image.as_raw(), w * 3);
+        let mut out = Self {
+            step,
+            width: bw,
+            height: bh,
+            red: Vec::with_capacity(bw * bh),
+            green: Vec::with_capacity(bw * bh),
+            blue: Vec::with_capacity(bw * bh),
+            clipped: Vec::with_capacity(bw * bh),
+        };
+        for by in 0..bh {
+            let y0 = by * step;
+            let n_rows = step.min(h - y0);
+            let count = n_rows.div_ceil(2);
+            let first = (n_rows - count) / 2;
+            let next = (y0 + n_rows) * stride;
+            let band = &raw[y0 * stride..next];
+            let ahead = &raw[next..(next + step * stride).min(raw.len())];
+            if step == 4 && n_rows == 4 && w % 4 == 0 && w > 0 {
+                let at = out.red.len();
+                let scale = 1.0 / (count * step) as f32;
+                if let Some(false) = band_sums(band, ahead, stride, [1, 2], scale, &mut out) {
+                    out.clipped.resize(at + bw, 0);
+                    continue;
+                }
+                out.red.truncate(at);
+                out.green.truncate(at);
+                out.blue.truncate(at);
+            }
+            push_block_means(
+                &band[first * stride..(first + count) * stride],
+                stride,
+                step,
+                &mut out,
+            );
+        }
+        out
+    }
+
     /// Number of blocks.
     pub fn len(&self) -> usize {
         self.red.len()
@@ -151,6 +200,31 @@ impl BlockMeans {
     }
 }
 
+/// Appends the means and clipped counts of the blocks (`step` px wide) of `rows`
+/// (`stride` bytes each) to `out`, one block at a time: the path of bands the vector
+/// lanes do not take (a clipped value, a partial band, no AVX2).
+fn push_block_means(rows: &[u8], stride: usize, step: usize, out: &mut BlockMeans) {
+    let n_rows = rows.len() / stride.max(1);
+    let mut maxes = vec![0u8; step * 3];
+    for x0 in (0..stride / 3).step_by(step) {
+        let cols = x0 * 3..(x0 + step).min(stride / 3) * 3;
+        let mut sums = [0u32; 3];
+        let maxes = &mut maxes[..cols.len()];
+        maxes.fill(0);
+        for row in rows.chunks_exact(stride) {
+            for ((k, &v), m) in row[cols.clone()].iter().enumerate().zip(maxes.iter_mut()) {
+                sums[k % 3] += u32::from(v);
+                *m = (*m).max(v);
+            }
+        }
+        let inv = 1.0 / (n_rows * cols.len() / 3) as f32;
+        out.red.push(sums[0] as f32 * inv);
+        out.green.push(sums[1] as f32 * inv);
+        out.blue.push(sums[2] as f32 * inv);
+        out.clipped.push(count_clipped(maxes));
+    }
+}
+
 /// Channel values at 255 among `maxes`.
 #[inline]
 fn count_clipped(maxes: &[u8]) -> u32 {
@@ -158,39 +232,53 @@ fn count_clipped(maxes: &[u8]) -> u32 {
 }
 
 /// Appends the mean red, green and blue (sum × `scale`) of every block of four pixels
-/// of `band` (four rows of whole blocks) to `out`'s planes and says whether a value in
-/// the band reached 255 (the caller then sums the band again, counting clipped values);
-/// `None`, with nothing appended, where the CPU lacks AVX2. `ahead` holds the next
-/// band's rows, asked for ahead of use ([`crate::cpu::prefetch`]).
+/// over rows `pick` of `band` (four rows of whole blocks, `stride` bytes each) to `out`'s
+/// planes and says whether a value read reached 255 (the caller then sums the band
+/// again, counting clipped values); `None`, with nothing appended, where the CPU lacks
+/// AVX2. `ahead` holds the next band's rows, whose rows `pick` are asked for ahead of use
+/// ([`crate::cpu::prefetch`]).
 #[allow(unsafe_code)]
-fn four_row_band(band: &[u8], ahead: &[u8], scale: f32, out: &mut BlockMeans) -> Option<bool> {
+fn band_sums<const N: usize>(
+    band: &[u8],
+    ahead: &[u8],
+    stride: usize,
+    pick: [usize; N],
+    scale: f32,
+    out: &mut BlockMeans,
+) -> Option<bool> {
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
-        // SAFETY: `four_row_band_avx2` only needs AVX2, detected just above.
-        return Some(unsafe { four_row_band_avx2(band, ahead, scale, out) });
+        // SAFETY: `band_sums_avx2` only needs AVX2, detected just above.
+        return Some(unsafe { band_sums_avx2(band, ahead, stride, pick, scale, out) });
     }
-    let _ = (band, ahead, scale, out);
+    let _ = (band, ahead, stride, pick, scale, out);
     None
 }
 
-/// Blocks per group of [`four_row_band_avx2`]: eight, one per 128-bit lane of four
+/// Blocks per group of [`band_sums_avx2`]: eight, one per 128-bit lane of four
 /// registers.
 const GROUP: usize = 8;
 
-/// [`four_row_band`] in AVX2, one block of four pixels (12 bytes of each row) per 128-bit
+/// [`band_sums`] in AVX2, one block of four pixels (12 bytes of each row) per 128-bit
 /// lane: a byte shuffle orders a row's 12 bytes by channel, a multiply-add of byte pairs
-/// sums them two by two (16-bit), the four rows are added, and a multiply-add of 16-bit
-/// pairs gives the block's red, green and blue sums (32-bit). The two lanes of a register
-/// hold blocks four apart, so a 4×4 transpose of four registers puts eight blocks' red
+/// sums them two by two (16-bit), the rows are added, and a multiply-add of 16-bit pairs
+/// gives the block's red, green and blue sums (32-bit). The two lanes of a register hold
+/// blocks four apart, so a 4×4 transpose of four registers puts eight blocks' red
 /// (green, blue) sums in order. Integer sums, as the rows-then-columns path: the means
 /// are bit for bit the same. A lane loads the 16 bytes from its block's start (the first
 /// lane) or ending at its end (the second), so no load leaves its group of blocks.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(unsafe_code)]
-fn four_row_band_avx2(band: &[u8], ahead: &[u8], scale: f32, out: &mut BlockMeans) -> bool {
+fn band_sums_avx2<const N: usize>(
+    band: &[u8],
+    ahead: &[u8],
+    stride: usize,
+    pick: [usize; N],
+    scale: f32,
+    out: &mut BlockMeans,
+) -> bool {
     use std::arch::x86_64::*;
-    let stride = band.len() / 4;
     let blocks = stride / 12;
     // Bytes of a row's block by channel, in pairs for the multiply-add; -1 (high bit set)
     // gives 0. The second lane's block starts 4 bytes into its load.
@@ -225,7 +313,7 @@ fn four_row_band_avx2(band: &[u8], ahead: &[u8], scale: f32, out: &mut BlockMean
     let scale = _mm256_set1_ps(scale);
     let mut top = _mm256_setzero_si256();
     let groups = blocks / GROUP;
-    let rows: [&[u8]; 4] = std::array::from_fn(|r| &band[r * stride..(r + 1) * stride]);
+    let rows: [&[u8]; N] = pick.map(|r| &band[r * stride..(r + 1) * stride]);
     let at = out.red.len();
     for plane in [&mut out.red, &mut out.green, &mut out.blue] {
         plane.reserve(blocks);
@@ -233,11 +321,11 @@ fn four_row_band_avx2(band: &[u8], ahead: &[u8], scale: f32, out: &mut BlockMean
     let planes = [&mut out.red, &mut out.green, &mut out.blue].map(|p| p.as_mut_ptr());
     for g in 0..groups {
         let start = g * GROUP * 12;
-        for row in 0..4 {
+        for row in pick {
             crate::cpu::prefetch(ahead, row * stride + start);
             crate::cpu::prefetch(ahead, row * stride + start + 64);
         }
-        let group: [&[u8; GROUP * 12]; 4] = rows.map(|r| {
+        let group: [&[u8; GROUP * 12]; N] = rows.map(|r| {
             r[start..start + GROUP * 12]
                 .try_into()
                 .expect("a group's bytes")
@@ -290,7 +378,7 @@ fn four_row_band_avx2(band: &[u8], ahead: &[u8], scale: f32, out: &mut BlockMean
     // The blocks after the last group, one by one.
     for j in groups * GROUP..blocks {
         let mut s = [0u32; 3];
-        for row in 0..4 {
+        for row in pick {
             let at = row * stride + 12 * j;
             for px in band[at..at + 12].chunks_exact(3) {
                 for c in 0..3 {
@@ -526,11 +614,26 @@ mod tests {
     /// pixel columns' channels reach 255 in some row ([`BlockMeans::clipped`]) and its
     /// number of pixels.
     fn direct_block(img: &RgbImage, step: usize, bx: usize, by: usize) -> ([u32; 3], u32, usize) {
-        let (w, h) = (img.width() as usize, img.height() as usize);
-        let (xs, ys) = (
-            bx * step..((bx + 1) * step).min(w),
-            by * step..((by + 1) * step).min(h),
-        );
+        let h = img.height() as usize;
+        direct_rows(img, step, bx, by * step..((by + 1) * step).min(h))
+    }
+
+    /// [`direct_block`] over the block's middle rows ([`BlockMeans::of_middle_rows`]).
+    fn direct_middle(img: &RgbImage, step: usize, bx: usize, by: usize) -> ([u32; 3], u32, usize) {
+        let h = img.height() as usize;
+        let n = step.min(h - by * step);
+        let first = by * step + (n - n.div_ceil(2)) / 2;
+        direct_rows(img, step, bx, first..first + n.div_ceil(2))
+    }
+
+    fn direct_rows(
+        img: &RgbImage,
+        step: usize,
+        bx: usize,
+        ys: std::ops::Range<usize>,
+    ) -> ([u32; 3], u32, usize) {
+        let w = img.width() as usize;
+        let xs = bx * step..((bx + 1) * step).min(w);
         let mut sum = [0u32; 3];
         let mut clipped = vec![[false; 3]; xs.len()];
         for y in ys.clone() {
@@ -632,6 +735,50 @@ mod tests {
                     );
                     assert_eq!(b.clipped[i], clipped, "{blocks} ({bx}, {by})");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn middle_rows_equal_a_direct_sum_bit_for_bit() {
+        // Whole blocks of four pixels (vector lanes, groups of eight and the blocks
+        // after them) and partial ones (steps 3 and 5, widths not a multiple of four), a
+        // partial band below; a clipped value in a row read (counted) and in one not read
+        // (not counted: the means of the rows read are exact).
+        let mut rng = crate::rng::Rng::new(7);
+        for (w, step) in [
+            (4usize, 4usize),
+            (28, 4),
+            (32, 4),
+            (36, 4),
+            (68, 4),
+            (640, 4),
+            (37, 3),
+            (37, 5),
+            (38, 4),
+        ] {
+            let h = 14usize;
+            let mut img = RgbImage::from_fn(w as u32, h as u32, |_, _| {
+                image::Rgb(std::array::from_fn(|_| (rng.next_u64() % 255) as u8))
+            });
+            img.put_pixel((w - 1) as u32, 5, image::Rgb([9, 255, 9]));
+            img.put_pixel(0, 4, image::Rgb([255, 9, 9]));
+            let b = BlockMeans::of_middle_rows(&img, step);
+            let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
+            assert_eq!((b.width, b.height, b.len()), (bw, bh, bw * bh));
+            for by in 0..bh {
+                for bx in 0..bw {
+                    let (sum, clipped, n) = direct_middle(&img, step, bx, by);
+                    let i = by * bw + bx;
+                    let inv = 1.0 / n as f32;
+                    let at = format!("width {w} step {step} ({bx}, {by})");
+                    assert_eq!(b.mean(i), sum.map(|v| v as f32 * inv), "{at}");
+                    assert_eq!(b.clipped[i], clipped, "{at}");
+                }
+            }
+            if step == 4 {
+                // y = 5 is row 1 of the second band (read), y = 4 its row 0 (not read).
+                assert_eq!(b.clipped.iter().sum::<u32>(), 1, "width {w}");
             }
         }
     }
