@@ -42,9 +42,7 @@ impl BlockMeans {
         let (w, h) = (image.width() as usize, image.height() as usize);
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let raw = image.as_raw();
-        let mut rows = vec![0u16; w * 3];
-        let mut row_max = vec![0u8; w * 3];
-        let mut quads = vec![0u16; w * 3];
+        let mut sums = BandSums::new(w);
         let mut out = Self {
             step,
             width: bw,
@@ -74,58 +72,7 @@ impl BlockMeans {
                 out.green.truncate(at);
                 out.blue.truncate(at);
             }
-            // Whole blocks of four pixels (the default step) in vector lanes.
-            let whole = if step == 4 { w / 4 } else { 0 };
-            let any_clipped = sum_rows(
-                band,
-                ahead,
-                w * 3,
-                &mut rows,
-                &mut row_max,
-                &mut quads[..(whole * 12).saturating_sub(9)],
-            );
-            if whole > 0 {
-                let at = out.red.len();
-                // Block j's sums are quads[12j..12j + 3] (all written: the last block's
-                // end 9 values before the sums do). Appended, not zero-filled first: the
-                // planes of a 640×480 frame are 230 kB.
-                let blocks = || quads.chunks_exact(12).take(whole);
-                out.red.extend(blocks().map(|q| f32::from(q[0]) * full));
-                out.green.extend(blocks().map(|q| f32::from(q[1]) * full));
-                out.blue.extend(blocks().map(|q| f32::from(q[2]) * full));
-                if any_clipped {
-                    out.clipped
-                        .extend(row_max[..whole * 12].chunks_exact(12).map(count_clipped));
-                } else {
-                    out.clipped.resize(at + whole, 0);
-                }
-            }
-            // Sums of at most 256 × 256 values of 255 fit a u32: wrapping adds keep the
-            // loops free of overflow checks.
-            for bx in whole..bw {
-                let x0 = bx * step;
-                let n_cols = step.min(w - x0);
-                let inv = if n_cols == step {
-                    full
-                } else {
-                    1.0 / (n_rows * n_cols) as f32
-                };
-                let span = x0 * 3..(x0 + n_cols) * 3;
-                let mut s = [0u32; 3];
-                for px in rows[span.clone()].chunks_exact(3) {
-                    for c in 0..3 {
-                        s[c] = s[c].wrapping_add(u32::from(px[c]));
-                    }
-                }
-                out.red.push(s[0] as f32 * inv);
-                out.green.push(s[1] as f32 * inv);
-                out.blue.push(s[2] as f32 * inv);
-                out.clipped.push(if any_clipped {
-                    count_clipped(&row_max[span])
-                } else {
-                    0
-                });
-            }
+            sums.push_band(band, ahead, step, &mut out);
         }
         out
     }
@@ -141,6 +88,7 @@ impl BlockMeans {
         let (w, h) = (image.width() as usize, image.height() as usize);
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let (raw, stride) = (image.as_raw(), w * 3);
+        let mut sums = BandSums::new(w);
         let mut out = Self {
             step,
             width: bw,
@@ -169,12 +117,63 @@ impl BlockMeans {
                 out.green.truncate(at);
                 out.blue.truncate(at);
             }
-            push_block_means(
-                &band[first * stride..(first + count) * stride],
-                stride,
-                step,
-                &mut out,
-            );
+            let rows = &band[first * stride..(first + count) * stride];
+            sums.push_band(rows, ahead, step, &mut out);
+        }
+        out
+    }
+
+    /// [`Self::of`] given `middle`, the means of the same image's middle rows
+    /// ([`Self::of_middle_rows`]): for the default step of 4 on a frame of whole blocks
+    /// only the other two rows of each band are read, and their sums added to the middle
+    /// rows' (whole numbers over a power-of-two count of pixels, so the means are bit for
+    /// bit [`Self::of`]'s). A band with a clipped value, other sizes and other CPUs are
+    /// read whole.
+    pub fn of_given_middle_rows(image: &RgbImage, middle: &Self) -> Self {
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        let step = middle.step;
+        let (bw, bh) = (w / 4, h / 4);
+        let shaped = (middle.width, middle.height, middle.len()) == (bw, bh, bw * bh);
+        if step != 4 || w % 4 != 0 || h % 4 != 0 || w == 0 || !shaped {
+            return Self::of(image, step);
+        }
+        let (raw, stride) = (image.as_raw(), w * 3);
+        let mut sums = BandSums::new(w);
+        let mut out = Self {
+            step,
+            width: bw,
+            height: bh,
+            red: Vec::with_capacity(bw * bh),
+            green: Vec::with_capacity(bw * bh),
+            blue: Vec::with_capacity(bw * bh),
+            clipped: Vec::with_capacity(bw * bh),
+        };
+        for by in 0..bh {
+            let next = (by + 1) * 4 * stride;
+            let band = &raw[by * 4 * stride..next];
+            let ahead = &raw[next..(next + 4 * stride).min(raw.len())];
+            let at = out.red.len();
+            let blocks = at..at + bw;
+            if middle.clipped[blocks.clone()].iter().all(|&c| c == 0)
+                && let Some(false) = band_sums(band, ahead, stride, [0, 3], 0.125, &mut out)
+            {
+                // Both halves' means are sums over 8 pixels, exact multiples of 1/8.
+                for (plane, half) in [
+                    (&mut out.red, &middle.red),
+                    (&mut out.green, &middle.green),
+                    (&mut out.blue, &middle.blue),
+                ] {
+                    for (o, m) in plane[blocks.clone()].iter_mut().zip(&half[blocks.clone()]) {
+                        *o = (*o + *m) * 0.5;
+                    }
+                }
+                out.clipped.resize(at + bw, 0);
+                continue;
+            }
+            out.red.truncate(at);
+            out.green.truncate(at);
+            out.blue.truncate(at);
+            sums.push_band(band, ahead, step, &mut out);
         }
         out
     }
@@ -200,28 +199,89 @@ impl BlockMeans {
     }
 }
 
-/// Appends the means and clipped counts of the blocks (`step` px wide) of `rows`
-/// (`stride` bytes each) to `out`, one block at a time: the path of bands the vector
-/// lanes do not take (a clipped value, a partial band, no AVX2).
-fn push_block_means(rows: &[u8], stride: usize, step: usize, out: &mut BlockMeans) {
-    let n_rows = rows.len() / stride.max(1);
-    let mut maxes = vec![0u8; step * 3];
-    for x0 in (0..stride / 3).step_by(step) {
-        let cols = x0 * 3..(x0 + step).min(stride / 3) * 3;
-        let mut sums = [0u32; 3];
-        let maxes = &mut maxes[..cols.len()];
-        maxes.fill(0);
-        for row in rows.chunks_exact(stride) {
-            for ((k, &v), m) in row[cols.clone()].iter().enumerate().zip(maxes.iter_mut()) {
-                sums[k % 3] += u32::from(v);
-                *m = (*m).max(v);
+/// Buffers of the band-by-band path of [`BlockMeans::of`] and
+/// [`BlockMeans::of_middle_rows`] for a frame `width` px wide.
+struct BandSums {
+    /// Channel sums down the rows of a band, per pixel column.
+    rows: Vec<u16>,
+    /// Channel maxima down the rows (written only when something reached 255).
+    row_max: Vec<u8>,
+    /// Sums of blocks of four pixels ([`sum_blocks_of_four`]).
+    quads: Vec<u16>,
+}
+
+impl BandSums {
+    fn new(width: usize) -> Self {
+        Self {
+            rows: vec![0u16; width * 3],
+            row_max: vec![0u8; width * 3],
+            quads: vec![0u16; width * 3],
+        }
+    }
+
+    /// Appends the means and clipped counts of the blocks (`step` px wide) over the rows
+    /// of `band` (at most 257, whole rows of the frame) to `out`: the rows summed channel by
+    /// channel ([`sum_rows`]), then the columns of every block (of four pixels at once), in
+    /// vector lanes. `ahead` holds the rows that come next ([`sum_rows`]).
+    fn push_band(&mut self, band: &[u8], ahead: &[u8], step: usize, out: &mut BlockMeans) {
+        let (rows, row_max, quads) = (&mut self.rows, &mut self.row_max, &mut self.quads);
+        let stride = rows.len();
+        let w = stride / 3;
+        let bw = w.div_ceil(step);
+        let n_rows = band.len() / stride.max(1);
+        let full = 1.0 / (n_rows * step) as f32;
+        // Whole blocks of four pixels (the default step) in vector lanes.
+        let whole = if step == 4 { w / 4 } else { 0 };
+        let any_clipped = sum_rows(
+            band,
+            ahead,
+            w * 3,
+            rows,
+            row_max,
+            &mut quads[..(whole * 12).saturating_sub(9)],
+        );
+        if whole > 0 {
+            let at = out.red.len();
+            // Block j's sums are quads[12j..12j + 3] (all written: the last block's
+            // end 9 values before the sums do). Appended, not zero-filled first: the
+            // planes of a 640×480 frame are 230 kB.
+            let blocks = || quads.chunks_exact(12).take(whole);
+            out.red.extend(blocks().map(|q| f32::from(q[0]) * full));
+            out.green.extend(blocks().map(|q| f32::from(q[1]) * full));
+            out.blue.extend(blocks().map(|q| f32::from(q[2]) * full));
+            if any_clipped {
+                out.clipped
+                    .extend(row_max[..whole * 12].chunks_exact(12).map(count_clipped));
+            } else {
+                out.clipped.resize(at + whole, 0);
             }
         }
-        let inv = 1.0 / (n_rows * cols.len() / 3) as f32;
-        out.red.push(sums[0] as f32 * inv);
-        out.green.push(sums[1] as f32 * inv);
-        out.blue.push(sums[2] as f32 * inv);
-        out.clipped.push(count_clipped(maxes));
+        // Sums of at most 256 × 256 values of 255 fit a u32: wrapping adds keep the
+        // loops free of overflow checks.
+        for bx in whole..bw {
+            let x0 = bx * step;
+            let n_cols = step.min(w - x0);
+            let inv = if n_cols == step {
+                full
+            } else {
+                1.0 / (n_rows * n_cols) as f32
+            };
+            let span = x0 * 3..(x0 + n_cols) * 3;
+            let mut s = [0u32; 3];
+            for px in rows[span.clone()].chunks_exact(3) {
+                for c in 0..3 {
+                    s[c] = s[c].wrapping_add(u32::from(px[c]));
+                }
+            }
+            out.red.push(s[0] as f32 * inv);
+            out.green.push(s[1] as f32 * inv);
+            out.blue.push(s[2] as f32 * inv);
+            out.clipped.push(if any_clipped {
+                count_clipped(&row_max[span])
+            } else {
+                0
+            });
+        }
     }
 }
 
@@ -780,6 +840,23 @@ mod tests {
                 // y = 5 is row 1 of the second band (read), y = 4 its row 0 (not read).
                 assert_eq!(b.clipped.iter().sum::<u32>(), 1, "width {w}");
             }
+        }
+    }
+
+    #[test]
+    fn the_other_rows_added_to_the_middle_ones_equal_block_means_bit_for_bit() {
+        // Whole blocks of four (vector lanes), clipped values in a middle row and in an
+        // outer one (bands read whole), and sizes the shortcut does not take.
+        let mut rng = crate::rng::Rng::new(9);
+        for (w, h) in [(640usize, 16usize), (36, 12), (4, 8), (37, 12), (36, 14)] {
+            let mut img = RgbImage::from_fn(w as u32, h as u32, |_, _| {
+                image::Rgb(std::array::from_fn(|_| (rng.next_u64() % 255) as u8))
+            });
+            img.put_pixel(0, 5, image::Rgb([9, 255, 9]));
+            img.put_pixel((w - 1) as u32, h as u32 - 4, image::Rgb([255, 9, 9]));
+            let middle = BlockMeans::of_middle_rows(&img, 4);
+            let all = BlockMeans::of_given_middle_rows(&img, &middle);
+            assert_eq!(all, BlockMeans::of(&img, 4), "{w}×{h}");
         }
     }
 
