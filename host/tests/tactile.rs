@@ -1195,7 +1195,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 36] = [
+    let cases: [(&str, Damage); 40] = [
         // A side light of the wrong shape, or one no strip makes.
         (
             "side_light.kappa",
@@ -1317,6 +1317,33 @@ fn model_files_round_trip_and_refuse_other_versions() {
                 *v = 0.into();
             }
         }),
+        // Light and photometric models zeroed or turned round: they read no slope, or
+        // the wrong way (a contact read 0 mm, or 0.52 instead of 1.05, with exit 0).
+        ("dx.light.response", |m| {
+            for cell in m["dx"]["light"]["response"].as_array_mut().unwrap() {
+                *cell = serde_json::json!([0.0, 0.0]);
+            }
+        }),
+        ("dy.light.response", |m| {
+            for cell in m["dy"]["light"]["response"].as_array_mut().unwrap() {
+                for v in cell.as_array_mut().unwrap() {
+                    *v = (-v.as_f64().unwrap()).into();
+                }
+            }
+        }),
+        ("photometric.lights (dx strips)", |m| {
+            let cells = m["photometric"]["lights"].as_array().unwrap().len();
+            m["photometric"]["lights"] = serde_json::json!(vec![[[0.0, 0.0]; 4]; cells])
+        }),
+        ("photometric.lights (dy strips)", |m| {
+            for cell in m["photometric"]["lights"].as_array_mut().unwrap() {
+                for strip in &mut cell.as_array_mut().unwrap()[2..] {
+                    for v in strip.as_array_mut().unwrap() {
+                        *v = (-v.as_f64().unwrap()).into();
+                    }
+                }
+            }
+        }),
         ("dx.mlp", |m| {
             let last = m["dx"]["mlp"]["layers"]
                 .as_array_mut()
@@ -1367,6 +1394,37 @@ fn model_files_round_trip_and_refuse_other_versions() {
         );
         assert!(err.to_string().contains("recalibrate"), "{err}");
     }
+    // Calibration's step for such parts: it leaves them out and says why, one line each,
+    // and what is left loads.
+    let mut turned = good.clone();
+    for cell in turned["dy"]["light"]["response"].as_array_mut().unwrap() {
+        *cell = serde_json::json!([0.0, 0.0]);
+    }
+    turned["photometric"]["lights"] = serde_json::json!(vec![
+        [[0.0, 0.0]; 4];
+        turned["photometric"]["lights"]
+            .as_array()
+            .unwrap()
+            .len()
+    ]);
+    let mut turned: TactileModel = serde_json::from_value(turned).unwrap();
+    let said = turned.leave_out_misdirected();
+    assert_eq!(said.len(), 3, "{said:#?}");
+    for (line, field) in said.iter().zip([
+        "photometric.lights (dx strips)",
+        "dy.light.response",
+        "photometric.lights (dy strips)",
+    ]) {
+        assert!(
+            line.starts_with(field) && line.contains("left out"),
+            "{line}"
+        );
+    }
+    assert!(turned.dx.light.is_some() && turned.dy.light.is_none());
+    assert!(turned.photometric.is_none());
+    TactileModel::from_json("m.json", &serde_json::to_vec(&turned).unwrap()).unwrap();
+    let mut whole: TactileModel = serde_json::from_value(good.clone()).unwrap();
+    assert!(whole.leave_out_misdirected().is_empty());
     // A model written before the light model existed still loads; asking it for the
     // light model is refused with the fix, the other models work.
     let mut old = good.clone();

@@ -477,7 +477,8 @@ impl Reconstructor {
             return Err(ReconstructError::InvalidModel {
                 field: "photometric".into(),
                 why: "absent (the model was calibrated before the photometric model \
-                      existed): calibrate again, or use the lut, mlp or light model"
+                      existed, or its calibration left it out and said why): calibrate \
+                      again, or use the lut, mlp or light model"
                     .into(),
             });
         }
@@ -487,7 +488,8 @@ impl Reconstructor {
                     return Err(ReconstructError::InvalidModel {
                         field: format!("{axis}.light"),
                         why: "absent (the model was calibrated before the light model \
-                              existed): calibrate again, or use the lut or mlp model"
+                              existed, or its calibration left it out and said why): \
+                              calibrate again, or use the lut or mlp model"
                             .into(),
                     });
                 }

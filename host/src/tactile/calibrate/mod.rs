@@ -1049,7 +1049,7 @@ fn calibrate_once(
         .collect();
     other_balls_mm.sort_by(f64::total_cmp);
     other_balls_mm.dedup();
-    let model = TactileModel {
+    let mut model = TactileModel {
         format: MODEL_FORMAT.to_string(),
         version: MODEL_VERSION,
         width: w,
@@ -1068,6 +1068,7 @@ fn calibrate_once(
         side_light,
         fit: fit_report,
     };
+    let left_out = model.leave_out_misdirected();
     crate::tactile::model::validate::check(&model)
         .map_err(|(field, why)| CalibrationError::ModelFailsCheck { field, why })?;
     let mut report = CalibrationReport::new(
@@ -1081,6 +1082,7 @@ fn calibrate_once(
     );
     report.warnings.extend(ambient_warning);
     report.warnings.extend(fixed_warning);
+    report.warnings.extend(left_out);
     Ok(Attempt::Done(Box::new(Calibration {
         model,
         presses,

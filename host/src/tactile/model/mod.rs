@@ -413,6 +413,33 @@ pub enum ModelError {
 }
 
 impl TactileModel {
+    /// Leaves out the optional parts that read a slope's direction wrongly at the frame's
+    /// centre ([`validate::misdirected`]) and says why, one line each: calibration's step,
+    /// so that on a skin whose presses these simpler models fit badly the table and the
+    /// perceptron still make a calibration (a file with such a part is refused).
+    pub fn leave_out_misdirected(&mut self) -> Vec<String> {
+        use validate::OptionalPart;
+        let mut warnings = Vec::new();
+        for (part, field, why) in validate::misdirected(self) {
+            let without = match part {
+                OptionalPart::Light { dx } => {
+                    let axis = if dx { &mut self.dx } else { &mut self.dy };
+                    axis.light = None;
+                    "slopes past the table's reach are read by the table alone, and the light \
+                     model (--model-kind light) cannot be used"
+                }
+                OptionalPart::Photometric => {
+                    self.photometric = None;
+                    "the photometric model (--model-kind photometric) cannot be used"
+                }
+            };
+            warnings.push(format!(
+                "{field} {why}; it is left out of the model: {without}"
+            ));
+        }
+        warnings
+    }
+
     /// Writes the model as JSON.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         let io = |source| ModelError::Io {

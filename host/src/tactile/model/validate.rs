@@ -186,6 +186,9 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
             check_light(light).map_err(|(f, why)| (format!("{axis}.light.{f}"), why))?;
         }
     }
+    if let Some(photometric) = &m.photometric {
+        check_photometric(photometric).map_err(|(f, why)| (format!("photometric.{f}"), why))?;
+    }
     for (axis, model, planes, along_x) in [
         ("dx", &m.dx, &m.background.dx, true),
         ("dy", &m.dy, &m.background.dy, false),
@@ -196,14 +199,67 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         check_direction(side, |f, o| model.mlp.eval_batch(f, o))
             .map_err(|why| (format!("{axis}.mlp"), why))?;
     }
-    if let Some(photometric) = &m.photometric {
-        check_photometric(photometric).map_err(|(f, why)| (format!("photometric.{f}"), why))?;
+    if let Some((_, field, why)) = misdirected(m).into_iter().next() {
+        return fail(&field, why);
     }
     if let Some(side) = &m.side_light {
         side.check()
             .map_err(|why| ("side_light.kappa".to_string(), why))?;
     }
     Ok(())
+}
+
+/// A part of a model that reconstruction can do without: a phase's light model (it reads
+/// slopes past the table's reach, and is a model kind of its own) or the photometric model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OptionalPart {
+    /// The dx phase's (`true`) or the dy phase's light model.
+    Light {
+        /// The dx phase's.
+        dx: bool,
+    },
+    /// The photometric model.
+    Photometric,
+}
+
+/// The optional parts of `m` that read a slope's direction wrongly, or not at all, at the
+/// frame's centre ([`check_direction`]), each with its field and what it read. A file
+/// with one is refused ([`check`]); calibration leaves such a part out and says so (a
+/// skin whose presses fit these simpler models badly should not cost the whole
+/// calibration). The parts' shapes must have been checked before.
+pub fn misdirected(m: &TactileModel) -> Vec<(OptionalPart, String, String)> {
+    let mut out = Vec::new();
+    for (axis, model, planes, along_x) in [
+        ("dx", &m.dx, &m.background.dx, true),
+        ("dy", &m.dy, &m.background.dy, false),
+    ] {
+        let side = red_side(planes, m.background.width, m.background.height, along_x);
+        if let Some(light) = &model.light
+            && let Err(why) = check_direction(side, |f, o| light.eval_batch(f, o))
+        {
+            let part = OptionalPart::Light { dx: along_x };
+            out.push((part, format!("{axis}.light.response"), why));
+        }
+        if let Some(photometric) = &m.photometric {
+            // The other phase's colours are flat skin's: the slope along this axis alone.
+            let read = |f: &[[f32; 4]], o: &mut [f32]| {
+                for (f, o) in f.iter().zip(o.iter_mut()) {
+                    let colours = if along_x {
+                        [f[0], f[1], 1.0, 1.0]
+                    } else {
+                        [1.0, 1.0, f[0], f[1]]
+                    };
+                    let slopes = photometric.read(colours, f[2], f[3]);
+                    *o = slopes.map_or(0.0, |s| s[usize::from(!along_x)]);
+                }
+            };
+            if let Err(why) = check_direction(side, read) {
+                let field = format!("photometric.lights ({axis} strips)");
+                out.push((OptionalPart::Photometric, field, why));
+            }
+        }
+    }
+    out
 }
 
 /// How far from flat skin's colour [`check_direction`] reads (normalised colour: a gentle
