@@ -6,17 +6,24 @@
 //! Run with `cargo bench -p stereotac --bench tactile_kernels`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use image::RgbImage;
 use stereotac::rng::Rng;
 use stereotac::tactile::bench::{Fft2d, smooth_slopes};
 use stereotac::tactile::colour::{ColourFilter, Reference};
-use stereotac::tactile::contact::{block_references, find_regions, look_at_every_row};
+use stereotac::tactile::contact::{
+    ContactParams, Detection, References, block_references, find_regions, look_at_every_row,
+};
 use stereotac::tactile::crosstalk::Unmix;
 use stereotac::tactile::model::ModelKind;
 use stereotac::tactile::model::{Lut, Mlp, MlpTraining, Sample};
 use stereotac::tactile::poisson::{PoissonSolver, SolverKind};
 use stereotac::tactile::reconstruct::Reconstructor;
-use stereotac::tactile::render::{Optics, builtin_scenes, render};
+use stereotac::tactile::render::{Optics, RenderedPair, builtin_scenes, render};
 use stereotac::tactile::synthetic::builtin_calibration;
+
+/// Detection's signature: [`find_regions`] and [`look_at_every_row`].
+type Detect =
+    fn(&RgbImage, &RgbImage, &References, &ColourFilter, &ContactParams, SolverKind) -> Detection;
 
 fn poisson(c: &mut Criterion) {
     let mut g = c.benchmark_group("poisson");
@@ -143,57 +150,24 @@ fn scenes(c: &mut Criterion) {
             // when it is read. 24 pairs (44 MB) in turn, more than the caches hold.
             let fresh: Vec<_> = (0..24).map(|k| render(&optics, scene, 100 + k)).collect();
             let mut next = 0;
-            g.bench_function("detect_none_fresh", |b| {
-                b.iter(|| {
-                    next = (next + 1) % fresh.len();
-                    find_regions(
-                        &fresh[next].dx,
-                        &fresh[next].dy,
-                        &block_refs,
-                        &model.filter,
-                        &model.contact,
-                        SolverKind::Dct,
-                    )
-                })
-            });
-            g.bench_function("detect_none", |b| {
-                b.iter(|| {
-                    find_regions(
-                        &pair.dx,
-                        &pair.dy,
-                        &block_refs,
-                        &model.filter,
-                        &model.contact,
-                        SolverKind::Dct,
-                    )
-                })
-            });
-            // The reference: detection that reads every row, without the glance.
-            g.bench_function("detect_none_every_row", |b| {
-                b.iter(|| {
-                    look_at_every_row(
-                        &pair.dx,
-                        &pair.dy,
-                        &block_refs,
-                        &model.filter,
-                        &model.contact,
-                        SolverKind::Dct,
-                    )
-                })
-            });
-            g.bench_function("detect_none_fresh_every_row", |b| {
-                b.iter(|| {
-                    next = (next + 1) % fresh.len();
-                    look_at_every_row(
-                        &fresh[next].dx,
-                        &fresh[next].dy,
-                        &block_refs,
-                        &model.filter,
-                        &model.contact,
-                        SolverKind::Dct,
-                    )
-                })
-            });
+            // The glance, and the reference: detection that reads every row; one pair
+            // again and again, and the fresh pairs in turn.
+            for (name, detect) in [
+                ("detect_none", find_regions as Detect),
+                ("detect_none_every_row", look_at_every_row),
+            ] {
+                let read = |p: &RenderedPair| {
+                    let (filter, contact) = (&model.filter, &model.contact);
+                    detect(&p.dx, &p.dy, &block_refs, filter, contact, SolverKind::Dct)
+                };
+                g.bench_function(name, |b| b.iter(|| read(&pair)));
+                g.bench_function(format!("{name}_fresh"), |b| {
+                    b.iter(|| {
+                        next = (next + 1) % fresh.len();
+                        read(&fresh[next])
+                    })
+                });
+            }
         }
     }
     g.finish();

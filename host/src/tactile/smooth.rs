@@ -30,6 +30,20 @@ pub struct BlockMeans {
 }
 
 impl BlockMeans {
+    /// No blocks yet, with room for `width × height` of `step` px.
+    fn with_room(step: usize, width: usize, height: usize) -> Self {
+        let n = width * height;
+        Self {
+            step,
+            width,
+            height,
+            red: Vec::with_capacity(n),
+            green: Vec::with_capacity(n),
+            blue: Vec::with_capacity(n),
+            clipped: Vec::with_capacity(n),
+        }
+    }
+
     /// Block means of `image`. For the default step of 4 on a CPU with AVX2, each band
     /// of four rows is summed block by block straight from its bytes
     /// ([`band_sums`]); otherwise, and in a band with a clipped value, the rows of a
@@ -43,15 +57,7 @@ impl BlockMeans {
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let raw = image.as_raw();
         let mut sums = BandSums::new(w);
-        let mut out = Self {
-            step,
-            width: bw,
-            height: bh,
-            red: Vec::with_capacity(bw * bh),
-            green: Vec::with_capacity(bw * bh),
-            blue: Vec::with_capacity(bw * bh),
-            clipped: Vec::with_capacity(bw * bh),
-        };
+        let mut out = Self::with_room(step, bw, bh);
         for by in 0..bh {
             let y0 = by * step;
             let n_rows = step.min(h - y0);
@@ -89,15 +95,7 @@ impl BlockMeans {
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
         let (raw, stride) = (image.as_raw(), w * 3);
         let mut sums = BandSums::new(w);
-        let mut out = Self {
-            step,
-            width: bw,
-            height: bh,
-            red: Vec::with_capacity(bw * bh),
-            green: Vec::with_capacity(bw * bh),
-            blue: Vec::with_capacity(bw * bh),
-            clipped: Vec::with_capacity(bw * bh),
-        };
+        let mut out = Self::with_room(step, bw, bh);
         for by in 0..bh {
             let y0 = by * step;
             let n_rows = step.min(h - y0);
@@ -139,15 +137,7 @@ impl BlockMeans {
         }
         let (raw, stride) = (image.as_raw(), w * 3);
         let mut sums = BandSums::new(w);
-        let mut out = Self {
-            step,
-            width: bw,
-            height: bh,
-            red: Vec::with_capacity(bw * bh),
-            green: Vec::with_capacity(bw * bh),
-            blue: Vec::with_capacity(bw * bh),
-            clipped: Vec::with_capacity(bw * bh),
-        };
+        let mut out = Self::with_room(step, bw, bh);
         for by in 0..bh {
             let next = (by + 1) * 4 * stride;
             let band = &raw[by * 4 * stride..next];
