@@ -55,30 +55,17 @@ impl BlockMeans {
         let step = step.clamp(1, 256);
         let (w, h) = (image.width() as usize, image.height() as usize);
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
-        let raw = image.as_raw();
         let mut sums = BandSums::new(w);
         let mut out = Self::with_room(step, bw, bh);
-        for by in 0..bh {
-            let y0 = by * step;
-            let n_rows = step.min(h - y0);
-            let next = (y0 + n_rows) * w * 3;
-            let band = &raw[y0 * w * 3..next];
-            let ahead = &raw[next..(next + step * w * 3).min(raw.len())];
-            let full = 1.0 / (n_rows * step) as f32;
+        for (n_rows, band, ahead) in bands(image, step) {
             // Four whole rows of whole blocks: the block sums straight from the bytes, in
             // vector lanes. A band with a clipped value is summed again below, where the
             // clipped values are counted (rare: a bright spot).
-            if step == 4 && n_rows == 4 && w % 4 == 0 && w > 0 {
-                let at = out.red.len();
-                if let Some(false) = band_sums(band, ahead, w * 3, [0, 1, 2, 3], full, &mut out) {
-                    out.clipped.resize(at + bw, 0);
-                    continue;
-                }
-                out.red.truncate(at);
-                out.green.truncate(at);
-                out.blue.truncate(at);
+            let full = 1.0 / (n_rows * step) as f32;
+            let lanes = step == 4 && n_rows == 4 && w % 4 == 0 && w > 0;
+            if !(lanes && sum_clean_band(band, ahead, w * 3, [0, 1, 2, 3], full, &mut out)) {
+                sums.push_band(band, ahead, step, &mut out);
             }
-            sums.push_band(band, ahead, step, &mut out);
         }
         out
     }
@@ -93,30 +80,18 @@ impl BlockMeans {
         let step = step.clamp(1, 256);
         let (w, h) = (image.width() as usize, image.height() as usize);
         let (bw, bh) = (w.div_ceil(step), h.div_ceil(step));
-        let (raw, stride) = (image.as_raw(), w * 3);
+        let stride = w * 3;
         let mut sums = BandSums::new(w);
         let mut out = Self::with_room(step, bw, bh);
-        for by in 0..bh {
-            let y0 = by * step;
-            let n_rows = step.min(h - y0);
+        for (n_rows, band, ahead) in bands(image, step) {
             let count = n_rows.div_ceil(2);
             let first = (n_rows - count) / 2;
-            let next = (y0 + n_rows) * stride;
-            let band = &raw[y0 * stride..next];
-            let ahead = &raw[next..(next + step * stride).min(raw.len())];
-            if step == 4 && n_rows == 4 && w % 4 == 0 && w > 0 {
-                let at = out.red.len();
-                let scale = 1.0 / (count * step) as f32;
-                if let Some(false) = band_sums(band, ahead, stride, [1, 2], scale, &mut out) {
-                    out.clipped.resize(at + bw, 0);
-                    continue;
-                }
-                out.red.truncate(at);
-                out.green.truncate(at);
-                out.blue.truncate(at);
+            let scale = 1.0 / (count * step) as f32;
+            let lanes = step == 4 && n_rows == 4 && w % 4 == 0 && w > 0;
+            if !(lanes && sum_clean_band(band, ahead, stride, [1, 2], scale, &mut out)) {
+                let rows = &band[first * stride..(first + count) * stride];
+                sums.push_band(rows, ahead, step, &mut out);
             }
-            let rows = &band[first * stride..(first + count) * stride];
-            sums.push_band(rows, ahead, step, &mut out);
         }
         out
     }
@@ -135,17 +110,12 @@ impl BlockMeans {
         if step != 4 || w % 4 != 0 || h % 4 != 0 || w == 0 || !shaped {
             return Self::of(image, step);
         }
-        let (raw, stride) = (image.as_raw(), w * 3);
         let mut sums = BandSums::new(w);
         let mut out = Self::with_room(step, bw, bh);
-        for by in 0..bh {
-            let next = (by + 1) * 4 * stride;
-            let band = &raw[by * 4 * stride..next];
-            let ahead = &raw[next..(next + 4 * stride).min(raw.len())];
-            let at = out.red.len();
-            let blocks = at..at + bw;
+        for (_, band, ahead) in bands(image, step) {
+            let blocks = out.red.len()..out.red.len() + bw;
             if middle.clipped[blocks.clone()].iter().all(|&c| c == 0)
-                && let Some(false) = band_sums(band, ahead, stride, [0, 3], 0.125, &mut out)
+                && sum_clean_band(band, ahead, w * 3, [0, 3], 0.125, &mut out)
             {
                 // Both halves' means are sums over 8 pixels, exact multiples of 1/8.
                 for (plane, half) in [
@@ -157,13 +127,9 @@ impl BlockMeans {
                         *o = (*o + *m) * 0.5;
                     }
                 }
-                out.clipped.resize(at + bw, 0);
-                continue;
+            } else {
+                sums.push_band(band, ahead, step, &mut out);
             }
-            out.red.truncate(at);
-            out.green.truncate(at);
-            out.blue.truncate(at);
-            sums.push_band(band, ahead, step, &mut out);
         }
         out
     }
@@ -279,6 +245,44 @@ impl BandSums {
 #[inline]
 fn count_clipped(maxes: &[u8]) -> u32 {
     maxes.iter().map(|&c| u32::from(c == u8::MAX)).sum()
+}
+
+/// The bands of `step` pixel rows of `image`, top to bottom (the last may have fewer):
+/// each as its number of rows, its bytes and the bytes of the rows after it (asked for
+/// ahead of use).
+fn bands(image: &RgbImage, step: usize) -> impl Iterator<Item = (usize, &[u8], &[u8])> {
+    let (raw, stride) = (image.as_raw(), image.width() as usize * 3);
+    let h = image.height() as usize;
+    (0..h.div_ceil(step)).map(move |by| {
+        let y0 = by * step;
+        let n_rows = step.min(h - y0);
+        let next = (y0 + n_rows) * stride;
+        let ahead = &raw[next..(next + step * stride).min(raw.len())];
+        (n_rows, &raw[y0 * stride..next], ahead)
+    })
+}
+
+/// [`band_sums`] of a band of whole blocks of four pixels, kept only where nothing read
+/// reached 255 (its blocks then count no clipped value): `true` then; `false`, with
+/// `out` as it was, where something did or the CPU lacks AVX2 (the caller sums the band
+/// another way).
+fn sum_clean_band<const N: usize>(
+    band: &[u8],
+    ahead: &[u8],
+    stride: usize,
+    pick: [usize; N],
+    scale: f32,
+    out: &mut BlockMeans,
+) -> bool {
+    let at = out.red.len();
+    if let Some(false) = band_sums(band, ahead, stride, pick, scale, out) {
+        out.clipped.resize(at + stride / 12, 0);
+        return true;
+    }
+    out.red.truncate(at);
+    out.green.truncate(at);
+    out.blue.truncate(at);
+    false
 }
 
 /// Appends the mean red, green and blue (sum × `scale`) of every block of four pixels
