@@ -221,6 +221,11 @@ fn image_files() {
         &calibrate,
         &["a_dy.png", "indexed (palette) PNG", "save it as RGB"],
     );
+    // Readable frames, too few of them: the error names the folder (a script calibrating
+    // many read "1 pair(s)" without knowing whose).
+    rgb.save(presses.join("a_dy.png")).unwrap();
+    let folder = format!("calibrating from {}", s(&presses));
+    refused(&calibrate, &[&folder, "1 pair(s) and no reference frames"]);
     assert!(!model.exists(), "no model written from refused input");
     let _ = std::fs::remove_dir_all(&dir);
 }

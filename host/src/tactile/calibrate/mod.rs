@@ -340,16 +340,17 @@ pub enum CalibrationError {
     /// The model the presses gave fails the check every model file gets on loading
     /// ([`crate::tactile::model::validate::check`]): saved, it would be refused at once.
     #[error(
-        "the calibrated model's `{field}`: {why}. The presses did not make a model that \
-         reads: check that the dx and dy frames are not swapped, that all frames are this \
-         sensor's with its LEDs in their places, and that the presses are deep enough to \
-         show slopes; then calibrate again"
+        "the calibrated model's `{field}`: {why}. The {presses} press(es) used did not make \
+         a model that reads: {}",
+        model_fails_hint(*presses)
     )]
     ModelFailsCheck {
         /// The field.
         field: String,
         /// What is wrong with it.
         why: String,
+        /// Presses the model was fitted on (training and held out).
+        presses: usize,
     },
     /// The references (given, or the median of the presses) do not look like this
     /// sensor's dx and dy phases.
@@ -384,6 +385,26 @@ pub enum CalibrationError {
         /// Whether reference frames were given (else the presses' median is used).
         given: bool,
     },
+}
+
+/// What to check when the model calibrated from `presses` presses fails the loading check.
+/// Under the default minimum the presses are the likelier cause: one press taught a
+/// perceptron that read a slope's direction wrongly, and the swapped frames it was sent
+/// to look for were fine.
+fn model_fails_hint(presses: usize) -> String {
+    const CHECK: &str = "check that the dx and dy frames are not swapped, that all frames \
+        are this sensor's with its LEDs in their places, and that the presses are deep \
+        enough to show slopes; then calibrate again";
+    let default_min = CalibrationSettings::default().min_presses;
+    if presses < default_min {
+        format!(
+            "{presses} are too few to teach it (the default minimum is {default_min}: \
+             --min-presses; in Python, min_presses): make more presses, all over the frame. \
+             If that is not it, {CHECK}"
+        )
+    } else {
+        CHECK.to_string()
+    }
 }
 
 fn rejected_list(rejected: &[RejectedPress]) -> String {
@@ -1069,8 +1090,13 @@ fn calibrate_once(
         fit: fit_report,
     };
     let left_out = model.leave_out_misdirected();
-    crate::tactile::model::validate::check(&model)
-        .map_err(|(field, why)| CalibrationError::ModelFailsCheck { field, why })?;
+    crate::tactile::model::validate::check(&model).map_err(|(field, why)| {
+        CalibrationError::ModelFailsCheck {
+            field,
+            why,
+            presses: presses.len(),
+        }
+    })?;
     let mut report = CalibrationReport::new(
         &model,
         &presses,
@@ -1355,6 +1381,34 @@ fn table_samples(joint: &[JointSample], side: Option<&SideLight>) -> [Vec<Sample
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_model_from_too_few_presses_says_so_before_suspecting_the_frames() {
+        let fails = |presses| {
+            CalibrationError::ModelFailsCheck {
+                field: "dx.mlp".into(),
+                why: "reads the slope's direction wrongly".into(),
+                presses,
+            }
+            .to_string()
+        };
+        let one = fails(1);
+        assert!(
+            one.contains("1 press(es) used")
+                && one.contains("too few")
+                && one.contains("--min-presses")
+                && one.contains("min_presses")
+                && one.contains("If that is not it, check that the dx and dy frames"),
+            "{one}"
+        );
+        let many = fails(30);
+        assert!(
+            many.contains("30 press(es) used")
+                && !many.contains("too few")
+                && many.contains("reads: check that the dx and dy frames are not swapped"),
+            "{many}"
+        );
+    }
 
     #[test]
     fn saturation_inside_the_contact_is_a_share_of_its_pixels() {

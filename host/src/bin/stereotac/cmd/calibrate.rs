@@ -303,13 +303,19 @@ pub fn run(a: Args) -> Result<()> {
             .map(|(name, why)| format!("\n  {name}: cannot be read: {why}"))
             .collect::<String>()
     };
+    // Every error names what was calibrated from: a script calibrating many folders
+    // otherwise reads "1 pair(s)" without knowing whose.
+    let inputs: Vec<String> = sources
+        .iter()
+        .map(|(path, _)| path.display().to_string())
+        .collect();
     let cal = result.map_err(|e| {
         let few = matches!(
             e,
             stereotac::tactile::calibrate::CalibrationError::TooFewPresses { .. }
         );
         let e = anyhow::Error::from(e);
-        if few && !unreadable.is_empty() {
+        let e = if few && !unreadable.is_empty() {
             e.context(format!(
                 "{} more press(es) set aside before calibrating:{}",
                 unreadable.len(),
@@ -317,7 +323,8 @@ pub fn run(a: Args) -> Result<()> {
             ))
         } else {
             e
-        }
+        };
+        e.context(format!("calibrating from {}", inputs.join(" and ")))
     })?;
     // The names' column as wide as the longest (a second ball's names carry its folder's).
     let width = pairs
