@@ -1367,7 +1367,26 @@ fn model_files_round_trip_and_refuse_other_versions() {
         .remove("threshold");
     let mut text_in_table = good.clone();
     text_in_table["dx"]["lut"]["table"][7] = "x".into();
+    // Lists of a fixed size with another length.
+    let mut short_offset = good.clone();
+    short_offset["dx"]["mlp"]["input_offset"]
+        .as_array_mut()
+        .unwrap()
+        .pop();
+    let mut short_cell = good.clone();
+    short_cell["photometric"]["lights"][0]
+        .as_array_mut()
+        .unwrap()
+        .pop();
     for (bytes, at) in [
+        (
+            serde_json::to_vec(&short_offset).unwrap(),
+            "at `dx.mlp.input_offset`",
+        ),
+        (
+            serde_json::to_vec(&short_cell).unwrap(),
+            "at `photometric.lights[0]`",
+        ),
         (serde_json::to_vec(&missing).unwrap(), "at `contact`"),
         (
             serde_json::to_vec(&text_in_table).unwrap(),
@@ -1383,6 +1402,13 @@ fn model_files_round_trip_and_refuse_other_versions() {
             .unwrap_err()
             .to_string();
         assert!(err.contains(at) && err.contains("m.json"), "{at}: {err}");
+        // A model file, damaged: said so, with the fix (not "not a model file").
+        assert!(
+            err.contains("edited or damaged")
+                && err.contains("recalibrate")
+                && !err.contains("not a stereotac model file"),
+            "{at}: {err}"
+        );
     }
     for (field, damage) in cases {
         let mut m = good.clone();

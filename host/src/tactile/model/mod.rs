@@ -378,8 +378,10 @@ pub enum ModelError {
         /// Cause.
         source: std::io::Error,
     },
-    /// Not valid JSON for a model.
-    #[error("{path}: not a stereotac model file: {}{source}", at_field(field))]
+    /// Not valid JSON for a model: not one at all (nothing read), or a model file damaged
+    /// at `field` (a key gone, a cut file, a number of the wrong kind, a fixed-size list
+    /// of another length).
+    #[error("{path}: {}", parse_message(field, source))]
     Parse {
         /// File.
         path: String,
@@ -486,7 +488,13 @@ impl TactileModel {
             let field = e.path().to_string();
             ModelError::Parse {
                 path: name.to_string(),
-                field: if field == "." { String::new() } else { field },
+                // Only a named field is inside a model: "." is the top, "?" a place the
+                // parser could not name (not JSON), "[0]" a list where a model goes.
+                field: if field.starts_with(|c: char| c.is_ascii_alphabetic()) {
+                    field
+                } else {
+                    String::new()
+                },
                 source: e.into_inner(),
             }
         })
@@ -531,10 +539,12 @@ impl TactileModel {
 }
 
 /// `at `field`: ` before a parse error's cause, or nothing at the top of the file.
-fn at_field(field: &str) -> String {
+/// [`ModelError::Parse`]'s words: a failure deep inside a model's fields is a model file
+/// that was edited or damaged, not another kind of file.
+fn parse_message(field: &str, source: &serde_json::Error) -> String {
     if field.is_empty() {
-        String::new()
+        format!("not a stereotac model file: {source}")
     } else {
-        format!("at `{field}`: ")
+        format!("a model file edited or damaged at `{field}`: {source}; recalibrate, or restore it")
     }
 }
