@@ -20,6 +20,10 @@ use crate::grid::Grid;
 /// surface").
 pub const MAX_UNEXPLAINED: f32 = 0.15;
 
+/// The largest share one skin's readings left unexplained on the skin families measured
+/// (see [`MAX_UNEXPLAINED`]), quoted in the warning so the reader can weigh the figure.
+const MEASURED_ONE_SKIN: f32 = 0.114;
+
 /// Whether slopes with `share` of them unexplained are not one surface's (above
 /// [`MAX_UNEXPLAINED`]).
 pub fn not_one_surface(share: f32) -> bool {
@@ -32,11 +36,12 @@ pub fn surface_warning(share: f32) -> Option<String> {
     not_one_surface(share).then(|| {
         format!(
             "the slopes are not those of one surface: the depth solved from them leaves {:.0} % \
-             of them unexplained (above {:.0} %; one skin's readings left at most 11 % on every \
-             skin family measured), so the depth is not reliable; are dx and dy from the same \
-             moment, and neither frame mirrored, rotated or of another sensor?",
+             of them unexplained (above {:.0} %; one skin's readings left at most {:.0} % on \
+             every skin family measured), so the depth is not reliable; are dx and dy from the \
+             same moment, and neither frame mirrored, rotated or of another sensor?",
             100.0 * share,
-            100.0 * MAX_UNEXPLAINED
+            100.0 * MAX_UNEXPLAINED,
+            100.0 * MEASURED_ONE_SKIN
         )
     })
 }

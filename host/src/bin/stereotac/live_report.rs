@@ -25,13 +25,36 @@ pub struct Report {
     /// Jobs each stage skipped for a newer one: (tactile, stereo).
     skipped: (u64, u64),
     /// Pairs whose LEDs-off frame was brighter than their lit frames (not used).
-    dark_refused: u64,
+    dark_refused: SaidOnce,
     /// Stereo frames with warnings (almost nothing matched, a scene outside the range).
-    stereo_warned: u64,
+    stereo_warned: SaidOnce,
     /// Tactile pairs whose slopes were not one surface's.
-    no_surface: u64,
+    no_surface: SaidOnce,
     /// Tactile pairs with a contact and no skin at rest around it.
-    no_zero: u64,
+    no_zero: SaidOnce,
+}
+
+/// A warning said when it first happens, then counted for the closing figures.
+#[derive(Debug, Default)]
+struct SaidOnce(u64);
+
+impl SaidOnce {
+    /// Counts one more; the first time, says `warning()` on stderr.
+    fn count(&mut self, warning: impl FnOnce() -> String) {
+        if self.0 == 0 {
+            eprintln!("warning: {}", warning());
+        }
+        self.0 += 1;
+    }
+
+    /// At the close, when any was counted: "warning: N pair's (pairs') `what`".
+    fn close_pairs(&self, what: &str) {
+        let n = self.0;
+        if n > 0 {
+            let pairs = if n == 1 { "pair's" } else { "pairs'" };
+            eprintln!("warning: {n} {pairs} {what}");
+        }
+    }
 }
 
 impl Report {
@@ -43,10 +66,10 @@ impl Report {
             stereo_latency: Vec::new(),
             contacts: 0,
             skipped: (0, 0),
-            dark_refused: 0,
-            stereo_warned: 0,
-            no_surface: 0,
-            no_zero: 0,
+            dark_refused: SaidOnce::default(),
+            stereo_warned: SaidOnce::default(),
+            no_surface: SaidOnce::default(),
+            no_zero: SaidOnce::default(),
         }
     }
 
@@ -58,30 +81,25 @@ impl Report {
                 self.contacts += u64::from(record.contact);
                 self.skipped.0 = self.skipped.0.max(record.jobs_skipped);
                 if record.ambient == AmbientSource::CalibrationDarkRefused {
-                    if self.dark_refused == 0 {
-                        eprintln!("warning: {DARK_REFUSED}");
-                    }
-                    self.dark_refused += 1;
+                    self.dark_refused.count(|| DARK_REFUSED.to_string());
                 }
                 if let Some(note) = integrable::surface_warning(record.unexplained_share) {
-                    if self.no_surface == 0 {
-                        eprintln!(
-                            "warning: tactile pair {}: {note} (said once; the closing figures \
-                             count such pairs, each record holds its \"unexplained_share\")",
+                    self.no_surface.count(|| {
+                        format!(
+                            "tactile pair {}: {note} (said once; the closing figures count such \
+                             pairs, each record holds its \"unexplained_share\")",
                             record.sequence
-                        );
-                    }
-                    self.no_surface += 1;
+                        )
+                    });
                 }
                 if record.no_skin_at_rest {
-                    if self.no_zero == 0 {
-                        eprintln!(
-                            "warning: tactile pair {}: {NO_SKIN_AT_REST} (said once; the closing \
-                             figures count such pairs, each record holds its \"no_skin_at_rest\")",
+                    self.no_zero.count(|| {
+                        format!(
+                            "tactile pair {}: {NO_SKIN_AT_REST} (said once; the closing figures \
+                             count such pairs, each record holds its \"no_skin_at_rest\")",
                             record.sequence
-                        );
-                    }
-                    self.no_zero += 1;
+                        )
+                    });
                 }
                 if self.jsonl {
                     emit(format_args!("{}", serde_json::to_string(record)?))
@@ -93,14 +111,13 @@ impl Report {
                 self.stereo_latency.extend(record.latency_ms);
                 self.skipped.1 = self.skipped.1.max(record.jobs_skipped);
                 if let Some(first) = record.warnings.first() {
-                    if self.stereo_warned == 0 {
-                        eprintln!(
-                            "warning: stereo frame {}: {first} (said once; the closing \
-                             figures count the frames with warnings, each record holds its own)",
+                    self.stereo_warned.count(|| {
+                        format!(
+                            "stereo frame {}: {first} (said once; the closing figures count the \
+                             frames with warnings, each record holds its own)",
                             record.sequence
-                        );
-                    }
-                    self.stereo_warned += 1;
+                        )
+                    });
                 }
                 self.jsonl || emit(format_args!("{}", stereo_line(record)))
             }
@@ -125,34 +142,19 @@ impl Report {
                 fmt(self.tactile_latency)
             );
         }
-        if self.no_surface > 0 {
-            let n = self.no_surface;
-            eprintln!(
-                "warning: {n} {} slopes were not those of one surface (their depth is not \
-                 reliable)",
-                if n == 1 { "pair's" } else { "pairs'" }
-            );
-        }
-        if self.no_zero > 0 {
-            let n = self.no_zero;
-            eprintln!(
-                "warning: {n} {} contact had no skin at rest around it (its depth has no zero)",
-                if n == 1 { "pair's" } else { "pairs'" }
-            );
-        }
-        if self.dark_refused > 0 {
-            let n = self.dark_refused;
-            eprintln!(
-                "warning: {n} {} LEDs-off frames were brighter than their lit frames and \
-                 were not used (the calibration's ambient light was removed instead)",
-                if n == 1 { "pair's" } else { "pairs'" }
-            );
-        }
+        self.no_surface
+            .close_pairs("slopes were not those of one surface (their depth is not reliable)");
+        self.no_zero
+            .close_pairs("contact had no skin at rest around it (its depth has no zero)");
+        self.dark_refused.close_pairs(
+            "LEDs-off frames were brighter than their lit frames and were not used (the \
+             calibration's ambient light was removed instead)",
+        );
         if let Some(s) = &pipeline.stereo {
             eprintln!(
                 "stereo: {} frame pairs, {} with warnings, {} skipped while busy{}",
                 s.frames(),
-                self.stereo_warned,
+                self.stereo_warned.0,
                 self.skipped.1,
                 fmt(self.stereo_latency)
             );
