@@ -195,6 +195,14 @@ pub enum Reflectance {
     },
     /// Matte seen through a non-linear camera response `v^(1/gamma)`.
     Gamma(f64),
+    /// A rough diffuse coating (Minnaert's law, our stand-in for a rough surface's
+    /// back-scatter): `cos(i)^k · cos(r)^(k − 1)`, the camera overhead. `k` = 1 is
+    /// Lambert; below 1 the colour answers the slope less than the cosine law and
+    /// tilted skin looks brighter from above.
+    Rough {
+        /// Minnaert exponent `k` (0 < k ≤ 1).
+        exponent: f64,
+    },
 }
 
 /// A bright white blob, e.g. a ceiling light seen through the skin.
@@ -625,6 +633,10 @@ fn light(optics: &Optics, strip: &StripVariation, n: &[f64; 3], d: f64, dir: [f6
             matte + strength * (spec(n) - spec(&[0.0, 0.0, 1.0]))
         }
         Reflectance::Gamma(gamma) => matte.max(0.0).powf(1.0 / gamma),
+        Reflectance::Rough { exponent } => {
+            let k = exponent.clamp(0.05, 1.0);
+            matte.max(0.0).powf(k) * n[2].clamp(1e-3, 1.0).powf(k - 1.0)
+        }
     };
     value.max(0.0) * falloff(d, falloff_mm)
 }
@@ -820,6 +832,43 @@ mod tests {
         assert!(left[0] > left[2] + 20, "{left:?}");
         let below = pair.dy.get_pixel(320, 260).0;
         assert!(below[2] > below[0] + 20, "{below:?}");
+    }
+
+    #[test]
+    fn a_rough_coating_follows_minnaerts_law_and_is_lambert_at_one() {
+        let with = |reflectance| Optics {
+            reflectance,
+            ..Optics::standard()
+        };
+        let strip = &StripVariation::NOMINAL;
+        let flat = [0.0, 0.0, 1.0];
+        // A facet tilted 30° towards the strip (the light comes from −x, dir = −1).
+        let t = 30f64.to_radians();
+        let tilted = [-t.sin(), 0.0, t.cos()];
+        let (d, dir) = (10.0, [-1.0, 0.0]);
+        let lambert = with(Reflectance::Lambert);
+        let one = with(Reflectance::Rough { exponent: 1.0 });
+        for n in [&flat, &tilted] {
+            assert_eq!(
+                light(&one, strip, n, d, dir),
+                light(&lambert, strip, n, d, dir)
+            );
+        }
+        let k = 0.7;
+        let rough = with(Reflectance::Rough { exponent: k });
+        // Flat skin reads as flat skin whatever the coating.
+        let flat_light = light(&rough, strip, &flat, d, dir);
+        assert!((flat_light - light(&lambert, strip, &flat, d, dir)).abs() < 1e-12);
+        // cos(i)^k cos(r)^(k − 1), relative to flat skin's cos(e)^k: the cosine law's
+        // ratio to the power k, times cos(30°)^(k − 1).
+        let ratio = light(&lambert, strip, &tilted, d, dir) / flat_light;
+        let want = ratio.powf(k) * t.cos().powf(k - 1.0);
+        let got = light(&rough, strip, &tilted, d, dir) / flat_light;
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}");
+        assert!(
+            ratio > 1.0 && got < ratio,
+            "answers the slope less: {got} vs {ratio}"
+        );
     }
 
     #[test]

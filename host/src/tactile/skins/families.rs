@@ -13,7 +13,7 @@ use image::RgbImage;
 use super::physical::{PhysicalParams, PhysicalSkin};
 use super::{AmbientScale, SkinFrames};
 use crate::rng::Rng;
-use crate::tactile::render::{Optics, Scene, render_truth};
+use crate::tactile::render::{Optics, Reflectance, Scene, render_truth};
 
 /// What a family may be used for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -189,6 +189,20 @@ pub fn families() -> Vec<Family> {
                 let mut optics = Optics::random(w, h, seed % HELD_OUT_SEEDS);
                 let mut rng = Rng::new(seed ^ 0x51DE_116E_7000_0001);
                 optics.strip_overhang_mm = Some(rng.range(-1.5, 4.0));
+                Skin::Ours(Box::new(optics))
+            },
+        },
+        Family {
+            name: "ours-rough",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "ours-random's skins with a rough diffuse coating (Minnaert, k 0.6-0.9) instead of their reflectance",
+            build: |w, h, seed| {
+                let mut optics = Optics::random(w, h, seed % HELD_OUT_SEEDS);
+                let mut rng = Rng::new(seed ^ 0x2006_4C0A_7100_0001);
+                optics.reflectance = Reflectance::Rough {
+                    exponent: rng.range(0.6, 0.9),
+                };
                 Skin::Ours(Box::new(optics))
             },
         },
