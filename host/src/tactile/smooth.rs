@@ -46,7 +46,7 @@ impl BlockMeans {
 
     /// Block means of `image`. For the default step of 4 on a CPU with AVX2, each band
     /// of four rows is summed block by block straight from its bytes
-    /// ([`band_sums`]); otherwise, and in a band with a clipped value, the rows of a
+    /// ([`sum_clean_band`]); otherwise, and in a band with a clipped value, the rows of a
     /// block are first summed channel by channel ([`sum_rows`]), then the columns of
     /// every block at once ([`sum_blocks_of_four`] for the step of 4), both in vector
     /// lanes. Both give the same integer sums.
@@ -262,10 +262,14 @@ fn bands(image: &RgbImage, step: usize) -> impl Iterator<Item = (usize, &[u8], &
     })
 }
 
-/// [`band_sums`] of a band of whole blocks of four pixels, kept only where nothing read
-/// reached 255 (its blocks then count no clipped value): `true` then; `false`, with
-/// `out` as it was, where something did or the CPU lacks AVX2 (the caller sums the band
-/// another way).
+/// The mean red, green and blue (sum × `scale`) of every block of four pixels over rows
+/// `pick` of `band` (four rows of whole blocks, `stride` bytes each), appended to `out`'s
+/// planes in vector lanes ([`band_sums_avx2`]) and kept only where nothing read reached
+/// 255 (its blocks then count no clipped value): `true` then; `false`, with `out` as it
+/// was, where something did or the CPU lacks AVX2 (the caller sums the band another way,
+/// counting clipped values). `ahead` holds the next band's rows, whose rows `pick` are
+/// asked for ahead of use ([`crate::cpu::prefetch`]).
+#[allow(unsafe_code)]
 fn sum_clean_band<const N: usize>(
     band: &[u8],
     ahead: &[u8],
@@ -274,46 +278,29 @@ fn sum_clean_band<const N: usize>(
     scale: f32,
     out: &mut BlockMeans,
 ) -> bool {
-    let at = out.red.len();
-    if let Some(false) = band_sums(band, ahead, stride, pick, scale, out) {
-        out.clipped.resize(at + stride / 12, 0);
-        return true;
-    }
-    out.red.truncate(at);
-    out.green.truncate(at);
-    out.blue.truncate(at);
-    false
-}
-
-/// Appends the mean red, green and blue (sum × `scale`) of every block of four pixels
-/// over rows `pick` of `band` (four rows of whole blocks, `stride` bytes each) to `out`'s
-/// planes and says whether a value read reached 255 (the caller then sums the band
-/// again, counting clipped values); `None`, with nothing appended, where the CPU lacks
-/// AVX2. `ahead` holds the next band's rows, whose rows `pick` are asked for ahead of use
-/// ([`crate::cpu::prefetch`]).
-#[allow(unsafe_code)]
-fn band_sums<const N: usize>(
-    band: &[u8],
-    ahead: &[u8],
-    stride: usize,
-    pick: [usize; N],
-    scale: f32,
-    out: &mut BlockMeans,
-) -> Option<bool> {
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
+        let at = out.red.len();
         // SAFETY: `band_sums_avx2` only needs AVX2, detected just above.
-        return Some(unsafe { band_sums_avx2(band, ahead, stride, pick, scale, out) });
+        if !unsafe { band_sums_avx2(band, ahead, stride, pick, scale, out) } {
+            out.clipped.resize(at + stride / 12, 0);
+            return true;
+        }
+        out.red.truncate(at);
+        out.green.truncate(at);
+        out.blue.truncate(at);
+        return false;
     }
     let _ = (band, ahead, stride, pick, scale, out);
-    None
+    false
 }
 
 /// Blocks per group of [`band_sums_avx2`]: eight, one per 128-bit lane of four
 /// registers.
 const GROUP: usize = 8;
 
-/// [`band_sums`] in AVX2, one block of four pixels (12 bytes of each row) per 128-bit
+/// [`sum_clean_band`]'s sums in AVX2 (the return value says whether a value read reached
+/// 255), one block of four pixels (12 bytes of each row) per 128-bit
 /// lane: a byte shuffle orders a row's 12 bytes by channel, a multiply-add of byte pairs
 /// sums them two by two (16-bit), the rows are added, and a multiply-add of 16-bit pairs
 /// gives the block's red, green and blue sums (32-bit). The two lanes of a register hold
