@@ -249,7 +249,7 @@ impl Default for CalibrationSettings {
             filter: ColourFilter::default(),
             contact: ContactParams::default(),
             fixed_threshold: false,
-            min_presses: 5,
+            min_presses: DEFAULT_MIN_PRESSES,
             lut_bins: 48,
             lut_cells: (4, 3),
             mlp: MlpTraining::default(),
@@ -395,10 +395,9 @@ fn model_fails_hint(presses: usize) -> String {
     const CHECK: &str = "check that the dx and dy frames are not swapped, that all frames \
         are this sensor's with its LEDs in their places, and that the presses are deep \
         enough to show slopes; then calibrate again";
-    let default_min = CalibrationSettings::default().min_presses;
-    if presses < default_min {
+    if presses < DEFAULT_MIN_PRESSES {
         format!(
-            "{presses} are too few to teach it (the default minimum is {default_min}: \
+            "{presses} are too few to teach it (the default minimum is {DEFAULT_MIN_PRESSES}: \
              --min-presses; in Python, min_presses): make more presses, all over the frame. \
              If that is not it, {CHECK}"
         )
@@ -466,6 +465,10 @@ impl Calibration {
         })
     }
 }
+
+/// Fewest usable presses a calibration asks for unless told otherwise
+/// ([`CalibrationSettings::min_presses`]).
+pub const DEFAULT_MIN_PRESSES: usize = 5;
 
 /// Deepest plausible press, as a fraction of the ball's radius.
 const MAX_DEPTH_OF_RADIUS: f64 = 0.6;

@@ -538,7 +538,6 @@ impl TactileModel {
     }
 }
 
-/// `at `field`: ` before a parse error's cause, or nothing at the top of the file.
 /// [`ModelError::Parse`]'s words: a failure deep inside a model's fields is a model file
 /// that was edited or damaged, not another kind of file.
 fn parse_message(field: &str, source: &serde_json::Error) -> String {

@@ -186,10 +186,9 @@ pub fn families() -> Vec<Family> {
             ball_diameter_mm: 6.0,
             about: "ours-random's skins with strips of finite length (side light near their ends)",
             build: |w, h, seed| {
-                let mut optics = Optics::random(w, h, seed % HELD_OUT_SEEDS);
-                let mut rng = Rng::new(seed ^ 0x51DE_116E_7000_0001);
-                optics.strip_overhang_mm = Some(rng.range(-1.5, 4.0));
-                Skin::Ours(Box::new(optics))
+                ours_random_with(w, h, seed, 0x51DE_116E_7000_0001, |optics, rng| {
+                    optics.strip_overhang_mm = Some(rng.range(-1.5, 4.0));
+                })
             },
         },
         Family {
@@ -198,12 +197,11 @@ pub fn families() -> Vec<Family> {
             ball_diameter_mm: 6.0,
             about: "ours-random's skins with a rough diffuse coating (Minnaert, k 0.6-0.9) instead of their reflectance",
             build: |w, h, seed| {
-                let mut optics = Optics::random(w, h, seed % HELD_OUT_SEEDS);
-                let mut rng = Rng::new(seed ^ 0x2006_4C0A_7100_0001);
-                optics.reflectance = Reflectance::Rough {
-                    exponent: rng.range(0.6, 0.9),
-                };
-                Skin::Ours(Box::new(optics))
+                ours_random_with(w, h, seed, 0x2006_4C0A_7100_0001, |optics, rng| {
+                    optics.reflectance = Reflectance::Rough {
+                        exponent: rng.range(0.6, 0.9),
+                    };
+                })
             },
         },
         Family {
@@ -242,6 +240,21 @@ pub fn families() -> Vec<Family> {
             },
         },
     ]
+}
+
+/// `ours-random`'s skin of `seed` with one thing changed by `change`, which draws from its
+/// own generator (seeded by `seed ^ tag`): a family made this way differs from
+/// `ours-random`, seed for seed, only in that.
+fn ours_random_with(
+    width: usize,
+    height: usize,
+    seed: u64,
+    tag: u64,
+    change: impl FnOnce(&mut Optics, &mut Rng),
+) -> Skin {
+    let mut optics = Optics::random(width, height, seed % HELD_OUT_SEEDS);
+    change(&mut optics, &mut Rng::new(seed ^ tag));
+    Skin::Ours(Box::new(optics))
 }
 
 /// The family called `name`.

@@ -213,7 +213,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
     anyhow::ensure!(a.skins >= 1, "--skins must be at least 1");
     // Fewer presses than calibration needs, or no placements, would print a table of
     // failures and "n/a" that measured nothing.
-    let needed = stereotac::tactile::calibrate::CalibrationSettings::default().min_presses;
+    let needed = stereotac::tactile::calibrate::DEFAULT_MIN_PRESSES;
     anyhow::ensure!(
         a.presses >= needed,
         "--presses {} is fewer than calibration needs ({needed}): give at least {needed}",

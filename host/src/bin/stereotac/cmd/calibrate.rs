@@ -88,7 +88,7 @@ pub struct Args {
     pub overrides: Option<PathBuf>,
     /// Fewest usable presses to calibrate from (presses that cannot be fitted are set
     /// aside with their reason).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = stereotac::tactile::calibrate::DEFAULT_MIN_PRESSES)]
     pub min_presses: usize,
     /// Use this contact threshold instead of measuring it on the frames' flat skin
     /// (normalised-colour units; flat skin reads 0).
@@ -303,12 +303,6 @@ pub fn run(a: Args) -> Result<()> {
             .map(|(name, why)| format!("\n  {name}: cannot be read: {why}"))
             .collect::<String>()
     };
-    // Every error names what was calibrated from: a script calibrating many folders
-    // otherwise reads "1 pair(s)" without knowing whose.
-    let inputs: Vec<String> = sources
-        .iter()
-        .map(|(path, _)| path.display().to_string())
-        .collect();
     let cal = result.map_err(|e| {
         let few = matches!(
             e,
@@ -324,6 +318,12 @@ pub fn run(a: Args) -> Result<()> {
         } else {
             e
         };
+        // Every error names what was calibrated from: a script calibrating many folders
+        // otherwise reads "1 pair(s)" without knowing whose.
+        let inputs: Vec<String> = sources
+            .iter()
+            .map(|(path, _)| path.display().to_string())
+            .collect();
         e.context(format!("calibrating from {}", inputs.join(" and ")))
     })?;
     // The names' column as wide as the longest (a second ball's names carry its folder's).
