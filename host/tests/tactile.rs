@@ -1195,7 +1195,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 40] = [
+    let cases: [(&str, Damage); 42] = [
         // A side light of the wrong shape, or one no strip makes.
         (
             "side_light.kappa",
@@ -1253,6 +1253,12 @@ fn model_files_round_trip_and_refuse_other_versions() {
         }),
         ("photometric.cells_y", |m| {
             m["photometric"]["cells_y"] = 100.into()
+        }),
+        ("photometric.colour_power", |m| {
+            m["photometric"]["colour_power"] = 0.into()
+        }),
+        ("photometric.norm_power", |m| {
+            m["photometric"]["norm_power"] = (-1.0).into()
         }),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 0.into()),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 1e6.into()),

@@ -21,6 +21,7 @@ use super::ambient::{
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
+use super::model::photometric::Curves;
 use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light, validate};
 use super::past_reach::{Reach, ReachLimits};
 use super::phase_check::{self, PhaseImageError};
@@ -345,6 +346,8 @@ pub struct Reconstructor {
     slopes: Vec<f32>,
     /// The photometric model's four colours of each touched pixel.
     joint_colours: Vec<[f32; 4]>,
+    /// The photometric model's response curves, tabled once (photometric only).
+    photometric_curves: Option<Arc<Curves>>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
 }
@@ -369,6 +372,7 @@ impl Reconstructor {
             reach_limits: self.reach_limits,
             slopes: Vec::new(),
             joint_colours: Vec::new(),
+            photometric_curves: self.photometric_curves.clone(),
             led: Default::default(),
         }
     }
@@ -500,7 +504,12 @@ impl Reconstructor {
             _ => None,
         };
         let reach_limits = reach_limits_of(&model, kind, lut_gains.is_some());
+        let photometric_curves = match (kind, &model.photometric) {
+            (ModelKind::Photometric, Some(m)) => Some(Arc::new(m.curves())),
+            _ => None,
+        };
         Ok(Self {
+            photometric_curves,
             lut_gains,
             lut_side,
             reach_limits,
@@ -715,7 +724,9 @@ impl Reconstructor {
             out.timings.colour_ms += times.colour_ms + overhead;
             out.timings.model_ms += times.model_ms;
             t2
-        } else if let (ModelKind::Photometric, Some(model)) = (self.kind, &self.model.photometric) {
+        } else if let (ModelKind::Photometric, Some(model), Some(curves)) =
+            (self.kind, &self.model.photometric, &self.photometric_curves)
+        {
             // All four colours of each touched pixel at once, as they are (the feature
             // rows hold each phase divided by the other's brightness: not made here).
             let rejected = photometric_colours(&inputs, roi, &mask, &mut self.joint_colours);
@@ -723,7 +734,7 @@ impl Reconstructor {
             let t1 = Instant::now();
             out.timings.colour_ms += ms(t0, t1);
             photometric_slopes(
-                model,
+                (model, curves),
                 (inputs.dx.width(), inputs.dx.height()),
                 roi,
                 &mask,
@@ -891,7 +902,7 @@ fn photometric_colours(
 /// ([`photometric_colours`], in the same order). Pixels the model cannot read (a rejected
 /// phase among them) make up both axes' `unread` lists (filled from their neighbours).
 fn photometric_slopes(
-    model: &PhotometricModel,
+    (model, curves): (&PhotometricModel, &Curves),
     (w, h): (u32, u32),
     roi: &Roi,
     mask: &[bool],
@@ -906,7 +917,7 @@ fn photometric_slopes(
     let touched = mask.iter().enumerate().filter(|(_, m)| **m).map(|(k, _)| k);
     for (k, &c) in touched.zip(colours) {
         let (x, y) = (roi.x + k % roi.width, roi.y + k / roi.width);
-        match model.read(c, x as f32 * inv_w, y as f32 * inv_h) {
+        match model.read_with(curves, c, x as f32 * inv_w, y as f32 * inv_h) {
             Some([sp, sq]) => [p[k], q[k]] = [sp, sq],
             None => unread.iter_mut().for_each(|u| u.push(k)),
         }

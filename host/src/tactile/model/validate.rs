@@ -8,7 +8,7 @@ use super::TactileModel;
 use super::light::LightModel;
 use super::lut::Lut;
 use super::mlp::Mlp;
-use super::photometric::PhotometricModel;
+use super::photometric::{COLOUR_POWERS, NORM_POWERS, PhotometricModel};
 use crate::tactile::contact::MAX_THRESHOLD;
 
 /// Largest frame side a model may declare (px): no sensor camera we support gives more,
@@ -333,6 +333,22 @@ fn check_direction(red_side: f32, eval: impl Fn(&[[f32; 4]], &mut [f32])) -> Res
 }
 
 fn check_photometric(p: &PhotometricModel) -> Result<(), (String, String)> {
+    for (field, v, range) in [
+        ("colour_power", p.colour_power, COLOUR_POWERS),
+        ("norm_power", p.norm_power, NORM_POWERS),
+    ] {
+        if !range.contains(&v) {
+            return Err((
+                field.to_string(),
+                format!(
+                    "{v} is outside {}..={} (the response calibration chooses from; 1 is a \
+                     matte skin seen by a linear camera)",
+                    range.start(),
+                    range.end()
+                ),
+            ));
+        }
+    }
     check_cells(
         (p.cells_x, p.cells_y),
         ("lights", "cells", p.lights.len()),

@@ -168,6 +168,9 @@ pub struct FamilyReport {
     /// The largest side light the calibration measured and took out (`None`: not asked
     /// for, or none found).
     pub side_light: Option<f32>,
+    /// The photometric model's response `[P, e]` (`colour^P·|n|^e`), when it is the
+    /// model read with.
+    pub photometric_response: Option<[f64; 2]>,
     /// Calibration.
     pub calibration: CalibrationOutcome,
     /// 1 mm disk, wall slope 0.79: plateau readings.
@@ -232,6 +235,7 @@ pub fn evaluate_skin(
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         unmix: None,
         side_light: None,
+        photometric_response: None,
         calibration: CalibrationOutcome {
             given: config.presses,
             used: 0,
@@ -312,6 +316,12 @@ pub fn evaluate_skin(
         }
     };
     report.side_light = cal.model.side_light.as_ref().map(|s| s.largest());
+    if config.model == ModelKind::Photometric {
+        report.photometric_response = cal.model.photometric.as_ref().map(|m| {
+            let r = m.response();
+            [r.colour, r.norm]
+        });
+    }
     let c = &mut report.calibration;
     c.used = cal.presses.len();
     c.rejected = cal
@@ -557,12 +567,16 @@ pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)
         match &r.calibration.error {
             Some(e) => format!("FAILED: {}", e.lines().next().unwrap_or("")),
             None => format!(
-                "{}/{} presses used, threshold {:.3}, slope RMS {:.3}/{:.3}",
+                "{}/{} presses used, threshold {:.3}, slope RMS {:.3}/{:.3}{}",
                 r.calibration.used,
                 r.calibration.given,
                 r.calibration.threshold,
                 r.calibration.lut_rms[0],
-                r.calibration.lut_rms[1]
+                r.calibration.lut_rms[1],
+                r.photometric_response
+                    .map_or(String::new(), |[p, e]| format!(
+                        ", photometric response colour^{p:.2}·|n|^{e:.2}"
+                    ))
             ),
         },
         Some(r.calibration.error.is_none()),

@@ -427,6 +427,13 @@ pub fn run(a: Args) -> Result<()> {
             ),
         }
     }
+    if let Some(photometric) = &cal.model.photometric {
+        let r = photometric.response();
+        println!(
+            "photometric model's response: colour^{:.2} · |n|^{:.2} = the strips' shading (1 and 1: a matte skin seen by a linear camera)",
+            r.colour, r.norm
+        );
+    }
     for w in &rep.warnings {
         eprintln!("warning: {w}");
     }
