@@ -47,7 +47,12 @@ impl Response {
     /// `|n|² = norm_sq` (0 where the strip faces away).
     #[inline]
     pub(super) fn predict(self, shade: f64, norm_sq: f64) -> f64 {
-        let v = (shade / self.norm_factor(norm_sq)).max(0.0);
+        self.colour_of_linear((shade / self.norm_factor(norm_sq)).max(0.0))
+    }
+
+    /// `v^(1/P)`: the colour whose linear value is `v`.
+    #[inline]
+    fn colour_of_linear(self, v: f64) -> f64 {
         if self.colour == 1.0 {
             v
         } else {
@@ -58,8 +63,9 @@ impl Response {
 
 /// The response's curves as a read evaluates them: exactly, or from tables made once for
 /// a model ([`Curves::tabled`]: each `powf` of the exact curves costs as much as the rest
-/// of a pixel's read). A matte response's curves are exact either way (bit for bit the
-/// matte model's reading).
+/// of a pixel's read). Outside a table, or where a curve has none, [`Response`]'s exact
+/// curve answers; a matte response has no tables, so its curves are exact either way (bit
+/// for bit the matte model's reading).
 #[derive(Debug, Clone)]
 pub struct Curves {
     pub(super) response: Response,
@@ -120,23 +126,13 @@ impl Curves {
     /// `c^P`.
     #[inline]
     pub(super) fn linear(&self, c: f64) -> f64 {
-        let r = self.response;
-        if r.colour == 1.0 {
-            c
-        } else {
-            self.linear.at(c, |c| r.linear(c))
-        }
+        self.linear.at(c, |c| self.response.linear(c))
     }
 
     /// `|n|^e` from `|n|²`.
     #[inline]
     pub(super) fn norm_factor(&self, norm_sq: f64) -> f64 {
-        let r = self.response;
-        if r.norm == 1.0 {
-            norm_sq.sqrt()
-        } else {
-            self.norm.at(norm_sq, |x| r.norm_factor(x))
-        }
+        self.norm.at(norm_sq, |x| self.response.norm_factor(x))
     }
 
     /// [`Response::predict`].
@@ -150,12 +146,7 @@ impl Curves {
     #[inline]
     pub(super) fn colour_of(&self, shade: f64, norm_factor: f64) -> f64 {
         let v = (shade / norm_factor).max(0.0);
-        let r = self.response;
-        if r.colour == 1.0 {
-            v
-        } else {
-            self.predict.at(v, |v| v.powf(1.0 / r.colour))
-        }
+        self.predict.at(v, |v| self.response.colour_of_linear(v))
     }
 }
 
@@ -181,7 +172,8 @@ impl Table {
         }
     }
 
-    /// The curve at `x`: from the table inside its span, else `exact(x)` (NaN too).
+    /// The curve at `x`: from the table inside its span, else `exact(x)` (NaN too, and
+    /// everywhere for an empty table).
     #[inline]
     fn at(&self, x: f64, exact: impl Fn(f64) -> f64) -> f64 {
         let u = (x - self.low) * self.scale;

@@ -305,9 +305,9 @@ impl Prepared {
 }
 
 /// The response of the grid (`COLOUR_POWERS × NORM_POWERS` where [`physical`], in steps
-/// of [`GRID_STEP`], then a quarter and a twentieth of it around the best) whose lights, fitted on `gentle`, predict the
-/// lit colours of `steeper` best (mean squared colour error), kept where it leaves at
-/// most [`MATTE_KEPT_ABOVE`] of matte's error. Matte when `steeper` is empty (nothing
+/// of [`GRID_STEP`], then a quarter and a twentieth of it around the best) whose lights,
+/// fitted on `gentle`, predict the lit colours of `steeper` best (mean squared colour
+/// error), kept where it leaves at most [`MATTE_KEPT_ABOVE`] of matte's error. Matte when `steeper` is empty (nothing
 /// tells the responses apart), and matte wins a tie.
 fn choose_response(
     gentle: &[&JointSample],
@@ -372,7 +372,7 @@ fn choose_response(
         .clone()
         .step_by(step as usize)
         .flat_map(|c| norms.clone().step_by(step as usize).map(move |e| (c, e)))
-        .filter(|&ce| allowed(ce))
+        .filter(|&ce| allowed(ce) && ce != matte.1)
         .collect();
     let mut best = best_of(coarse, matte);
     // Finer grids around the best so far: steps of a quarter, then a twentieth.
@@ -787,25 +787,31 @@ mod tests {
         out
     }
 
+    /// Walls of 0.2–1.6 all round four places: `(x, y, p, q)`.
+    fn walls() -> impl Iterator<Item = (f32, f32, f64, f64)> {
+        [(0.3f32, 0.4f32), (0.5, 0.5), (0.81, 0.25), (0.12, 0.9)]
+            .into_iter()
+            .flat_map(|(x, y)| {
+                (0..24).flat_map(move |k| {
+                    let angle = k as f64 * std::f64::consts::TAU / 24.0;
+                    [0.2, 0.7, 1.1, 1.6].map(|m| (x, y, m * angle.cos(), m * angle.sin()))
+                })
+            })
+    }
+
     #[test]
     fn reads_a_matte_skin_past_the_slopes_it_was_fitted_on() {
         let model = PhotometricModel::fit(&samples(0.9), 8, 6);
         // Fitted on slopes up to 0.54 (0.6 of 0.9); read up to 1.6, with strips shadowed.
         let mut worst = 0.0f64;
         let mut shadowed_cases = [0usize; 5];
-        for &(x, y) in &[(0.3f32, 0.4f32), (0.5, 0.5), (0.81, 0.25), (0.12, 0.9)] {
-            for k in 0..24 {
-                let angle = k as f64 * std::f64::consts::TAU / 24.0;
-                for m in [0.2, 0.7, 1.1, 1.6] {
-                    let (p, q) = (m * angle.cos(), m * angle.sin());
-                    let c = colours(p, q, x, y);
-                    shadowed_cases[c.iter().filter(|&&v| v < SHADOWED).count()] += 1;
-                    if c.iter().filter(|&&v| v >= SHADOWED).count() >= 2 {
-                        let [rp, rq] = model.read(c, x, y).expect("two strips lit");
-                        let e = (f64::from(rp) - p).hypot(f64::from(rq) - q);
-                        worst = worst.max(e);
-                    }
-                }
+        for (x, y, p, q) in walls() {
+            let c = colours(p, q, x, y);
+            shadowed_cases[c.iter().filter(|&&v| v < SHADOWED).count()] += 1;
+            if c.iter().filter(|&&v| v >= SHADOWED).count() >= 2 {
+                let [rp, rq] = model.read(c, x, y).expect("two strips lit");
+                let e = (f64::from(rp) - p).hypot(f64::from(rq) - q);
+                worst = worst.max(e);
             }
         }
         // Lights vary bilinearly between cells only approximately: small error.
@@ -817,30 +823,24 @@ mod tests {
         );
     }
 
-    /// The worst slope error of `model` over walls of 0.2–1.6 all round four places, on
-    /// the skin `colours` makes (pixels with fewer than two lit strips skipped), and how
-    /// many of those it left unread.
+    /// The worst slope error of `model` over [`walls`], on the skin `colours` makes
+    /// (pixels with fewer than two lit strips skipped), and how many of those it left
+    /// unread.
     fn worst_reading(
         model: &PhotometricModel,
         colours: &impl Fn(f64, f64, f32, f32) -> [f32; 4],
     ) -> (f64, usize) {
         let (mut worst, mut unread) = (0.0f64, 0);
-        for &(x, y) in &[(0.3f32, 0.4f32), (0.5, 0.5), (0.81, 0.25), (0.12, 0.9)] {
-            for k in 0..24 {
-                let angle = k as f64 * std::f64::consts::TAU / 24.0;
-                for m in [0.2, 0.7, 1.1, 1.6] {
-                    let (p, q) = (m * angle.cos(), m * angle.sin());
-                    let c = colours(p, q, x, y);
-                    if c.iter().filter(|&&v| v >= SHADOWED).count() < 2 {
-                        continue;
-                    }
-                    match model.read(c, x, y) {
-                        Some([rp, rq]) => {
-                            worst = worst.max((f64::from(rp) - p).hypot(f64::from(rq) - q));
-                        }
-                        None => unread += 1,
-                    }
+        for (x, y, p, q) in walls() {
+            let c = colours(p, q, x, y);
+            if c.iter().filter(|&&v| v >= SHADOWED).count() < 2 {
+                continue;
+            }
+            match model.read(c, x, y) {
+                Some([rp, rq]) => {
+                    worst = worst.max((f64::from(rp) - p).hypot(f64::from(rq) - q));
                 }
+                None => unread += 1,
             }
         }
         (worst, unread)
