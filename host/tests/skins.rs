@@ -3,7 +3,8 @@
 //! frame of a tuning family and of the independent renderer.
 
 use stereotac::tactile::ambient::PhaseFrames;
-use stereotac::tactile::calibrate::{CalibrationSettings, calibrate};
+use stereotac::tactile::calibrate::{Calibration, CalibrationSettings, calibrate};
+use stereotac::tactile::camera_curve::CameraCurve;
 use stereotac::tactile::crosstalk::measure;
 use stereotac::tactile::render::{Scene, Shape};
 use stereotac::tactile::skins::AmbientScale;
@@ -56,8 +57,19 @@ fn every_family_lights_a_ball_by_the_conventions() {
                     .map(|p| p.0.iter().map(|&c| c as u64).sum::<u64>())
                     .sum::<u64>()
             };
+            // In linear light: a camera's curve lifts the dim room light it records.
+            let linear = |img: &image::RgbImage| match &skin {
+                Skin::Ours(o) => o.camera_gamma.map_or(img.clone(), |g| {
+                    CameraCurve {
+                        gamma: g as f32,
+                        gain: 1.0,
+                    }
+                    .linearised(img)
+                }),
+                Skin::Physical(_) => img.clone(),
+            };
             assert!(
-                lum(&flat.dark) * 2 < lum(&flat.dx),
+                lum(&linear(&flat.dark)) * 2 < lum(&linear(&flat.dx)),
                 "{name}: dark frame not dark"
             );
         }
@@ -129,20 +141,7 @@ fn the_side_light_of_finite_strips_is_measured_and_of_long_ones_not() {
     };
     let finite = family("ours-finite-strips").unwrap();
     let skin = finite.skin(320, 240, 1);
-    let refs = skin.references(4);
-    let presses = ball_presses(&skin, finite.ball_diameter_mm, 12, 1, 0);
-    let settings = CalibrationSettings {
-        ball_diameter_mm: finite.ball_diameter_mm,
-        px_per_mm: skin.px_per_mm(),
-        side_light: true,
-        ..Default::default()
-    };
-    let references = PhaseFrames {
-        dx: &refs.dx,
-        dy: &refs.dy,
-        dark: None,
-    };
-    let cal = calibrate(&presses, Some(references), &settings, |_| {}).unwrap();
+    let cal = calibrate_12_presses(&skin, finite.ball_diameter_mm, |s| s.side_light = true);
     let side = cal
         .model
         .side_light
@@ -169,6 +168,81 @@ fn the_side_light_of_finite_strips_is_measured_and_of_long_ones_not() {
     assert!((disk.mean - 1.0).abs() < 0.25, "{table}");
     let long = evaluate(&family("ours-nominal").unwrap(), &config, &mut |_| {});
     assert_eq!(long.side_light, None, "{}", format_report(&long));
+}
+
+/// A camera's response curve (`ours-camera-gamma`, and the independent renderer's
+/// display gamma on `phys-glossy`) is measured from a flat frame with all four strips lit,
+/// beside the references and their LEDs-off frame; linear cameras (our renderer's other
+/// skins, `phys-matte`) measure linear. Calibrated with the curve undone, the model keeps
+/// it, its file round-trips it, and the chain holds.
+#[test]
+fn a_camera_curve_is_measured_from_light_that_adds_up_and_undone() {
+    let measured = |name: &str| {
+        let skin = family(name).unwrap().skin(320, 240, 1);
+        let refs = skin.references(4);
+        let all = skin.all_lit_reference(4);
+        let got = CameraCurve::measure(&all, &refs.dx, &refs.dy, &refs.dark).unwrap();
+        (skin, got)
+    };
+    let (skin, got) = measured("ours-camera-gamma");
+    let Skin::Ours(optics) = &skin else {
+        panic!("our renderer")
+    };
+    let truth = optics.camera_gamma.expect("a camera with a curve") as f32;
+    let got = got.expect("not linear");
+    assert!((got.gamma - truth).abs() < 0.05, "{got:?} against {truth}");
+    let glossy = measured("phys-glossy").1.expect("display gamma");
+    assert!((glossy.gamma - 2.2).abs() < 0.1, "{glossy:?}");
+    for name in ["ours-random", "ours-nominal", "phys-matte"] {
+        assert_eq!(measured(name).1, None, "{name}");
+    }
+
+    let config = EvalConfig {
+        camera_curve: true,
+        ..small()
+    };
+    let r = evaluate(&family("ours-camera-gamma").unwrap(), &config, &mut |_| {});
+    let table = format_report(&r);
+    assert!(r.calibration.error.is_none(), "{table}");
+    assert!(
+        r.camera_gamma.is_some_and(|g| (g - truth).abs() < 0.1),
+        "{table}"
+    );
+    assert!(table.contains("camera curve (gamma"), "{table}");
+    assert_eq!(r.rest_contacts, Some(0), "{table}");
+    assert!(r.beside_max_mm.unwrap() <= 0.02, "{table}");
+    let disk = r.disk.expect("disks fit the frame");
+    assert!((disk.mean - 1.0).abs() < 0.1, "{table}");
+
+    let cal = calibrate_12_presses(&skin, 6.0, |s| s.camera_curve = Some(got));
+    assert_eq!(cal.model.camera_curve, Some(got));
+    let json = serde_json::to_string(&cal.model).unwrap();
+    assert!(json.contains("\"camera_curve\""));
+    let back: stereotac::tactile::model::TactileModel = serde_json::from_str(&json).unwrap();
+    assert_eq!(back, cal.model);
+}
+
+/// `skin` calibrated from 12 presses of a `ball_mm` ball against its references (no
+/// LEDs-off frames), with the default settings as `change` leaves them.
+fn calibrate_12_presses(
+    skin: &Skin,
+    ball_mm: f64,
+    change: impl FnOnce(&mut CalibrationSettings),
+) -> Calibration {
+    let refs = skin.references(4);
+    let presses = ball_presses(skin, ball_mm, 12, 1, 0);
+    let mut settings = CalibrationSettings {
+        ball_diameter_mm: ball_mm,
+        px_per_mm: skin.px_per_mm(),
+        ..Default::default()
+    };
+    change(&mut settings);
+    let references = PhaseFrames {
+        dx: &refs.dx,
+        dy: &refs.dy,
+        dark: None,
+    };
+    calibrate(&presses, Some(references), &settings, |_| {}).unwrap()
 }
 
 fn small() -> EvalConfig {

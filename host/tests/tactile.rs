@@ -1195,7 +1195,7 @@ fn model_files_round_trip_and_refuse_other_versions() {
         assert!(e.contains(key) && e.contains("unknown field"), "{e}");
     }
     type Damage = fn(&mut serde_json::Value);
-    let cases: [(&str, Damage); 42] = [
+    let cases: [(&str, Damage); 44] = [
         // A side light of the wrong shape, or one no strip makes.
         (
             "side_light.kappa",
@@ -1259,6 +1259,13 @@ fn model_files_round_trip_and_refuse_other_versions() {
         }),
         ("photometric.norm_power", |m| {
             m["photometric"]["norm_power"] = (-1.0).into()
+        }),
+        // A camera curve no camera has.
+        ("camera_curve.gamma", |m| {
+            m["camera_curve"] = serde_json::json!({"gamma": 40.0, "gain": 2.0})
+        }),
+        ("camera_curve.gain", |m| {
+            m["camera_curve"] = serde_json::json!({"gamma": 2.2, "gain": 0.0})
         }),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 0.into()),
         ("skin_thickness_mm", |m| m["skin_thickness_mm"] = 1e6.into()),

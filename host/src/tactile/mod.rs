@@ -14,6 +14,7 @@
 pub mod ambient;
 pub mod bench;
 pub mod calibrate;
+pub mod camera_curve;
 pub mod colour;
 pub mod contact;
 pub mod crosstalk;

@@ -18,6 +18,7 @@ use serde::Serialize;
 use super::ambient::{
     AmbientSource, MAX_BRIGHTER_FRACTION, PhaseFrames, brighter_fraction, subtract_into, subtracted,
 };
+use super::camera_curve::CameraCurve;
 use super::colour::Reference;
 use super::contact::{self, References, Roi};
 use super::features::{Features, Inputs};
@@ -350,6 +351,10 @@ pub struct Reconstructor {
     photometric_curves: Option<Arc<Curves>>,
     /// LED light of the current pair (models calibrated on LED light).
     led: [RgbImage; 2],
+    /// The camera's curve undone, value by value (models that measured one).
+    curve_table: Option<Arc<[u8; 256]>>,
+    /// The current pair's dx, dy and LEDs-off frames with the curve undone.
+    linear: [RgbImage; 3],
 }
 
 impl Reconstructor {
@@ -374,6 +379,8 @@ impl Reconstructor {
             joint_colours: Vec::new(),
             photometric_curves: self.photometric_curves.clone(),
             led: Default::default(),
+            curve_table: self.curve_table.clone(),
+            linear: Default::default(),
         }
     }
 
@@ -390,6 +397,27 @@ impl Reconstructor {
         validate::check(&model)
             .map_err(|(field, why)| ReconstructError::InvalidModel { field, why })?;
         let want = (model.width as u32, model.height as u32);
+        // The references are read with the camera's curve undone, as every frame is.
+        let curve_table = model.camera_curve.map(|c| Arc::new(c.table()));
+        let linear_refs = match (&curve_table, references) {
+            (Some(table), Some(r)) => {
+                let linear = |i: &RgbImage| {
+                    let mut out = RgbImage::new(0, 0);
+                    CameraCurve::linearise_into(table, i, &mut out);
+                    out
+                };
+                Some([Some(r.dx), Some(r.dy), r.dark].map(|i| i.map(linear)))
+            }
+            _ => None,
+        };
+        let references = match &linear_refs {
+            Some([Some(dx), Some(dy), dark]) => Some(PhaseFrames {
+                dx,
+                dy,
+                dark: dark.as_ref(),
+            }),
+            _ => references,
+        };
         let ambient = match &model.ambient {
             Some(e) if !e.fits(model.width, model.height) => {
                 return Err(ReconstructError::AmbientEstimate {
@@ -526,6 +554,8 @@ impl Reconstructor {
             slopes: Vec::new(),
             joint_colours: Vec::new(),
             led: Default::default(),
+            curve_table,
+            linear: Default::default(),
         })
     }
 
@@ -588,6 +618,36 @@ impl Reconstructor {
                 });
             }
         }
+        // With the camera's curve undone first, into buffers taken out for the call.
+        let mut linear = std::mem::take(&mut self.linear);
+        let frames = match &self.curve_table {
+            Some(table) => {
+                let [ldx, ldy, ldark] = &mut linear;
+                CameraCurve::linearise_into(table, dx, ldx);
+                CameraCurve::linearise_into(table, dy, ldy);
+                if let Some(dark) = frames.dark {
+                    CameraCurve::linearise_into(table, dark, ldark);
+                }
+                PhaseFrames {
+                    dx: ldx,
+                    dy: ldy,
+                    dark: frames.dark.map(|_| &*ldark),
+                }
+            }
+            None => frames,
+        };
+        let result = self.reconstruct_linear(frames, start);
+        self.linear = linear;
+        result
+    }
+
+    /// [`Self::reconstruct_frames`] on frames of linear light.
+    fn reconstruct_linear(
+        &mut self,
+        frames: PhaseFrames<'_>,
+        start: Instant,
+    ) -> Result<Reconstruction, ReconstructError> {
+        let (dx, dy) = (frames.dx, frames.dy);
         // Taken out for the call and put back: the reconstructor stays reusable.
         let mut led = std::mem::take(&mut self.led);
         let estimate = self.ambient.take();

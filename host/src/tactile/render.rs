@@ -255,6 +255,14 @@ pub struct Optics {
     /// other axis' slope, as on a real sensor.
     #[serde(default)]
     pub strip_overhang_mm: Option<f64>,
+    /// The camera's response curve: each channel's value `v` (DN, everything added,
+    /// noise included) is recorded as `255 · (v/255 · g)^(1/γ)`, `g` the exposure that
+    /// keeps flat skin's level where a linear camera records it, or `None` for a linear
+    /// camera. Unlike [`Reflectance::Gamma`], which bends each strip's shading alone,
+    /// this bends the sum a camera sees: both LEDs' light in a channel, their crosstalk,
+    /// the ambient light and the spot, so `R − G` no longer takes the green leak out.
+    #[serde(default)]
+    pub camera_gamma: Option<f64>,
     /// Colour of the ambient light (multiplier per channel R, G, B).
     pub ambient_colour: [f64; 3],
     /// Fraction of the ambient light (and spot) a touching object blocks where it
@@ -324,6 +332,7 @@ impl Optics {
             cross_leak: 0.0,
             strips: [StripVariation::NOMINAL; 4],
             strip_overhang_mm: None,
+            camera_gamma: None,
             ambient_colour: [1.0; 3],
             ambient_block: 0.0,
             exposure: 1.0,
@@ -427,7 +436,7 @@ pub fn render_truth(
     (
         shade(
             optics,
-            Some(Axis::X),
+            &[Axis::X],
             &truth.p,
             &truth.q,
             depth,
@@ -436,16 +445,14 @@ pub fn render_truth(
         ),
         shade(
             optics,
-            Some(Axis::Y),
+            &[Axis::Y],
             &truth.p,
             &truth.q,
             depth,
             ambient[1],
             &mut rng,
         ),
-        shade(
-            optics, None, &truth.p, &truth.q, depth, ambient[2], &mut rng,
-        ),
+        shade(optics, &[], &truth.p, &truth.q, depth, ambient[2], &mut rng),
     )
 }
 
@@ -453,15 +460,32 @@ pub fn render_truth(
 pub fn render_slopes(optics: &Optics, p: &Grid<f32>, q: &Grid<f32>, frame: u64) -> RenderedPair {
     let mut rng = Rng::new(optics.seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
     RenderedPair {
-        dx: shade(optics, Some(Axis::X), p, q, None, 1.0, &mut rng),
-        dy: shade(optics, Some(Axis::Y), p, q, None, 1.0, &mut rng),
+        dx: shade(optics, &[Axis::X], p, q, None, 1.0, &mut rng),
+        dy: shade(optics, &[Axis::Y], p, q, None, 1.0, &mut rng),
     }
 }
 
-/// One image: the phase of `axis`, or LEDs off when `None`.
+/// A flat-skin frame with all four strips lit (both phases at once, one exposure), from
+/// which [`crate::tactile::camera_curve`] measures the camera's response curve.
+pub fn render_all_lit(optics: &Optics, frame: u64) -> RgbImage {
+    let mut rng = Rng::new(optics.seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let flat = Grid::filled(optics.width, optics.height, 0.0f32);
+    shade(
+        optics,
+        &[Axis::X, Axis::Y],
+        &flat,
+        &flat,
+        None,
+        1.0,
+        &mut rng,
+    )
+}
+
+/// One image lit by the phases in `lit` (one for a phase image, none with the LEDs off,
+/// both for a frame with every strip on).
 fn shade(
     optics: &Optics,
-    axis: Option<Axis>,
+    lit: &[Axis],
     p: &Grid<f32>,
     q: &Grid<f32>,
     depth: Option<&Grid<f32>>,
@@ -471,54 +495,61 @@ fn shade(
     let (w, h) = (optics.width, optics.height);
     let mm = |px: usize| (px as f64 + 0.5) / optics.px_per_mm;
     let (span_w, span_h) = (w as f64 / optics.px_per_mm, h as f64 / optics.px_per_mm);
-    // Strips (index into `optics.strips`) lit blue and red in this phase.
-    let (blue_strip, red_strip) = match axis {
-        Some(Axis::X) | None => (0, 2),
-        Some(Axis::Y) => (1, 3),
-    };
-    let centre_gain = {
-        let d = match axis {
-            Some(Axis::X) | None => span_w / 2.0,
-            Some(Axis::Y) => span_h / 2.0,
-        };
-        1.0 / falloff(d, optics.falloff_mm)
-    };
     let half_diagonal2 = (w as f64 * w as f64 + h as f64 * h as f64) / 4.0;
+    let response = optics
+        .camera_gamma
+        .map(|g| CameraResponse::new(g, optics.flat_level));
+    // The blue and red light of `axis`' phase at pixel (x, y) with normal `n`.
+    let phase_light = |axis: Axis, x: usize, y: usize, n: &[f64; 3]| {
+        // Strips (index into `optics.strips`) lit blue and red in this phase.
+        let (blue_strip, red_strip) = match axis {
+            Axis::X => (0, 2),
+            Axis::Y => (1, 3),
+        };
+        let centre_gain = {
+            let d = match axis {
+                Axis::X => span_w / 2.0,
+                Axis::Y => span_h / 2.0,
+            };
+            1.0 / falloff(d, optics.falloff_mm)
+        };
+        // Distance to the blue strip (at the low side) and to the red one, and the
+        // pixel's place along them.
+        let (d_blue, d_red, along, length) = match axis {
+            Axis::X => (mm(x), span_w - mm(x), mm(y), span_h),
+            Axis::Y => (mm(y), span_h - mm(y), mm(x), span_w),
+        };
+        let strip = |k: usize, d: f64, towards: f64| {
+            let v = &optics.strips[k];
+            // The light's horizontal direction: along the axis, turned towards the
+            // middle of a strip of finite length.
+            let side = optics.strip_overhang_mm.map_or(0.0, |o| {
+                side_light(d, strip_elevation(optics, v, d), along, length, o)
+            });
+            let norm = (1.0 + side * side).sqrt();
+            let dir = match axis {
+                Axis::X => [towards / norm, side / norm],
+                Axis::Y => [side / norm, towards / norm],
+            };
+            v.gain * light(optics, v, n, d, dir) * centre_gain
+        };
+        (
+            strip(blue_strip, d_blue, -1.0),
+            strip(red_strip, d_red, 1.0),
+        )
+    };
     let mut img = RgbImage::new(w as u32, h as u32);
     for y in 0..h {
         for x in 0..w {
             let (px, py) = (p.get(x, y) as f64, q.get(x, y) as f64);
             let norm = (1.0 + px * px + py * py).sqrt();
             let n = [px / norm, py / norm, 1.0 / norm];
-            let (blue, red) = match axis {
-                None => (0.0, 0.0),
-                Some(axis) => {
-                    // Distance to the blue strip (at the low side) and to the red one,
-                    // and the pixel's place along them.
-                    let (d_blue, d_red, along, length) = match axis {
-                        Axis::X => (mm(x), span_w - mm(x), mm(y), span_h),
-                        Axis::Y => (mm(y), span_h - mm(y), mm(x), span_w),
-                    };
-                    let strip = |k: usize, d: f64, towards: f64| {
-                        let v = &optics.strips[k];
-                        // The light's horizontal direction: along the axis, turned
-                        // towards the middle of a strip of finite length.
-                        let side = optics.strip_overhang_mm.map_or(0.0, |o| {
-                            side_light(d, strip_elevation(optics, v, d), along, length, o)
-                        });
-                        let norm = (1.0 + side * side).sqrt();
-                        let dir = match axis {
-                            Axis::X => [towards / norm, side / norm],
-                            Axis::Y => [side / norm, towards / norm],
-                        };
-                        v.gain * light(optics, v, &n, d, dir) * centre_gain
-                    };
-                    (
-                        strip(blue_strip, d_blue, -1.0),
-                        strip(red_strip, d_red, 1.0),
-                    )
-                }
-            };
+            let (mut blue, mut red) = (0.0, 0.0);
+            for &axis in lit {
+                let (b, r) = phase_light(axis, x, y, &n);
+                blue += b;
+                red += r;
+            }
             let mut spot = 0.0;
             if let Some(s) = optics.spot {
                 let r2 = (x as f64 - s.x).powi(2) + (y as f64 - s.y).powi(2);
@@ -542,6 +573,9 @@ fn shade(
             for (c, v) in out.iter_mut().enumerate() {
                 *v = (led[c] + white * optics.ambient_colour[c]) * gain
                     + optics.noise * rng.gaussian();
+                if let Some(response) = &response {
+                    *v = response.record(*v);
+                }
             }
             img.put_pixel(
                 x as u32,
@@ -553,6 +587,37 @@ fn shade(
     match optics.jpeg_quality {
         Some(quality) => jpeg_round_trip(img, quality),
         None => img,
+    }
+}
+
+/// A camera's response curve ([`Optics::camera_gamma`]).
+#[derive(Debug, Clone, Copy)]
+struct CameraResponse {
+    inverse_gamma: f64,
+    /// `255 · g^(1/γ)`: the output of a full-scale input, exposure included.
+    scale: f64,
+}
+
+impl CameraResponse {
+    /// The curve of `gamma` with the exposure that records `flat_level` (DN) as itself.
+    fn new(gamma: f64, flat_level: f64) -> Self {
+        let gamma = if gamma.is_finite() && gamma > 0.0 {
+            gamma
+        } else {
+            1.0
+        };
+        let flat = (flat_level / 255.0).clamp(1e-3, 1.0);
+        // 255 · (flat · g)^(1/γ) = 255 · flat  ⇔  g = flat^(γ − 1).
+        let g = flat.powf(gamma - 1.0);
+        Self {
+            inverse_gamma: 1.0 / gamma,
+            scale: 255.0 * g.powf(1.0 / gamma),
+        }
+    }
+
+    /// The value recorded for `v` DN of linear light.
+    fn record(&self, v: f64) -> f64 {
+        self.scale * (v.max(0.0) / 255.0).powf(self.inverse_gamma)
     }
 }
 
@@ -771,6 +836,53 @@ mod tests {
         ] {
             assert!(v.is_finite(), "{v}");
         }
+    }
+
+    #[test]
+    fn a_camera_response_bends_the_sum_it_records_and_keeps_flat_skin_level() {
+        let curve = CameraResponse::new(2.2, 110.0);
+        // Flat skin's level is recorded as itself, full scale as full scale times the
+        // exposure's share, and the curve is the power law between.
+        assert!((curve.record(110.0) - 110.0).abs() < 1e-9);
+        let g = (110.0f64 / 255.0).powf(1.2);
+        for v in [0.0, 5.0, 55.0, 110.0, 200.0, 255.0] {
+            let want = 255.0 * (v / 255.0 * g).powf(1.0 / 2.2);
+            assert!((curve.record(v) - want).abs() < 1e-9, "{v}");
+        }
+        assert_eq!(curve.record(-3.0), 0.0);
+        // Half the light reads 2^(-1/γ) of flat skin's level, not half of it.
+        assert!((curve.record(55.0) / 110.0 - 0.5f64.powf(1.0 / 2.2)).abs() < 1e-9);
+        // γ = 1 is a linear camera; a nonsense γ is one too.
+        for gamma in [1.0, 0.0, f64::NAN] {
+            assert!((CameraResponse::new(gamma, 110.0).record(37.0) - 37.0).abs() < 1e-9);
+        }
+        // In the rendered frames: with the curve, flat skin keeps its level and a dim
+        // facet (skin sloping away from the red strip) reads brighter than linear.
+        let optics = |gamma| Optics {
+            noise: 0.0,
+            ambient: 0.0,
+            camera_gamma: gamma,
+            ..Optics::standard()
+        };
+        let (w, h) = (640, 480);
+        let flat = Grid::filled(w, h, 0.0f32);
+        let away = Grid::filled(w, h, -0.5f32);
+        let red = |gamma: Option<f64>, p: &Grid<f32>| {
+            render_slopes(&optics(gamma), p, &flat, 0)
+                .dx
+                .get_pixel(320, 240)
+                .0[0] as f64
+        };
+        assert!((red(Some(2.2), &flat) - red(None, &flat)).abs() <= 1.0);
+        let (linear, bent) = (
+            red(None, &away) / red(None, &flat),
+            red(Some(2.2), &away) / red(Some(2.2), &flat),
+        );
+        assert!(linear < 0.9, "{linear}");
+        assert!(
+            (bent - linear.powf(1.0 / 2.2)).abs() < 0.02,
+            "{bent} {linear}"
+        );
     }
 
     #[test]

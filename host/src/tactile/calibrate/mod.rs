@@ -28,6 +28,7 @@ pub use circle::{Circle, OutlineFit, OverridesError, fit_circle, read_overrides}
 pub use report::{CalibrationReport, overlay};
 
 use super::ambient::{self, AmbientEstimate, PhaseFrames, subtracted};
+use super::camera_curve::CameraCurve;
 use super::colour::{ColourFilter, Reference, median_image};
 use super::contact::{self, ContactParams, References};
 use super::model::side_light;
@@ -211,6 +212,10 @@ pub struct CalibrationSettings {
     /// Measure the strips' side light in the cross factor and teach and read the lookup
     /// tables with it taken out ([`SideLight`]; off by default, see its measurements).
     pub side_light: bool,
+    /// The camera's response curve, undone on every frame before anything reads it
+    /// ([`CameraCurve::measure`] from an all-lit flat frame); `None`: a linear camera.
+    /// The model keeps it and undoes it on the frames it reads.
+    pub camera_curve: Option<CameraCurve>,
 }
 
 impl CalibrationSettings {
@@ -256,6 +261,7 @@ impl Default for CalibrationSettings {
             background_factor: 8,
             overrides: HashMap::new(),
             side_light: false,
+            camera_curve: None,
         }
     }
 }
@@ -485,7 +491,34 @@ pub fn calibrate(
     settings: &CalibrationSettings,
     mut progress: impl FnMut(CalibrationProgress),
 ) -> Result<Calibration, CalibrationError> {
-    calibrate_dyn(pairs, references, settings, &mut progress)
+    let Some(curve) = settings.camera_curve else {
+        return calibrate_dyn(pairs, references, settings, &mut progress);
+    };
+    // Every frame is read with the camera's curve undone, once, here.
+    let table = curve.table();
+    let linear = |i: &RgbImage| {
+        let mut out = RgbImage::new(0, 0);
+        CameraCurve::linearise_into(&table, i, &mut out);
+        out
+    };
+    let pairs: Vec<CalibrationPair> = pairs
+        .iter()
+        .map(|p| CalibrationPair {
+            name: p.name.clone(),
+            dx: linear(&p.dx),
+            dy: linear(&p.dy),
+            dark: p.dark.as_ref().map(linear),
+            ball_diameter_mm: p.ball_diameter_mm,
+        })
+        .collect();
+    let refs = references.map(|r| [linear(r.dx), linear(r.dy)]);
+    let ref_dark = references.and_then(|r| r.dark).map(linear);
+    let references = refs.as_ref().map(|[dx, dy]| PhaseFrames {
+        dx,
+        dy,
+        dark: ref_dark.as_ref(),
+    });
+    calibrate_dyn(&pairs, references, settings, &mut progress)
 }
 
 /// [`calibrate`], once more without the presses whose dx and dy frames showed different
@@ -1090,6 +1123,7 @@ fn calibrate_once(
         dy,
         photometric: Some(photometric),
         side_light,
+        camera_curve: settings.camera_curve,
         fit: fit_report,
     };
     let left_out = model.leave_out_misdirected();

@@ -363,6 +363,11 @@ pub struct TactileModel {
     /// written before it existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub side_light: Option<SideLight>,
+    /// The camera's response curve, undone on every frame before it is read
+    /// ([`crate::tactile::camera_curve`]). `None` (left out of the file): a linear
+    /// camera, as in model files written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_curve: Option<crate::tactile::camera_curve::CameraCurve>,
     /// Fit quality.
     pub fit: FitReport,
 }

@@ -206,6 +206,11 @@ pub fn check(m: &TactileModel) -> Result<(), (String, String)> {
         side.check()
             .map_err(|why| ("side_light.kappa".to_string(), why))?;
     }
+    if let Some(curve) = &m.camera_curve {
+        curve
+            .check()
+            .map_err(|(field, why)| (format!("camera_curve.{field}"), why))?;
+    }
     Ok(())
 }
 

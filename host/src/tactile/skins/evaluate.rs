@@ -15,6 +15,7 @@ use crate::rng::Rng;
 use crate::tactile::ambient::PhaseFrames;
 use crate::tactile::bench::errors;
 use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate};
+use crate::tactile::camera_curve::CameraCurve;
 use crate::tactile::contact::dilate;
 use crate::tactile::crosstalk::{Unmix, measure as measure_crosstalk};
 use crate::tactile::model::ModelKind;
@@ -66,6 +67,9 @@ pub struct EvalConfig {
     /// Calibrate with the strips' side light measured and taken out of the lookup
     /// table's colours ([`crate::tactile::model::SideLight`]).
     pub side_light: bool,
+    /// Measure the camera's response curve from a flat-skin frame with all four strips
+    /// lit ([`crate::tactile::camera_curve`]) and calibrate and read with it undone.
+    pub camera_curve: bool,
 }
 
 impl Default for EvalConfig {
@@ -87,6 +91,7 @@ impl Default for EvalConfig {
             ambient: AmbientScale::STEADY,
             crosstalk: false,
             side_light: false,
+            camera_curve: false,
         }
     }
 }
@@ -168,6 +173,9 @@ pub struct FamilyReport {
     /// The largest side light the calibration measured and took out (`None`: not asked
     /// for, or none found).
     pub side_light: Option<f32>,
+    /// The camera's response exponent measured and undone (`None`: not asked for, or the
+    /// camera measured linear).
+    pub camera_gamma: Option<f32>,
     /// The photometric model's response `[P, e]` (`colour^P·|n|^e`), when it is the
     /// model read with.
     pub photometric_response: Option<[f64; 2]>,
@@ -235,6 +243,7 @@ pub fn evaluate_skin(
         ambient: [config.ambient.dx, config.ambient.dy, config.ambient.dark],
         unmix: None,
         side_light: None,
+        camera_gamma: None,
         photometric_response: None,
         calibration: CalibrationOutcome {
             given: config.presses,
@@ -293,10 +302,31 @@ pub fn evaluate_skin(
         side_light: config.side_light,
         ..Default::default()
     };
+    if config.camera_curve {
+        progress("measuring the camera's curve");
+        let all = skin.all_lit_reference(8);
+        match CameraCurve::measure(&all, &refs.dx, &refs.dy, &refs.dark) {
+            Ok(curve) => {
+                settings.camera_curve = curve;
+                report.camera_gamma = curve.map(|c| c.gamma);
+            }
+            Err(e) => {
+                report.calibration.error = Some(format!("camera curve: {e}"));
+                return report;
+            }
+        }
+    }
     if config.crosstalk {
         progress("measuring the crosstalk");
         let (blue_only, red_only) = skin.single_colour_references(8);
-        match measure_crosstalk(&refs.dx, &blue_only, &red_only) {
+        // Measured on linear light, as the model reads it.
+        let linear = |i: image::RgbImage| match &settings.camera_curve {
+            Some(c) => c.linearised(&i),
+            None => i,
+        };
+        let (ref_dx, blue_only, red_only) =
+            (linear(refs.dx.clone()), linear(blue_only), linear(red_only));
+        match measure_crosstalk(&ref_dx, &blue_only, &red_only) {
             Ok(unmix) => {
                 settings.filter.unmix = unmix;
                 report.unmix = Some(unmix);
@@ -663,7 +693,7 @@ pub fn format_report(r: &FamilyReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "{} ({}, skin {}, {} mm ball{}; {}{}{}{}, ambient x{}/{}/{}):",
+        "{} ({}, skin {}, {} mm ball{}; {}{}{}{}{}, ambient x{}/{}/{}):",
         r.family,
         r.role,
         r.skin_seed,
@@ -688,6 +718,9 @@ pub fn format_report(r: &FamilyReport) -> String {
         },
         r.side_light
             .map(|k| format!(", side light up to {k:.2} taken out"))
+            .unwrap_or_default(),
+        r.camera_gamma
+            .map(|g| format!(", camera curve (gamma {g:.2}) undone"))
             .unwrap_or_default(),
         r.ambient[0],
         r.ambient[1],

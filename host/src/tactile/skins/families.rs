@@ -90,6 +90,35 @@ impl Skin {
         )
     }
 
+    /// A flat-skin frame with all four strips lit, averaged over `count` exposures as the
+    /// references are: what [`crate::tactile::camera_curve::CameraCurve::measure`] reads
+    /// beside them and their LEDs-off frame.
+    pub fn all_lit_reference(&self, count: usize) -> RgbImage {
+        let count = count.max(1);
+        let (w, h) = self.size();
+        let mut sum = vec![0u32; w * h * 3];
+        for k in 0..count {
+            let frame = 800_000 + k as u64;
+            let img = match self {
+                Skin::Ours(o) => crate::tactile::render::render_all_lit(o, frame),
+                Skin::Physical(p) => {
+                    let flat = crate::grid::Grid::filled(w, h, 0.0f32);
+                    p.with_all_strips_in_dx()
+                        .render(&flat, frame, AmbientScale::STEADY)
+                        .dx
+                }
+            };
+            for (s, v) in sum.iter_mut().zip(img.as_raw()) {
+                *s += u32::from(*v);
+            }
+        }
+        let raw = sum
+            .iter()
+            .map(|s| ((*s as f64 / count as f64).round()) as u8)
+            .collect();
+        RgbImage::from_raw(w as u32, h as u32, raw).expect("w*h*3 values")
+    }
+
     /// The same skin with strip `index` (wiring order) dark.
     fn with_strip_off(&self, index: usize) -> Skin {
         match self {
@@ -201,6 +230,22 @@ pub fn families() -> Vec<Family> {
                     optics.reflectance = Reflectance::Rough {
                         exponent: rng.range(0.6, 0.9),
                     };
+                })
+            },
+        },
+        Family {
+            name: "ours-camera-gamma",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "ours-random's skins seen by a camera with a response curve (gamma 1.8-2.6 on the pixel values)",
+            build: |w, h, seed| {
+                ours_random_with(w, h, seed, 0xCA3E_7A6A_3300_0001, |optics, rng| {
+                    // The curve moves to the camera: a skin drawn with a curve on each
+                    // strip's shading alone is matte here.
+                    if let Reflectance::Gamma(_) = optics.reflectance {
+                        optics.reflectance = Reflectance::Lambert;
+                    }
+                    optics.camera_gamma = Some(rng.range(1.8, 2.6));
                 })
             },
         },

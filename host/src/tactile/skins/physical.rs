@@ -383,6 +383,8 @@ pub struct PhysicalSkin {
     /// per pixel and channel: the procedural scene (mean ≈ 1) times `ambient` and
     /// `ambient_colour`, plus the spot.
     ambient_dn: Vec<[f32; 3]>,
+    /// The dx image has all four strips lit ([`Self::with_all_strips_in_dx`]).
+    all_in_dx: bool,
 }
 
 /// One strip ready to shade: LEDs as `[x, y, z, weight]` (mm), the emission axis and
@@ -793,6 +795,16 @@ impl PhysicalSkin {
             params,
             prepared,
             ambient_dn,
+            all_in_dx: false,
+        }
+    }
+
+    /// The same skin whose dx image has all four strips lit in one exposure (the dy and
+    /// dark images as before): the frame the camera's curve is measured from.
+    pub fn with_all_strips_in_dx(&self) -> PhysicalSkin {
+        PhysicalSkin {
+            all_in_dx: true,
+            ..self.clone()
         }
     }
 
@@ -931,7 +943,12 @@ impl PhysicalSkin {
         let light = pr.strips.each_ref().map(|s| pr.strip_light(s, &surface));
         let led = finite_or(p.exposure, 0.0) * pr.gain;
         let mix = |blue: f64, red: f64| p.crosstalk.map(|row| led * (row[0] * blue + row[1] * red));
-        let lit = [mix(light[0], light[2]), mix(light[1], light[3]), [0.0; 3]];
+        let dx_light = if self.all_in_dx {
+            mix(light[0] + light[1], light[2] + light[3])
+        } else {
+            mix(light[0], light[2])
+        };
+        let lit = [dx_light, mix(light[1], light[3]), [0.0; 3]];
         let block = 1.0 - p.contact_block * contact(d);
         let ambient = self.ambient_dn.get(y * w + x).copied().unwrap_or([0.0; 3]);
         let vignette = pr.vignette(xp, yp);

@@ -95,6 +95,10 @@ pub struct SkinsArgs {
     /// table's colours (as `calibrate --side-light` does).
     #[arg(long)]
     pub side_light: bool,
+    /// Measure the camera's response curve from a flat-skin frame with all four strips
+    /// lit and calibrate with it undone (as `calibrate --all-lit F` does).
+    #[arg(long)]
+    pub camera_curve: bool,
     /// Ambient light of the measured frames relative to the calibration's, in the dx,
     /// dy and LEDs-off exposures: e.g. 2,2,2 (the room twice as bright), 1.3,0.8,1
     /// (light flickering between exposures).
@@ -239,6 +243,7 @@ fn skins(a: SkinsArgs) -> Result<()> {
                 ambient: a.ambient,
                 crosstalk: a.crosstalk,
                 side_light: a.side_light,
+                camera_curve: a.camera_curve,
                 ..Default::default()
             };
             let report = evaluate(f, &config, &mut |step| {

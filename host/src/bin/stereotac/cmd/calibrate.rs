@@ -16,6 +16,7 @@ use stereotac::tactile::calibrate::{
     Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
     overlay, read_overrides,
 };
+use stereotac::tactile::camera_curve::CameraCurve;
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::crosstalk::measure as measure_crosstalk;
 use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
@@ -70,6 +71,16 @@ pub struct Args {
     /// red channel otherwise reads slopes near the blue strips too steep).
     #[arg(long, requires_all = ["ref_dx", "red_only_dx"])]
     pub blue_only_dx: Option<PathBuf>,
+    /// No-contact frame with all four strips lit in one exposure (`stereotac set --mode
+    /// contact`, with `--budget-ma` raised so that the firmware does not dim the strips
+    /// when all four are on: dimmed, the frames cannot add up and the curve is measured
+    /// wrong), taken like the references: with --ref-dark, the camera's response curve
+    /// is measured (light adds up where the camera is linear: all + dark = dx + dy) and
+    /// undone on every frame before it is read. A camera that delivers sRGB (most
+    /// webcams) otherwise reads steep walls short and may see no contact in genuine
+    /// presses; a linear camera measures linear and nothing changes.
+    #[arg(long, requires_all = ["ref_dx", "ref_dark"])]
+    pub all_lit: Option<PathBuf>,
     /// No-contact dx frame with only the red strip (3) lit (strip 1 set dark).
     #[arg(long, requires_all = ["ref_dx", "blue_only_dx"])]
     pub red_only_dx: Option<PathBuf>,
@@ -182,6 +193,28 @@ pub fn run(a: Args) -> Result<()> {
     // The references first: a folder's press of another size is set aside undecoded.
     let refs = load_references(a.ref_dx.as_deref(), a.ref_dy.as_deref())?;
     let ref_dark = a.ref_dark.as_deref().map(load_rgb).transpose()?;
+    if let (Some((ref_dx, ref_dy)), Some(all), Some(dark)) = (&refs, &a.all_lit, &ref_dark) {
+        let context = || {
+            format!(
+                "measuring the camera's response curve from --all-lit {} beside --ref-dx, --ref-dy and --ref-dark",
+                all.display()
+            )
+        };
+        settings.camera_curve =
+            CameraCurve::measure(&load_rgb(all)?, ref_dx, ref_dy, dark).with_context(context)?;
+        match &settings.camera_curve {
+            Some(c) => eprintln!(
+                "camera curve: response exponent {:.2}; undone on every frame before it is read",
+                c.gamma
+            ),
+            None => eprintln!("camera curve: linear (nothing to undo)"),
+        }
+    }
+    // The crosstalk is measured on linear light, as the model reads it.
+    let linear = |img: image::RgbImage| match &settings.camera_curve {
+        Some(c) => c.linearised(&img),
+        None => img,
+    };
     if let (Some((ref_dx, _)), Some(blue), Some(red)) = (&refs, &a.blue_only_dx, &a.red_only_dx) {
         let context = || {
             format!(
@@ -190,8 +223,12 @@ pub fn run(a: Args) -> Result<()> {
                 red.display()
             )
         };
-        let unmix =
-            measure_crosstalk(ref_dx, &load_rgb(blue)?, &load_rgb(red)?).with_context(context)?;
+        let unmix = measure_crosstalk(
+            &linear(ref_dx.clone()),
+            &linear(load_rgb(blue)?),
+            &linear(load_rgb(red)?),
+        )
+        .with_context(context)?;
         let (blue_in_red, red_in_blue) = unmix.shares();
         eprintln!(
             "crosstalk: {:.1}% of the blue LED's light in R - G, {:.1}% of the red LED's in B - G; undone before the colours are read",
