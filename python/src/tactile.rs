@@ -11,6 +11,7 @@ use pyo3::types::{PyDict, PyTuple};
 
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::calibrate::{self as cal, CalibrationPair, CalibrationSettings};
+use stereotac::tactile::camera_curve::CameraCurve;
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::output::Summary;
 use stereotac::tactile::poisson::SolverKind;
@@ -480,11 +481,15 @@ impl PyTactileResult {
 /// and only the red strip (3) lit: the camera's colour crosstalk is then measured and
 /// undone (needs `ref`); `side_light` measures the strips' side light (strips of finite
 /// length light a pixel near their ends from the side too) and teaches and reads the
-/// lookup table with it taken out (off by default, as `stereotac calibrate --side-light`).
+/// lookup table with it taken out (off by default, as `stereotac calibrate --side-light`);
+/// `all_lit` a no-contact frame with all four strips lit, taken like `ref`'s (which must
+/// then hold its LEDs-off frame): the camera's response curve is measured (light adds up
+/// where the camera is linear) and undone on every frame, as `stereotac calibrate
+/// --all-lit`.
 /// Returns the model and the report (a dict: presses used, presses set aside with
 /// reasons, fit per region, coverage, warnings), as `stereotac calibrate --report` writes.
 #[pyfunction]
-#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None, single_colour_dx = None, side_light = false))]
+#[pyo3(signature = (presses, ball_diameter_mm, px_per_mm = 15.0, r#ref = None, skin_thickness_mm = 3.0, min_presses = 5, press_balls_mm = None, single_colour_dx = None, side_light = false, all_lit = None))]
 #[allow(clippy::too_many_arguments)] // Python keyword arguments, one per setting
 pub fn calibrate<'py>(
     py: Python<'py>,
@@ -497,6 +502,7 @@ pub fn calibrate<'py>(
     press_balls_mm: Option<Vec<f64>>,
     single_colour_dx: Option<(Bound<'py, PyAny>, Bound<'py, PyAny>)>,
     side_light: bool,
+    all_lit: Option<Bound<'py, PyAny>>,
 ) -> PyResult<(PyTactileModel, Bound<'py, PyAny>)> {
     let items: Vec<Bound<'py, PyAny>> = presses.try_iter()?.collect::<PyResult<_>>()?;
     if let Some(balls) = press_balls_mm.as_ref().filter(|b| b.len() != items.len()) {
@@ -529,6 +535,27 @@ pub fn calibrate<'py>(
         side_light,
         ..Default::default()
     };
+    if let Some(all) = &all_lit {
+        let (reference, dark) = match refs.as_ref().map(|r| (r, r.dark.as_ref())) {
+            Some((r, Some(dark))) => (r, dark),
+            _ => {
+                return Err(bad_input(
+                    "all_lit is measured beside the no-contact frames and their LEDs-off \
+                     frame: give ref as (dx, dy, dark) too"
+                        .to_string(),
+                ));
+            }
+        };
+        let all = crate::arrays::rgb_image("all_lit", all)?;
+        settings.camera_curve = CameraCurve::measure(&all, &reference.dx, &reference.dy, dark)
+            .map_err(|e| bad_input(format!("all_lit: {e}")))?;
+    }
+    // The crosstalk is measured on linear light, as the model reads it.
+    let curve = settings.camera_curve;
+    let linear = |image: RgbImage| match &curve {
+        Some(c) => c.linearised(&image),
+        None => image,
+    };
     if let Some((blue, red)) = &single_colour_dx {
         let reference = refs.as_ref().ok_or_else(|| {
             bad_input(
@@ -540,8 +567,12 @@ pub fn calibrate<'py>(
             crate::arrays::rgb_image("single_colour_dx[0]", blue)?,
             crate::arrays::rgb_image("single_colour_dx[1]", red)?,
         );
-        settings.filter.unmix = stereotac::tactile::crosstalk::measure(&reference.dx, &blue, &red)
-            .map_err(|e| bad_input(format!("single_colour_dx: {e}")))?;
+        settings.filter.unmix = stereotac::tactile::crosstalk::measure(
+            &linear(reference.dx.clone()),
+            &linear(blue),
+            &linear(red),
+        )
+        .map_err(|e| bad_input(format!("single_colour_dx: {e}")))?;
     }
     let result = py.detach(|| {
         cal::calibrate(

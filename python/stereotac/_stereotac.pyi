@@ -95,12 +95,15 @@ def calibrate(
         Tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]
     ] = None,
     side_light: bool = False,
+    all_lit: Optional[npt.NDArray[np.uint8]] = None,
 ) -> Tuple[TactileModel, Dict[str, Any]]:
     """A model from ball presses, and the calibration report; `press_balls_mm` gives
     each press's ball when they were made with more than one; `single_colour_dx`
     `(blue_only, red_only)` no-contact dx frames with one strip dark, to measure and
     undo the camera's colour crosstalk (needs `ref`); `side_light` measures the
-    strips' side light and reads the lookup table with it taken out."""
+    strips' side light and reads the lookup table with it taken out; `all_lit` a
+    no-contact frame with all four strips lit, to measure and undo the camera's
+    response curve (needs `ref` with its LEDs-off frame)."""
 
 def load_rgb(path: _Path) -> npt.NDArray[np.uint8]:
     """An 8-bit image file as RGB (height, width, 3), read as the CLI reads it."""

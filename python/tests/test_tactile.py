@@ -215,6 +215,39 @@ def test_calibrate_measures_the_crosstalk_from_single_colour_frames(press_pairs,
         stereotac.calibrate(presses, 6.0, ref=ref, single_colour_dx=(red_only, blue_only))
 
 
+def test_calibrate_measures_and_undoes_the_camera_curve_from_an_all_lit_frame(press_pairs, scene_pairs, tmp_path):
+    _, pairs = press_pairs
+    presses = [tuple(a for a in frames(p) if a is not None) for p in pairs]
+    rdx, rdy, _ = frames(scene_pairs[0])
+    # The demo's presses come without LEDs-off frames; its skin's room light is about 6 DN
+    # (the scene recording's LEDs-off frame is the stereo view, far brighter).
+    ref = (rdx, rdy, np.full_like(rdx, 6))
+    # A linear camera: all four strips lit hold both phases' light over the room's once.
+    all_lit = np.clip(rdx.astype(np.int32) + rdy - 6, 0, 255).astype(np.uint8)
+    plain, _ = stereotac.calibrate(presses, 6.0, ref=ref)
+    linear, _ = stereotac.calibrate(presses, 6.0, ref=ref, all_lit=all_lit)
+    dx, dy, dark = frames(contact_pair(scene_pairs))
+    np.testing.assert_array_equal(
+        linear.reconstruct(dx, dy, dark=dark).depth, plain.reconstruct(dx, dy, dark=dark).depth
+    )
+    linear.save(tmp_path / "linear.json")
+    assert "camera_curve" not in (tmp_path / "linear.json").read_text()
+    # The same frames through a display gamma: measured and kept in the model.
+    def bent(a):
+        return np.round(255.0 * (a / 255.0) ** (1 / 2.2)).astype(np.uint8)
+    bent_presses = [tuple(bent(a) for a in p) for p in presses]
+    bent_ref = tuple(bent(a) for a in ref)
+    curved, _ = stereotac.calibrate(bent_presses, 6.0, ref=bent_ref, all_lit=bent(all_lit))
+    curved.save(tmp_path / "curved.json")
+    gamma = json.loads((tmp_path / "curved.json").read_text())["camera_curve"]["gamma"]
+    assert abs(gamma - 2.2) < 0.1, gamma
+    with pytest.raises(stereotac.BadInputError, match="give ref as"):
+        stereotac.calibrate(presses, 6.0, ref=ref[:2], all_lit=all_lit)
+    # The dx frame is no all-lit frame: it holds only one phase's light.
+    with pytest.raises(stereotac.BadInputError, match="all_lit: the frames do not add up"):
+        stereotac.calibrate(presses, 6.0, ref=ref, all_lit=ref[0])
+
+
 def test_calibrate_measures_the_side_light_only_when_asked(press_pairs, scene_pairs, tmp_path):
     _, pairs = press_pairs
     presses = [tuple(a for a in frames(p) if a is not None) for p in pairs]
