@@ -11,7 +11,7 @@ use pyo3::types::{PyDict, PyTuple};
 
 use stereotac::tactile::ambient::PhaseFrames;
 use stereotac::tactile::calibrate::{self as cal, CalibrationPair, CalibrationSettings};
-use stereotac::tactile::camera_curve::CameraCurve;
+use stereotac::tactile::camera_curve::{self, CameraCurve};
 use stereotac::tactile::model::{ModelKind, TactileModel};
 use stereotac::tactile::output::Summary;
 use stereotac::tactile::poisson::SolverKind;
@@ -552,10 +552,7 @@ pub fn calibrate<'py>(
     }
     // The crosstalk is measured on linear light, as the model reads it.
     let curve = settings.camera_curve;
-    let linear = |image: RgbImage| match &curve {
-        Some(c) => c.linearised(&image),
-        None => image,
-    };
+    let linear = |image| camera_curve::undone(curve.as_ref(), image);
     if let Some((blue, red)) = &single_colour_dx {
         let reference = refs.as_ref().ok_or_else(|| {
             bad_input(

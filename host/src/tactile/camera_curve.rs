@@ -240,6 +240,14 @@ impl CameraCurve {
     }
 }
 
+/// `image` in linear light: with `curve` undone when there is one, as it is otherwise.
+pub fn undone(curve: Option<&CameraCurve>, image: RgbImage) -> RgbImage {
+    match curve {
+        Some(c) => c.linearised(&image),
+        None => image,
+    }
+}
+
 /// The median share by which the frames raised to `gamma` fail to add up: negative
 /// while `gamma` is below the camera's (the values still concave in the light).
 fn misfit(samples: &[[f32; 4]], gamma: f32) -> f32 {

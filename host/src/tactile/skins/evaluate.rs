@@ -15,7 +15,7 @@ use crate::rng::Rng;
 use crate::tactile::ambient::PhaseFrames;
 use crate::tactile::bench::errors;
 use crate::tactile::calibrate::{CalibrationPair, CalibrationSettings, calibrate};
-use crate::tactile::camera_curve::CameraCurve;
+use crate::tactile::camera_curve::{self, CameraCurve};
 use crate::tactile::contact::dilate;
 use crate::tactile::crosstalk::{Unmix, measure as measure_crosstalk};
 use crate::tactile::model::ModelKind;
@@ -320,10 +320,7 @@ pub fn evaluate_skin(
         progress("measuring the crosstalk");
         let (blue_only, red_only) = skin.single_colour_references(8);
         // Measured on linear light, as the model reads it.
-        let linear = |i: image::RgbImage| match &settings.camera_curve {
-            Some(c) => c.linearised(&i),
-            None => i,
-        };
+        let linear = |i| camera_curve::undone(settings.camera_curve.as_ref(), i);
         let (ref_dx, blue_only, red_only) =
             (linear(refs.dx.clone()), linear(blue_only), linear(red_only));
         match measure_crosstalk(&ref_dx, &blue_only, &red_only) {

@@ -16,7 +16,7 @@ use stereotac::tactile::calibrate::{
     Calibration, CalibrationPair, CalibrationProgress, CalibrationSettings, Circle, calibrate,
     overlay, read_overrides,
 };
-use stereotac::tactile::camera_curve::CameraCurve;
+use stereotac::tactile::camera_curve::{self, CameraCurve};
 use stereotac::tactile::contact::MAX_THRESHOLD;
 use stereotac::tactile::crosstalk::measure as measure_crosstalk;
 use stereotac::tactile::images::{ImageError, load_more_pairs, load_references, load_rgb};
@@ -211,10 +211,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     // The crosstalk is measured on linear light, as the model reads it.
-    let linear = |img: image::RgbImage| match &settings.camera_curve {
-        Some(c) => c.linearised(&img),
-        None => img,
-    };
+    let linear = |img| camera_curve::undone(settings.camera_curve.as_ref(), img);
     if let (Some((ref_dx, _)), Some(blue), Some(red)) = (&refs, &a.blue_only_dx, &a.red_only_dx) {
         let context = || {
             format!(
