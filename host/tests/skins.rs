@@ -379,3 +379,174 @@ fn leds_off_frames_remove_ambient_light_that_changed_since_calibration() {
         format_report(&raw)
     );
 }
+
+/// A model that undoes a camera curve and removes the LEDs-off frame's light first tells
+/// a skin at rest from the frames as they came (`raw_glance`): every pair reads as it does
+/// with every value undone and subtracted first, faint presses included, and the ambient
+/// light taken out is the same.
+#[test]
+fn the_glance_at_frames_as_they_came_reads_every_pair_as_the_full_read_does() {
+    use stereotac::tactile::ambient::{AmbientSource, subtracted};
+    use stereotac::tactile::contact::block_references;
+    use stereotac::tactile::model::ModelKind;
+    use stereotac::tactile::poisson::SolverKind;
+    use stereotac::tactile::raw_glance::RawGlance;
+    use stereotac::tactile::reconstruct::Reconstructor;
+
+    let skin = family("ours-camera-gamma").unwrap().skin(320, 240, 1);
+    let refs = skin.references(4);
+    let curve = CameraCurve::measure(&skin.all_lit_reference(4), &refs.dx, &refs.dy, &refs.dark)
+        .unwrap()
+        .expect("a camera with a curve");
+    let presses = ball_presses(&skin, 6.0, 12, 1, 0);
+    assert!(presses.iter().all(|p| p.dark.is_some()));
+    let settings = CalibrationSettings {
+        ball_diameter_mm: 6.0,
+        px_per_mm: skin.px_per_mm(),
+        camera_curve: Some(curve),
+        ..Default::default()
+    };
+    let references = PhaseFrames {
+        dx: &refs.dx,
+        dy: &refs.dy,
+        dark: Some(&refs.dark),
+    };
+    let cal = calibrate(&presses, Some(references), &settings, |_| {}).unwrap();
+    let new = || {
+        Reconstructor::new(
+            cal.model.clone(),
+            ModelKind::Lut,
+            SolverKind::Dct,
+            Some(references),
+        )
+        .unwrap()
+    };
+    let (mut glance, mut full) = (new(), new());
+    assert!(glance.set_raw_glance(true));
+    assert!(!full.set_raw_glance(false));
+
+    // At rest, faint balls (0.03-0.15 mm: some under the threshold) and a clear one, in a room whose light
+    // changed between the exposures.
+    let mut scenes = vec![Scene::default(); 4];
+    for (k, depth) in [0.03, 0.06, 0.1, 0.15, 0.5].into_iter().enumerate() {
+        scenes.push(Scene {
+            shapes: vec![Shape::Ball {
+                cx: 4.0 + 3.0 * k as f64,
+                cy: 5.0 + 2.0 * k as f64,
+                diameter: 6.0,
+                depth,
+            }],
+        });
+    }
+    let flicker = AmbientScale {
+        dx: 1.3,
+        dy: 0.8,
+        dark: 1.0,
+    };
+    let (mut at_rest, mut contacts) = (0, 0);
+    for (i, scene) in scenes.iter().enumerate() {
+        let f = skin.render(scene, 7000 + i as u64, flicker);
+        // With its own LEDs-off frame, without one, and with one of another scene
+        // (brighter than the lit frames: refused, the calibration's light instead).
+        let white = image::RgbImage::from_pixel(320, 240, image::Rgb([230, 230, 230]));
+        for (dark, source) in [
+            (Some(&f.dark), AmbientSource::DarkFrame),
+            (None, AmbientSource::Calibration),
+            (Some(&white), AmbientSource::CalibrationDarkRefused),
+        ] {
+            let frames = PhaseFrames {
+                dx: &f.dx,
+                dy: &f.dy,
+                dark,
+            };
+            let (a, b) = (
+                glance.reconstruct_frames(frames).unwrap(),
+                full.reconstruct_frames(frames).unwrap(),
+            );
+            let what = format!("scene {i}, {source:?}");
+            assert_eq!(a.no_contact(), b.no_contact(), "{what}");
+            assert_eq!(a.depth_mm, b.depth_mm, "{what}");
+            assert_eq!(a.regions, b.regions, "{what}");
+            assert_eq!((a.ambient, b.ambient), (source, source), "{what}");
+            for (u, v) in a.unlit_fraction.iter().zip(&b.unlit_fraction) {
+                assert!((u - v).abs() < 0.01, "{what}: {u} against {v}");
+            }
+            if source == AmbientSource::DarkFrame {
+                if a.no_contact() {
+                    at_rest += 1;
+                } else {
+                    contacts += 1;
+                }
+            }
+        }
+    }
+    // The scenes test both verdicts: every pair at rest, some presses seen.
+    assert!(
+        at_rest >= 4 && contacts >= 2,
+        "{at_rest} at rest, {contacts} seen"
+    );
+
+    // And the glance itself answers for the pairs at rest (the reconstructor's
+    // references: linear, the LEDs-off frame's light taken out), not for the clear press.
+    let m = &cal.model;
+    let linear = |i: &image::RgbImage| curve.linearised(i);
+    let dark = linear(&refs.dark);
+    let (led_dx, led_dy) = (
+        subtracted(&linear(&refs.dx), &dark),
+        subtracted(&linear(&refs.dy), &dark),
+    );
+    let block_refs = block_references(&led_dx, &led_dy, m.contact.coarse_step, m.filter.unmix);
+    let estimate = m.ambient.as_ref().unwrap().image(320, 240);
+    let raw = RawGlance::new(
+        m.camera_curve.as_ref(),
+        Some(&estimate),
+        m.contact.coarse_step,
+    )
+    .expect("a curve and ambient light to take out");
+    for (i, scene) in scenes
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| [0, 3, 8].contains(i))
+    {
+        let f = skin.render(scene, 7000 + i as u64, flicker);
+        let frames = PhaseFrames {
+            dx: &f.dx,
+            dy: &f.dy,
+            dark: Some(&f.dark),
+        };
+        let verdict = raw.at_rest(frames, &block_refs, &m.filter, &m.contact);
+        assert_eq!(verdict.is_some(), i < 4, "scene {i}");
+        if let Some((detection, source)) = verdict {
+            assert!(detection.regions.is_empty());
+            assert_eq!(source, AmbientSource::DarkFrame);
+        }
+    }
+
+    // A model that neither undoes a curve nor removes ambient light has no such glance.
+    let mut raw_presses = presses.clone();
+    for p in &mut raw_presses {
+        p.dark = None;
+    }
+    let plain = CalibrationSettings {
+        camera_curve: None,
+        ..settings
+    };
+    let plain = calibrate(
+        &raw_presses,
+        Some((&refs.dx, &refs.dy).into()),
+        &plain,
+        |_| {},
+    );
+    let mut rec = Reconstructor::new(
+        plain.unwrap().model,
+        ModelKind::Lut,
+        SolverKind::Dct,
+        Some(PhaseFrames {
+            dx: &refs.dx,
+            dy: &refs.dy,
+            dark: None,
+        }),
+    )
+    .unwrap();
+    assert!(!rec.set_raw_glance(true));
+}

@@ -128,6 +128,43 @@ pub fn subtracted(lit: &RgbImage, dark: &RgbImage) -> RgbImage {
     out
 }
 
+/// [`brighter_fraction`] on block means: the fraction of blocks' channels where the
+/// `dark` frame's mean exceeds the `lit` one's beyond noise. A mean is less noisy than a
+/// value, so a dark frame of the same scene counts fewer here; a frame of another
+/// exposure or with a light switched on counts as many (`reconstruct`'s glance at a pair
+/// at rest uses it). Means of different sizes count as entirely brighter.
+pub fn brighter_fraction_of_means(lit: &BlockMeans, dark: &BlockMeans) -> f64 {
+    if lit.len() != dark.len() {
+        return 1.0;
+    }
+    let excess = f32::from(EXCESS_DN);
+    let count: usize = [
+        (&lit.red, &dark.red),
+        (&lit.green, &dark.green),
+        (&lit.blue, &dark.blue),
+    ]
+    .into_iter()
+    .map(|(l, d)| l.iter().zip(d).filter(|(l, d)| **d - **l > excess).count())
+    .sum();
+    count as f64 / (3 * lit.len()).max(1) as f64
+}
+
+/// [`subtract_into`] on block means: `lit − ambient` per channel, clamped at 0. The
+/// blocks' clipped counts stay the lit frame's (a saturated value stays saturated).
+/// Clamped per block, not per pixel: the two differ only in blocks where some pixel of
+/// the ambient light is brighter than the lit one (unlit skin, noise in the dark).
+pub fn subtract_means(lit: &mut BlockMeans, ambient: &BlockMeans) {
+    for (l, a) in [
+        (&mut lit.red, &ambient.red),
+        (&mut lit.green, &ambient.green),
+        (&mut lit.blue, &ambient.blue),
+    ] {
+        for (l, a) in l.iter_mut().zip(a) {
+            *l = (*l - *a).max(0.0);
+        }
+    }
+}
+
 /// Mean ambient light of a calibration's LEDs-off frames, as block means: what a model
 /// calibrated on LED light subtracts from frames that come without a LEDs-off frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -215,6 +252,34 @@ mod tests {
         let big = RgbImage::from_pixel(300, 200, image::Rgb([10, 10, 10]));
         let brighter = RgbImage::from_pixel(300, 200, image::Rgb([30, 10, 10]));
         assert!((subtract_into(&big, &brighter, &mut out) - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn block_means_are_subtracted_and_judged_as_the_values_are() {
+        let lit = RgbImage::from_fn(8, 4, |x, _| {
+            image::Rgb([100, if x < 4 { 20 } else { 5 }, 255])
+        });
+        let dark = RgbImage::from_fn(8, 4, |x, _| {
+            image::Rgb([30, if x < 4 { 10 } else { 40 }, 20])
+        });
+        let (mut l, d) = (
+            BlockMeans::of_middle_rows(&lit, 4),
+            BlockMeans::of_middle_rows(&dark, 4),
+        );
+        // The second block's green: 40 over 5, beyond the noise; one of six channels.
+        assert!((brighter_fraction_of_means(&l, &d) - 1.0 / 6.0).abs() < 1e-12);
+        assert_eq!(
+            brighter_fraction_of_means(&l, &BlockMeans::of_middle_rows(&lit, 2)),
+            1.0
+        );
+        let clipped = l.clipped.clone();
+        subtract_means(&mut l, &d);
+        assert_eq!(l.red, vec![70.0, 70.0]);
+        assert_eq!(l.green, vec![10.0, 0.0]);
+        assert_eq!(l.blue, vec![235.0, 235.0]);
+        // A saturated lit value stays counted as clipped.
+        assert_eq!(l.clipped, clipped);
+        assert!(l.clipped.iter().all(|&c| c > 0));
     }
 
     #[test]

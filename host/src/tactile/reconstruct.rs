@@ -27,6 +27,7 @@ use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light,
 use super::past_reach::{Reach, ReachLimits};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
+use super::raw_glance::RawGlance;
 use super::reference_check;
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
 use super::unread::UnreadFill;
@@ -317,6 +318,17 @@ fn reach_limits_of(model: &TactileModel, kind: ModelKind, lut_gains: bool) -> Op
     }
 }
 
+/// The first look at pairs as they came for `model` (whose ambient estimate at full size
+/// is `ambient`), when it undoes a curve or removes ambient light before detection.
+fn raw_glance_of(model: &TactileModel, ambient: Option<&RgbImage>) -> Option<Arc<RawGlance>> {
+    RawGlance::new(
+        model.camera_curve.as_ref(),
+        ambient,
+        model.contact.coarse_step,
+    )
+    .map(Arc::new)
+}
+
 /// Share of the frame's blocks in contact above which the pair's phases are checked.
 const LARGE_CONTACT_FRACTION: f32 = 0.5;
 
@@ -355,6 +367,9 @@ pub struct Reconstructor {
     curve_table: Option<Arc<[u8; 256]>>,
     /// The current pair's dx, dy and LEDs-off frames with the curve undone.
     linear: [RgbImage; 3],
+    /// A first look at each pair as it came, for models that undo a curve or remove
+    /// ambient light before detection (`None`: none, or switched off).
+    raw_glance: Option<Arc<RawGlance>>,
 }
 
 impl Reconstructor {
@@ -381,6 +396,7 @@ impl Reconstructor {
             led: Default::default(),
             curve_table: self.curve_table.clone(),
             linear: Default::default(),
+            raw_glance: self.raw_glance.clone(),
         }
     }
 
@@ -536,7 +552,9 @@ impl Reconstructor {
             (ModelKind::Photometric, Some(m)) => Some(Arc::new(m.curves())),
             _ => None,
         };
+        let raw_glance = raw_glance_of(&model, ambient.as_ref());
         Ok(Self {
+            raw_glance,
             photometric_curves,
             lut_gains,
             lut_side,
@@ -584,6 +602,20 @@ impl Reconstructor {
         self.reach_limits.is_some()
     }
 
+    /// Turns the first look at each pair as the camera gave it ([`super::raw_glance`])
+    /// on (the default) or off (every pair's frames undone and their ambient light
+    /// subtracted before detection, as before 2026-12-02; for comparisons). It can be on
+    /// only for a model that undoes a camera curve or removes ambient light; returns
+    /// whether it is on now.
+    pub fn set_raw_glance(&mut self, on: bool) -> bool {
+        self.raw_glance = if on {
+            raw_glance_of(&self.model, self.ambient.as_ref())
+        } else {
+            None
+        };
+        self.raw_glance.is_some()
+    }
+
     /// Reconstructs one frame pair (no LEDs-off frame).
     pub fn reconstruct(
         &mut self,
@@ -616,6 +648,17 @@ impl Reconstructor {
                     got: img.dimensions(),
                     want,
                 });
+            }
+        }
+        // A skin at rest is told from the frames as they came, before any pass over them.
+        if let Some(glance) = &self.raw_glance {
+            let (refs, filter) = (&self.block_refs, &self.model.filter);
+            if let Some((detection, ambient)) =
+                glance.at_rest(frames, refs, filter, &self.model.contact)
+            {
+                let mut out = self.reading(&detection, ambient, start);
+                out.timings.total_ms = ms(start, Instant::now());
+                return Ok(out);
             }
         }
         // With the camera's curve undone first, into buffers taken out for the call.
@@ -685,7 +728,6 @@ impl Reconstructor {
         ambient: AmbientSource,
         start: Instant,
     ) -> Result<Reconstruction, ReconstructError> {
-        let (w, h) = (self.model.width, self.model.height);
         let filter = self.model.filter;
         let params = self.model.contact;
         let detection =
@@ -705,7 +747,25 @@ impl Reconstructor {
                 });
             }
         }
-        let mut out = Reconstruction {
+        let mut out = self.reading(&detection, ambient, start);
+        for roi in &detection.regions {
+            self.region(dx, dy, roi, &detection, &mut out)?;
+        }
+        out.regions = detection.regions;
+        out.timings.total_ms = ms(start, Instant::now());
+        Ok(out)
+    }
+
+    /// A reading with nothing in it yet: flat depth, no contact, the detection's unlit
+    /// fractions, detection's time since `start`.
+    fn reading(
+        &self,
+        detection: &contact::Detection,
+        ambient: AmbientSource,
+        start: Instant,
+    ) -> Reconstruction {
+        let (w, h) = (self.model.width, self.model.height);
+        Reconstruction {
             depth_mm: Grid::filled(w, h, 0.0),
             contact_mask: Grid::filled(w, h, false),
             regions: Vec::new(),
@@ -720,13 +780,7 @@ impl Reconstructor {
                 detect_ms: ms(start, Instant::now()),
                 ..Default::default()
             },
-        };
-        for roi in &detection.regions {
-            self.region(dx, dy, roi, &detection, &mut out)?;
         }
-        out.regions = detection.regions;
-        out.timings.total_ms = ms(start, Instant::now());
-        Ok(out)
     }
 
     fn region(
