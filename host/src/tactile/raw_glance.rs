@@ -2,7 +2,7 @@
 //!
 //! A model that undoes the camera's response curve or removes ambient light makes every
 //! frame of a pair pass through a table or a subtraction value by value before detection
-//! reads it: at 640×480 that was 0.2–0.8 ms a pair, 3–8 times the rest of a pair at rest
+//! reads it: at 640×480 that was 0.2–0.8 ms a pair, 2–8 times the rest of a pair at rest
 //! (`bench skins --dark`: a rest pair 0.33–0.63 ms against 0.10 without the LEDs-off
 //! frame), so a skin at rest cost a fifth of a contact. Most pairs of a live stream are
 //! at rest. So [`contact::glance`] is taken first on the block means of the frames as
