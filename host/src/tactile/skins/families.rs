@@ -250,6 +250,18 @@ pub fn families() -> Vec<Family> {
             },
         },
         Family {
+            name: "ours-low-light",
+            role: Role::Tuning,
+            ball_diameter_mm: 6.0,
+            about: "ours-random's skins lit from low strips (elevation 14-22 deg far from a strip, 32-45 next to it)",
+            build: |w, h, seed| {
+                ours_random_with(w, h, seed, 0x10E1_1647_0000_0001, |optics, rng| {
+                    optics.elevation_far_deg = rng.range(14.0, 22.0);
+                    optics.elevation_near_deg = rng.range(32.0, 45.0);
+                })
+            },
+        },
+        Family {
             name: "ours-held-out",
             role: Role::Evaluation,
             ball_diameter_mm: 8.0,
@@ -305,4 +317,40 @@ fn ours_random_with(
 /// The family called `name`.
 pub fn family(name: &str) -> Option<Family> {
     families().into_iter().find(|f| f.name == name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn optics(name: &str, seed: u64) -> Optics {
+        match family(name).expect("a family").skin(320, 240, seed) {
+            Skin::Ours(o) => *o,
+            Skin::Physical(_) => panic!("{name} is not our renderer's"),
+        }
+    }
+
+    /// `ours-low-light` is `ours-random`, seed for seed, with its strips lower: the light
+    /// elevations differ, within their ranges, and nothing else does.
+    #[test]
+    fn low_light_skins_differ_from_random_ones_only_in_the_elevations() {
+        for seed in 1..=4 {
+            let (random, low) = (optics("ours-random", seed), optics("ours-low-light", seed));
+            assert!((14.0..22.0).contains(&low.elevation_far_deg), "seed {seed}");
+            assert!(
+                (32.0..45.0).contains(&low.elevation_near_deg),
+                "seed {seed}"
+            );
+            assert!(
+                low.elevation_far_deg < random.elevation_far_deg,
+                "seed {seed}"
+            );
+            let same = Optics {
+                elevation_far_deg: random.elevation_far_deg,
+                elevation_near_deg: random.elevation_near_deg,
+                ..low.clone()
+            };
+            assert_eq!(same, random, "seed {seed}");
+        }
+    }
 }
