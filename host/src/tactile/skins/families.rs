@@ -348,7 +348,7 @@ mod tests {
             let same = Optics {
                 elevation_far_deg: random.elevation_far_deg,
                 elevation_near_deg: random.elevation_near_deg,
-                ..low.clone()
+                ..low
             };
             assert_eq!(same, random, "seed {seed}");
         }
