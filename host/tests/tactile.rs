@@ -533,6 +533,45 @@ fn no_contact_stops_after_detection() {
     assert!(rec.reconstruct(&pair.dx, &pair.dy).unwrap().no_contact());
 }
 
+/// Readings without contact hold the reconstructor's one zeroed map (no fill per pair);
+/// a contact reading between them writes into a map of its own, and the shared one
+/// stays zero, also after the caller changes its own copy.
+#[test]
+fn readings_at_rest_share_one_zeroed_map_that_contacts_leave_alone() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let rest = render(&optics, &Scene::default(), 9);
+    let pressed = render(&optics, &ball(10.0, 8.0, 0.8), 10);
+    let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
+    let first = rec.reconstruct(&rest.dx, &rest.dy).unwrap();
+    let contact = rec.reconstruct(&pressed.dx, &pressed.dy).unwrap();
+    let second = rec.reconstruct(&rest.dx, &rest.dy).unwrap();
+    assert!(first.no_contact() && second.no_contact() && !contact.no_contact());
+    assert!(std::sync::Arc::ptr_eq(&first.depth_mm, &second.depth_mm));
+    assert!(std::sync::Arc::ptr_eq(
+        &first.contact_mask,
+        &second.contact_mask
+    ));
+    assert!(!std::sync::Arc::ptr_eq(&first.depth_mm, &contact.depth_mm));
+    let peak = contact
+        .depth_mm
+        .as_slice()
+        .iter()
+        .copied()
+        .fold(0.0f32, f32::max);
+    assert!(peak > 0.4, "{peak}");
+    assert!(contact.contact_mask.as_slice().iter().any(|&t| t));
+    // A caller's change to its reading is its own.
+    let mut mine = first;
+    std::sync::Arc::make_mut(&mut mine.depth_mm).set(3, 4, 1.0);
+    let third = rec.reconstruct(&rest.dx, &rest.dy).unwrap();
+    for r in [&second, &third] {
+        assert!(r.depth_mm.as_slice().iter().all(|&d| d == 0.0));
+        assert!(r.contact_mask.as_slice().iter().all(|&t| !t));
+    }
+    assert_eq!(mine.depth_mm.get(3, 4), 1.0);
+}
+
 #[test]
 fn a_ceiling_light_spot_makes_no_phantom_bump() {
     let optics = optics();

@@ -715,7 +715,7 @@ impl Hooks for QueueHooks {
                 record.clone(),
             ))),
             Output::Stereo { frame, record } => {
-                LiveItem::Stereo(Box::new((frame.clone(), record.clone())))
+                LiveItem::Stereo(Box::new(((**frame).clone(), record.clone())))
             }
         };
         Ok(self.put(item))

@@ -4,6 +4,7 @@
 //! the GIL is released while it works.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use image::RgbImage;
 use pyo3::prelude::*;
@@ -409,8 +410,8 @@ impl PyTactileResult {
 
     fn new(py: Python<'_>, r: Reconstruction, s: Summary) -> Self {
         Self {
-            depth: grid_array(py, r.depth_mm).unbind(),
-            contact_mask: grid_array(py, r.contact_mask).unbind(),
+            depth: grid_array(py, Arc::unwrap_or_clone(r.depth_mm)).unbind(),
+            contact_mask: grid_array(py, Arc::unwrap_or_clone(r.contact_mask)).unbind(),
             contact: !s.no_contact,
             area_mm2: s.contact_area_mm2,
             centroid_mm: s.centroid_mm.map(|[x, y]| (x, y)),

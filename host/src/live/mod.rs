@@ -87,8 +87,8 @@ pub enum Output {
     },
     /// A stereo frame and its record.
     Stereo {
-        /// The frame.
-        frame: StereoFrame,
+        /// The frame (boxed: it holds its point cloud and images inline).
+        frame: Box<StereoFrame>,
         /// Its record.
         record: StereoRecord,
     },
@@ -206,7 +206,10 @@ impl Pipeline {
             }
             (Job::Stereo(p), _, Some(s)) => {
                 let (frame, record) = s.process(p, now_us, frames_dropped)?;
-                Some(Output::Stereo { frame, record })
+                Some(Output::Stereo {
+                    frame: Box::new(frame),
+                    record,
+                })
             }
             _ => None,
         })

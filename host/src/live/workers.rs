@@ -160,7 +160,10 @@ impl Workers {
                 Some(
                     stage
                         .process(pair, || now(&clock), dropped)
-                        .map(|(frame, record)| Output::Stereo { frame, record })
+                        .map(|(frame, record)| Output::Stereo {
+                            frame: Box::new(frame),
+                            record,
+                        })
                         .map_err(PipelineError::from),
                 )
             })

@@ -78,8 +78,8 @@ pub enum Item {
     Clock(ClockInfo),
     /// A tactile depth map (mm) and its summary; stamped at the dy exposure's end.
     Tactile {
-        /// Depth, mm.
-        depth_mm: Grid<f32>,
+        /// Depth, mm (shared with the reading it came from).
+        depth_mm: std::sync::Arc<Grid<f32>>,
         /// The summary.
         record: TactileRecord,
     },

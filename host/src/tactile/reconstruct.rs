@@ -200,10 +200,13 @@ pub const NO_SKIN_AT_REST: &str = "the contact fills its region with no skin at 
 /// The result for one frame pair.
 #[derive(Debug, Clone)]
 pub struct Reconstruction {
-    /// Depth in mm, positive where pressed in, 0 outside the regions of interest.
-    pub depth_mm: Grid<f32>,
-    /// Touched pixels (the dilated contact mask), full frame.
-    pub contact_mask: Grid<bool>,
+    /// Depth in mm, positive where pressed in, 0 outside the regions of interest. Shared:
+    /// every reading without contact from one reconstructor holds the same zeroed map
+    /// (made once, not a 1.2 MB fill per pair at 640×480); [`Arc::make_mut`] or
+    /// [`Arc::unwrap_or_clone`] give one to change.
+    pub depth_mm: Arc<Grid<f32>>,
+    /// Touched pixels (the dilated contact mask), full frame; shared as `depth_mm`.
+    pub contact_mask: Arc<Grid<bool>>,
     /// Regions integrated.
     pub regions: Vec<Roi>,
     /// Phase values of touched pixels the colour filter rejected (a pixel counts once
@@ -370,6 +373,25 @@ pub struct Reconstructor {
     /// A first look at each pair as it came, for models that undo a curve or remove
     /// ambient light before detection (`None`: none, or switched off).
     raw_glance: Option<Arc<RawGlance>>,
+    /// The zeroed depth map and mask every reading without contact holds.
+    flat: FlatMaps,
+}
+
+/// A frame's depth map and contact mask with nothing in them, shared by the readings
+/// without contact ([`Reconstruction::depth_mm`]).
+#[derive(Debug, Clone)]
+struct FlatMaps {
+    depth: Arc<Grid<f32>>,
+    mask: Arc<Grid<bool>>,
+}
+
+impl FlatMaps {
+    fn new(width: usize, height: usize) -> Self {
+        Self {
+            depth: Arc::new(Grid::filled(width, height, 0.0)),
+            mask: Arc::new(Grid::filled(width, height, false)),
+        }
+    }
 }
 
 impl Reconstructor {
@@ -397,6 +419,7 @@ impl Reconstructor {
             curve_table: self.curve_table.clone(),
             linear: Default::default(),
             raw_glance: self.raw_glance.clone(),
+            flat: self.flat.clone(),
         }
     }
 
@@ -554,6 +577,7 @@ impl Reconstructor {
         };
         let raw_glance = raw_glance_of(&model, ambient.as_ref());
         Ok(Self {
+            flat: FlatMaps::new(model.width, model.height),
             raw_glance,
             photometric_curves,
             lut_gains,
@@ -748,6 +772,12 @@ impl Reconstructor {
             }
         }
         let mut out = self.reading(&detection, ambient, start);
+        if !detection.regions.is_empty() {
+            // Maps of this reading's own, to write the regions into.
+            let (w, h) = (self.model.width, self.model.height);
+            out.depth_mm = Arc::new(Grid::filled(w, h, 0.0));
+            out.contact_mask = Arc::new(Grid::filled(w, h, false));
+        }
         for roi in &detection.regions {
             self.region(dx, dy, roi, &detection, &mut out)?;
         }
@@ -756,18 +786,17 @@ impl Reconstructor {
         Ok(out)
     }
 
-    /// A reading with nothing in it yet: flat depth, no contact, the detection's unlit
-    /// fractions, detection's time since `start`.
+    /// A reading with nothing in it yet: flat depth and no contact (the shared zeroed
+    /// maps), the detection's unlit fractions, detection's time since `start`.
     fn reading(
         &self,
         detection: &contact::Detection,
         ambient: AmbientSource,
         start: Instant,
     ) -> Reconstruction {
-        let (w, h) = (self.model.width, self.model.height);
         Reconstruction {
-            depth_mm: Grid::filled(w, h, 0.0),
-            contact_mask: Grid::filled(w, h, false),
+            depth_mm: Arc::clone(&self.flat.depth),
+            contact_mask: Arc::clone(&self.flat.mask),
             regions: Vec::new(),
             rejected_pixels: 0,
             sanitized_slopes: 0,
@@ -953,16 +982,19 @@ impl Reconstructor {
         let scale = 1.0 / self.model.px_per_mm as f32;
         // The deepest (or highest) point, to hold against the skin's thickness.
         let mut extreme = (0.0f32, 0usize, 0usize);
+        // The reading's own maps (made for it: no copy).
+        let depth_mm = Arc::make_mut(&mut out.depth_mm);
+        let contact_mask = Arc::make_mut(&mut out.contact_mask);
         for ry in 0..roi.height {
             let y = roi.y + ry;
             let src = depth_px.row(ry);
             let inside = &imprint[ry * roi.width..(ry + 1) * roi.width];
-            let dst = &mut out.depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
+            let dst = &mut depth_mm.row_mut(y)[roi.x..roi.x + roi.width];
             for ((d, s), &keep) in dst.iter_mut().zip(src).zip(inside) {
                 *d = if keep { (s - anchor) * scale } else { 0.0 };
             }
             update_extreme(&mut extreme, dst, roi.x, y);
-            let m = &mut out.contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
+            let m = &mut contact_mask.row_mut(y)[roi.x..roi.x + roi.width];
             for (d, s) in m
                 .iter_mut()
                 .zip(&mask[ry * roi.width..(ry + 1) * roi.width])
