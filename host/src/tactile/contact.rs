@@ -341,7 +341,7 @@ pub fn glance(
 /// Whether some set cell of `mask` (rows of `w`) has a set 8-neighbour. A pass of vector
 /// lanes per row (the cells right of it and the three below it), no labelling: at rest a
 /// few lone cells are set in most frames.
-fn has_neighbours(mask: &[bool], w: usize) -> bool {
+pub(crate) fn has_neighbours(mask: &[bool], w: usize) -> bool {
     if w == 0 {
         return false;
     }

@@ -26,6 +26,7 @@ pub mod output;
 pub mod past_reach;
 pub mod phase_check;
 pub mod poisson;
+pub mod quiet;
 pub mod raw_glance;
 pub mod reconstruct;
 pub mod reference_check;

@@ -27,6 +27,7 @@ use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light,
 use super::past_reach::{Reach, ReachLimits};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
+use super::quiet::QuietBlocks;
 use super::raw_glance::RawGlance;
 use super::reference_check;
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -342,6 +343,9 @@ pub struct Reconstructor {
     solver_kind: SolverKind,
     refs: References,
     block_refs: References,
+    /// Budgets that tell a pair at rest from whole-number sums ([`QuietBlocks`]); `None`
+    /// without reference frames or for blocks other than 4×4 px.
+    quiet: Option<Arc<QuietBlocks>>,
     solver: PoissonSolver<f32>,
     max_slope: f32,
     /// The model's ambient estimate at full resolution (models calibrated on LED light).
@@ -404,6 +408,7 @@ impl Reconstructor {
             solver_kind: self.solver_kind,
             refs: self.refs.clone(),
             block_refs: self.block_refs.clone(),
+            quiet: self.quiet.clone(),
             solver: PoissonSolver::new(),
             max_slope: self.max_slope,
             ambient: self.ambient.clone(),
@@ -468,7 +473,7 @@ impl Reconstructor {
             Some(e) => Some(e.image(want.0, want.1)),
             None => None,
         };
-        let (refs, block_refs) = match references {
+        let (refs, block_refs, quiet) = match references {
             Some(r) => {
                 for (what, img) in [
                     ("reference dx", Some(r.dx)),
@@ -509,17 +514,20 @@ impl Reconstructor {
                         height: r.region.height,
                     });
                 }
+                let block_refs = contact::block_references(
+                    dx,
+                    dy,
+                    model.contact.coarse_step,
+                    model.filter.unmix,
+                );
+                let quiet = QuietBlocks::new(dx, dy, &block_refs, &model.filter, &model.contact);
                 (
                     References {
                         dx: Reference::from_image(dx, model.filter.unmix),
                         dy: Reference::from_image(dy, model.filter.unmix),
                     },
-                    contact::block_references(
-                        dx,
-                        dy,
-                        model.contact.coarse_step,
-                        model.filter.unmix,
-                    ),
+                    block_refs,
+                    quiet,
                 )
             }
             None => (
@@ -532,6 +540,7 @@ impl Reconstructor {
                     model.contact.coarse_step,
                     model.filter.unmix,
                 ),
+                None,
             ),
         };
         let lut_gains = match kind {
@@ -588,6 +597,7 @@ impl Reconstructor {
             solver_kind,
             refs,
             block_refs,
+            quiet: quiet.map(Arc::new),
             solver: PoissonSolver::new(),
             max_slope: DEFAULT_MAX_SLOPE,
             ambient,
@@ -754,8 +764,15 @@ impl Reconstructor {
     ) -> Result<Reconstruction, ReconstructError> {
         let filter = self.model.filter;
         let params = self.model.contact;
-        let detection =
-            contact::find_regions(dx, dy, &self.block_refs, &filter, &params, self.solver_kind);
+        // A pair at rest is told from whole-number sums where the references allow
+        // (the glance's answer, block for block: `quiet`); otherwise looked at as before.
+        let quiet = self
+            .quiet
+            .as_ref()
+            .and_then(|q| q.glance(dx, dy, &self.block_refs, &filter, &params));
+        let detection = quiet.unwrap_or_else(|| {
+            contact::find_regions(dx, dy, &self.block_refs, &filter, &params, self.solver_kind)
+        });
         // A contact over most of the frame is rare; dx and dy given the wrong way round
         // look like one everywhere. Checked only then: it costs a pass over the frame.
         let touched = detection.touched.iter().filter(|t| **t).count();

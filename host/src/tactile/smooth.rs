@@ -155,6 +155,42 @@ impl BlockMeans {
     }
 }
 
+/// The red, green and blue sums (exact whole numbers as `f32`) of each block of 4×4 px
+/// in band `by` (block row) of `image` over the block's two middle rows, as
+/// [`BlockMeans::of_middle_rows`] sums them before scaling, into `out`'s planes (emptied
+/// first; one value per block of the band), in vector lanes ([`band_sums_avx2`]), and
+/// whether a value read there is 255 (`out.clipped` is left empty). `None`, with `out`
+/// empty, where the frame is not whole blocks of four or the CPU lacks AVX2. For
+/// [`crate::tactile::quiet`], which reads them while they are in the cache.
+#[allow(unsafe_code)]
+pub(crate) fn middle_row_sums(image: &RgbImage, by: usize, out: &mut BlockMeans) -> Option<bool> {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    for plane in [&mut out.red, &mut out.green, &mut out.blue] {
+        plane.clear();
+    }
+    out.clipped.clear();
+    if w == 0 || w % 4 != 0 || h % 4 != 0 || (by + 1) * 4 > h {
+        return None;
+    }
+    let (raw, stride) = (image.as_raw(), w * 3);
+    let band = &raw[by * 4 * stride..(by + 1) * 4 * stride];
+    let next = ((by + 1) * 4 * stride).min(raw.len());
+    let ahead = &raw[next..(next + 4 * stride).min(raw.len())];
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::avx2() {
+        // SAFETY: `band_sums_avx2` only needs AVX2, detected just above.
+        return Some(unsafe { band_sums_avx2(band, ahead, stride, [1, 2], 1.0, out) });
+    }
+    let _ = (band, ahead);
+    None
+}
+
+/// No blocks yet, with room for one band of `blocks` blocks of four: the scratch of
+/// [`middle_row_sums`].
+pub(crate) fn band_scratch(blocks: usize) -> BlockMeans {
+    BlockMeans::with_room(4, blocks, 1)
+}
+
 /// Buffers of the band-by-band path of [`BlockMeans::of`] and
 /// [`BlockMeans::of_middle_rows`] for a frame `width` px wide.
 struct BandSums {
