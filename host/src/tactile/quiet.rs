@@ -23,8 +23,10 @@ use super::contact::{self, ContactParams, Detection, GLANCE_SHARE, References};
 use super::smooth::{self, BlockMeans};
 
 /// Share of each budget kept as a margin for the rounding of `f32` arithmetic in the
-/// exact departure (a few units in the last place; this is a thousand times more).
-const MARGIN: f64 = 1e-3;
+/// exact departure and the filter's rules: the departure's slack it leaves is at least
+/// `1.25 · MARGIN` times a block's cost (`K·m ≥ 2/500`), about 5e-5, against at most
+/// 1–2e-6 of rounding.
+const MARGIN: f64 = 1e-2;
 
 /// One phase's reference at block resolution in sums of the 8 pixels of a block's two
 /// middle rows (rounded), and each block's budget (`-1` where none: never quiet).
@@ -129,9 +131,9 @@ impl QuietBlocks {
                 let led = a.max(bb);
                 let white = f64::from(filter.max_white_ratio);
                 let rise = f64::from(filter.max_green_rise);
-                // Bounds on `D = |Δa| + |Δb|` alone (the departure, the LED light) and on
-                // `D` and `E = |Δg|` together (saturation, white ratio, green rise).
-                // The departure's bound is on both phases' `D` together (below).
+                // Bounds on `D = |Δa| + |Δb|` alone (the LED light) and on `D` and `E =
+                // |Δg|` together (saturation, white ratio, green rise); the departure's
+                // is on both phases' `D` together (below).
                 out.cost.push(k * m);
                 out.own
                     .push(if lit { f64::from(d_ref) } else { f64::INFINITY });
@@ -140,13 +142,17 @@ impl QuietBlocks {
                 let whiteness = white * led - (1.0 - white) * g;
                 let rise_margin = if rise >= 0.0 { rise * led } else { -1.0 };
                 // `D` takes at most half of each shared margin, `E` what is left.
-                let d_budget = led_margin
-                    .min(saturation / 2.0)
-                    .min(whiteness / (2.0 * white.max(f64::MIN_POSITIVE)))
-                    .min(rise_margin / (2.0 * rise.max(f64::MIN_POSITIVE)));
-                let e_budget = (saturation - d_budget)
-                    .min((whiteness - white * d_budget) / (1.0 - white).abs())
-                    .min(rise_margin - rise * d_budget);
+                let d_budget = least(&[
+                    led_margin,
+                    saturation / 2.0,
+                    whiteness / (2.0 * white.max(f64::MIN_POSITIVE)),
+                    rise_margin / (2.0 * rise.max(f64::MIN_POSITIVE)),
+                ]);
+                let e_budget = least(&[
+                    saturation - d_budget,
+                    (whiteness - white * d_budget) / (1.0 - white).abs(),
+                    rise_margin - rise * d_budget,
+                ]);
                 // In counts of the 8 pixels' sums, less the reference's rounding (half a
                 // count a difference); `-1` (never quiet) where there is no budget.
                 let budget = |t: f64, rounding: f64| {
@@ -231,9 +237,9 @@ impl QuietBlocks {
     }
 
     /// [`contact::glance`] at the pair `dx`, `dy`: `Some` (the same detection) when the
-    /// skin is at rest, `None` when the glance would read every row, or when these budgets
-    /// are not for this pair's size, `filter` or `params` or the CPU cannot sum the
-    /// bands in vector lanes (the caller then looks as before).
+    /// skin is at rest, `None` when the glance would read every row, or when these
+    /// budgets are not for this pair's size, `block_refs`' size, `filter` or `params`, or
+    /// the CPU cannot sum the bands in vector lanes (the caller then looks as before).
     #[allow(unsafe_code)]
     pub fn glance(
         &self,
@@ -249,6 +255,9 @@ impl QuietBlocks {
             || *filter != self.filter
             || params.threshold != self.threshold
             || params.coarse_step != 4
+            || [&block_refs.dx, &block_refs.dy]
+                .iter()
+                .any(|r| r.width() * r.height() != self.width * self.height)
             || !crate::cpu::avx2()
         {
             return None;
@@ -273,7 +282,9 @@ impl QuietBlocks {
             };
             let blocks = by * bw..(by + 1) * bw;
             over.iter_mut().for_each(|o| *o = false);
-            // SAFETY: the CPU has AVX2 (checked above).
+            // SAFETY: the CPU has AVX2 (checked above; elsewhere `avx2()` is false and
+            // the glance defers before this).
+            #[cfg(target_arch = "x86_64")]
             unsafe {
                 mark_band_avx2(
                     &sums,
@@ -334,6 +345,15 @@ impl QuietBlocks {
     }
 }
 
+/// The least of `bounds`; `-1` (no budget) when one is not a number (a filter's setting
+/// that is none), where `f64::min` would pass it over.
+fn least(bounds: &[f64]) -> f64 {
+    if bounds.iter().any(|b| b.is_nan()) {
+        return -1.0;
+    }
+    bounds.iter().copied().fold(f64::INFINITY, f64::min)
+}
+
 /// Sets `over[k]` for the blocks `blocks` (one band) whose sums `sums` (per phase) are
 /// further from the references than a budget allows, in vector lanes (eight blocks a
 /// step); `spent` is scratch for `D_dx + D_dy`.
@@ -360,6 +380,7 @@ fn mark_band_avx2(
 
 /// One phase of [`mark_band_avx2`]: its filter's budgets, and its `D` added to `spent`.
 #[inline(always)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 fn mark_phase(
     s: &BlockMeans,
     p: &Phase,
