@@ -39,11 +39,6 @@ struct Phase {
     budget: Vec<i16>,
     /// Of `|ΔG|`.
     green_budget: Vec<i16>,
-    /// Per block, what a count of `D` can add to the departure (`K·m`) and the
-    /// reference's own departure (infinite where the filter rejects the reference):
-    /// the joint budget's terms, kept until it is made.
-    cost: Vec<f64>,
-    own: Vec<f64>,
 }
 
 /// The budgets of every block of both phases, for one set of block references, colour
@@ -97,7 +92,12 @@ impl QuietBlocks {
             return None;
         }
         let (bw, bh) = (w / 4, h / 4);
-        let phase = |image: &RgbImage, reference: &super::colour::Reference| -> Option<Phase> {
+        // A phase's budgets, and per block the joint budget's terms: what a count of `D`
+        // can add to the departure (`K·m`) and the reference's own departure (infinite
+        // where the filter rejects the reference).
+        let phase = |image: &RgbImage,
+                     reference: &super::colour::Reference|
+         -> Option<(Phase, Vec<[f64; 2]>)> {
             let means = BlockMeans::of(image, 4);
             if means.len() != bw * bh || reference.width() * reference.height() != bw * bh {
                 return None;
@@ -116,9 +116,8 @@ impl QuietBlocks {
                 green: Vec::with_capacity(bw * bh),
                 budget: Vec::with_capacity(bw * bh),
                 green_budget: Vec::with_capacity(bw * bh),
-                cost: Vec::with_capacity(bw * bh),
-                own: Vec::with_capacity(bw * bh),
             };
+            let mut terms = Vec::with_capacity(bw * bh);
             for i in 0..bw * bh {
                 let mean = means.mean(i);
                 let (d_ref, lit) = planes.departure(filter, i, mean);
@@ -134,9 +133,7 @@ impl QuietBlocks {
                 // Bounds on `D = |Δa| + |Δb|` alone (the LED light) and on `D` and `E =
                 // |Δg|` together (saturation, white ratio, green rise); the departure's
                 // is on both phases' `D` together (below).
-                out.cost.push(k * m);
-                out.own
-                    .push(if lit { f64::from(d_ref) } else { f64::INFINITY });
+                terms.push([k * m, if lit { f64::from(d_ref) } else { f64::INFINITY }]);
                 let led_margin = led - f64::from(filter.min_led);
                 let saturation = f64::from(filter.saturation) - r.max(g).max(b);
                 let whiteness = white * led - (1.0 - white) * g;
@@ -153,43 +150,27 @@ impl QuietBlocks {
                     (whiteness - white * d_budget) / (1.0 - white).abs(),
                     rise_margin - rise * d_budget,
                 ]);
-                // In counts of the 8 pixels' sums, less the reference's rounding (half a
-                // count a difference); `-1` (never quiet) where there is no budget.
-                let budget = |t: f64, rounding: f64| {
-                    let t = if lit && t > 0.0 {
-                        t * (1.0 - MARGIN) - MARGIN
-                    } else {
-                        -1.0
-                    };
-                    let count = (8.0 * t - rounding).floor();
-                    if count >= 0.0 {
-                        count.min(f64::from(i16::MAX)) as i16
-                    } else {
-                        -1
-                    }
-                };
                 let round = |v: f64| (8.0 * v).round().clamp(-32768.0, 32767.0) as i16;
                 out.red_minus_green.push(round(a));
                 out.blue_minus_green.push(round(bb));
                 out.green.push(round(g));
-                out.budget.push(budget(d_budget, 1.0));
-                out.green_budget.push(budget(e_budget, 0.5));
+                // Half a count of rounding for each difference.
+                out.budget.push(budget(lit, d_budget, 1.0));
+                out.green_budget.push(budget(lit, e_budget, 0.5));
             }
-            Some(out)
+            Some((out, terms))
         };
-        let mut phases = [
-            phase(ref_dx, &block_refs.dx)?,
-            phase(ref_dy, &block_refs.dy)?,
-        ];
+        let (x, x_terms) = phase(ref_dx, &block_refs.dx)?;
+        let (y, y_terms) = phase(ref_dy, &block_refs.dy)?;
         // Both phases' `D` together: their departures add up to at most the glance's bar
         // when `D_dx + D_dy ≤ (bar − d_ref,dx − d_ref,dy) / max(K·m)`, less the margin and
         // the references' rounding (a count for each of the four differences).
         let bar = f64::from(GLANCE_SHARE * params.threshold);
-        let joint = (0..bw * bh)
-            .map(|i| {
-                let [x, y] = [&phases[0], &phases[1]];
-                let cost = x.cost[i].max(y.cost[i]);
-                let slack = bar - x.own[i] - y.own[i];
+        let joint = x_terms
+            .iter()
+            .zip(&y_terms)
+            .map(|([cx, dx], [cy, dy])| {
+                let (cost, slack) = (cx.max(*cy), bar - dx - dy);
                 let t = if cost > 0.0 {
                     slack / cost
                 } else if slack > 0.0 {
@@ -197,29 +178,15 @@ impl QuietBlocks {
                 } else {
                     -1.0
                 };
-                let t = if t > 0.0 {
-                    t * (1.0 - MARGIN) - MARGIN
-                } else {
-                    -1.0
-                };
-                let count = (8.0 * t - 2.0).floor();
-                if count >= 0.0 {
-                    count.min(f64::from(i16::MAX)) as i16
-                } else {
-                    -1
-                }
+                budget(true, t, 2.0)
             })
             .collect();
-        for p in &mut phases {
-            p.cost = Vec::new();
-            p.own = Vec::new();
-        }
         Some(Self {
             width: bw,
             height: bh,
             filter: *filter,
             threshold: params.threshold,
-            phases,
+            phases: [x, y],
             joint,
         })
     }
@@ -342,6 +309,23 @@ impl QuietBlocks {
             touched: vec![false; n],
             unlit_fraction: unlit.map(|u| u as f32 / n.max(1) as f32),
         })
+    }
+}
+
+/// A budget `t` (in mean units) in counts of the 8 pixels' sums, less [`MARGIN`] and
+/// `rounding` counts of the references' rounding; `-1` (never quiet) where there is
+/// none or the reference is not `usable` (the filter rejects it).
+fn budget(usable: bool, t: f64, rounding: f64) -> i16 {
+    let t = if usable && t > 0.0 {
+        t * (1.0 - MARGIN) - MARGIN
+    } else {
+        -1.0
+    };
+    let count = (8.0 * t - rounding).floor();
+    if count >= 0.0 {
+        count.min(f64::from(i16::MAX)) as i16
+    } else {
+        -1
     }
 }
 
