@@ -453,10 +453,12 @@ mod tests {
         }
     }
 
+    /// Flat-skin references of both phases, a filter with `unmix`, a threshold, and the
+    /// budgets for them.
     fn setup(
         unmix: Unmix,
         rng: &mut Rng,
-    ) -> (RgbImage, RgbImage, References, ColourFilter, ContactParams) {
+    ) -> (References, ColourFilter, ContactParams, QuietBlocks) {
         let (w, h) = (96, 64);
         let (rdx, rdy) = (skin(w, h, rng, 0.0, false), skin(w, h, rng, 0.0, true));
         let refs = contact::block_references(&rdx, &rdy, 4, unmix);
@@ -468,7 +470,8 @@ mod tests {
             threshold: 0.06,
             ..ContactParams::default()
         };
-        (rdx, rdy, refs, filter, params)
+        let quiet = QuietBlocks::new(&rdx, &rdy, &refs, &filter, &params).expect("4×4 blocks");
+        (refs, filter, params, quiet)
     }
 
     /// Over pairs at rest (noise only, lone noisy blocks over the bar among them), faint
@@ -490,8 +493,7 @@ mod tests {
                 blue: [-0.04, 1.03],
             },
         ] {
-            let (rdx, rdy, refs, filter, params) = setup(unmix, &mut rng);
-            let quiet = QuietBlocks::new(&rdx, &rdy, &refs, &filter, &params).expect("4×4 blocks");
+            let (refs, filter, params, quiet) = setup(unmix, &mut rng);
             assert!(quiet.budgeted_share() > 0.9, "{}", quiet.budgeted_share());
             for case in 0..120 {
                 let noise = [1.0, 3.0, 6.0, 9.0][case % 4];
@@ -535,8 +537,7 @@ mod tests {
                 blue: [-0.05, 1.04],
             },
         ] {
-            let (rdx, rdy, refs, filter, params) = setup(unmix, &mut rng);
-            let quiet = QuietBlocks::new(&rdx, &rdy, &refs, &filter, &params).expect("4×4 blocks");
+            let (refs, filter, params, quiet) = setup(unmix, &mut rng);
             let bar = GLANCE_SHARE * params.threshold;
             let planes = [&refs.dx, &refs.dy].map(|r| r.planes(0..quiet.joint.len()));
             let mut checked = 0;
