@@ -50,11 +50,16 @@ struct RowScratch {
     planes: [[Vec<f32>; 3]; 2],
     /// Normalised `[red, blue]` of dx then dy, times the other phase's factor.
     colour: [[Vec<f32>; 2]; 2],
+    /// Normalised `[red, blue]` of dx then dy, without the factor (for the pixels read
+    /// again, [`shadowed::reread`]).
+    normalised: [[Vec<f32>; 2]; 2],
     /// Accepted by the filter, dx then dy.
     lit: [Vec<bool>; 2],
     /// Which slopes to read again, lit in both phases with a strip of the other phase in
     /// shadow ([`shadowed::marks`]).
     again: Vec<u8>,
+    /// The pixels read again, packed ([`shadowed::reread`]).
+    packed: shadowed::Packed,
 }
 
 /// What the features are made from.
@@ -220,27 +225,17 @@ impl Features {
                 );
             }
             // Where a strip of the other phase is in shadow the cross factor fell short:
-            // those pixels' colours are made again from the frames and read again.
-            let refs = [
-                inputs.refs.dx.planes(span.clone()),
-                inputs.refs.dy.planes(span.clone()),
-            ];
-            let raw = |k: usize| {
-                [0, 1].map(|phase| {
-                    let [r, g, b] = &row.planes[phase];
-                    refs[phase]
-                        .normalise(inputs.filter, k, [r[k], g[k], b[k]])
-                        .0
-                })
-            };
+            // those pixels are read again from their colours without it.
             let span_gains = [0, 1].map(|axis| &gains[axis].0[span.clone()]);
+            let [[xr, xb], [yr, yb]] = &row.normalised;
             shadowed::reread(
                 luts,
                 &row.again,
-                raw,
+                [[xr, xb], [yr, yb]],
                 span_gains,
                 [&mut p[at.clone()], &mut q[at.clone()]],
                 max_slope,
+                &mut row.packed,
             );
             // Past the table's reach the light model reads the slope as well.
             if let Some(reach) = &inputs.reach {
@@ -332,9 +327,15 @@ impl RowScratch {
             inputs.refs.dx.planes(span.clone()),
             inputs.refs.dy.planes(span),
         ];
-        for (colour, lit) in self.colour.iter_mut().zip(&mut self.lit) {
-            colour[0].resize(n, 0.0);
-            colour[1].resize(n, 0.0);
+        for ((colour, normalised), lit) in self
+            .colour
+            .iter_mut()
+            .zip(&mut self.normalised)
+            .zip(&mut self.lit)
+        {
+            for plane in colour.iter_mut().chain(normalised.iter_mut()) {
+                plane.resize(n, 0.0);
+            }
             lit.resize(n, false);
         }
         self.again.resize(n, 0);
@@ -343,6 +344,7 @@ impl RowScratch {
             &refs,
             inputs.filter,
             &mut self.colour,
+            &mut self.normalised,
             &mut self.lit,
             &mut self.again,
         );
@@ -358,7 +360,8 @@ fn deinterleave(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
 }
 
 /// Both phases' normalised colours, each times the other phase's cross factor (1 where
-/// the other phase is rejected), and the filter's verdicts. Runs the AVX2 copy when the
+/// the other phase is rejected) in `colour` and as they are in `normalised`, the filter's
+/// verdicts, and the marks of the slopes to read again ([`shadowed::marks`]). Runs the AVX2 copy when the
 /// CPU has it.
 #[allow(unsafe_code)]
 fn normalise_pair(
@@ -366,15 +369,18 @@ fn normalise_pair(
     refs: &[ReferencePlanes<'_>; 2],
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
+    normalised: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
     again: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
         // SAFETY: `normalise_pair_avx2` only needs AVX2, detected just above.
-        return unsafe { normalise_pair_avx2(planes, refs, filter, colour, lit, again) };
+        return unsafe {
+            normalise_pair_avx2(planes, refs, filter, colour, normalised, lit, again)
+        };
     }
-    normalise_pair_portable(planes, refs, filter, colour, lit, again)
+    normalise_pair_portable(planes, refs, filter, colour, normalised, lit, again)
 }
 
 /// [`normalise_pair_portable`] in 8-wide lanes (no FMA: the same numbers).
@@ -385,10 +391,11 @@ fn normalise_pair_avx2(
     refs: &[ReferencePlanes<'_>; 2],
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
+    normalised: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
     again: &mut [u8],
 ) {
-    normalise_pair_portable(planes, refs, filter, colour, lit, again)
+    normalise_pair_portable(planes, refs, filter, colour, normalised, lit, again)
 }
 
 #[inline(always)]
@@ -397,20 +404,34 @@ fn normalise_pair_portable(
     refs: &[ReferencePlanes<'_>; 2],
     filter: &ColourFilter,
     colour: &mut [[Vec<f32>; 2]; 2],
+    normalised: &mut [[Vec<f32>; 2]; 2],
     lit: &mut [Vec<bool>; 2],
     again: &mut [u8],
 ) {
     let n = lit[0].len();
-    let [[rx, gx, bx], [ry, gy, by]] = planes;
-    let (rx, gx, bx, ry, gy, by) = (&rx[..n], &gx[..n], &bx[..n], &ry[..n], &gy[..n], &by[..n]);
+    // A pass per phase, then one that combines them: loops with few streams each, which
+    // the compiler vectorises (one loop writing all eleven planes it did not).
+    for (((planes, refs), [nr, nb]), lit) in
+        planes.iter().zip(refs).zip(&mut *normalised).zip(&mut *lit)
+    {
+        let [r, g, b] = planes;
+        let (r, g, b) = (&r[..n], &g[..n], &b[..n]);
+        let (nr, nb, lit) = (&mut nr[..n], &mut nb[..n], &mut lit[..n]);
+        for i in 0..n {
+            let (c, ok) = refs.normalise(filter, i, [r[i], g[i], b[i]]);
+            (nr[i], nb[i], lit[i]) = (c[0], c[1], ok);
+        }
+    }
+    let [[nxr, nxb], [nyr, nyb]] = normalised;
+    let (nxr, nxb, nyr, nyb) = (&nxr[..n], &nxb[..n], &nyr[..n], &nyb[..n]);
+    let [lit_x, lit_y] = lit;
+    let (lit_x, lit_y) = (&lit_x[..n], &lit_y[..n]);
     let [[cxr, cxb], [cyr, cyb]] = colour;
     let (cxr, cxb, cyr, cyb) = (&mut cxr[..n], &mut cxb[..n], &mut cyr[..n], &mut cyb[..n]);
-    let [lit_x, lit_y] = lit;
-    let (lit_x, lit_y) = (&mut lit_x[..n], &mut lit_y[..n]);
     let again = &mut again[..n];
     for i in 0..n {
-        let (c_dx, ok_dx) = refs[0].normalise(filter, i, [rx[i], gx[i], bx[i]]);
-        let (c_dy, ok_dy) = refs[1].normalise(filter, i, [ry[i], gy[i], by[i]]);
+        let (c_dx, ok_dx) = ([nxr[i], nxb[i]], lit_x[i]);
+        let (c_dy, ok_dy) = ([nyr[i], nyb[i]], lit_y[i]);
         let s_dx = if ok_dx {
             cross_factor(c_dx[0], c_dx[1])
         } else {
@@ -425,8 +446,6 @@ fn normalise_pair_portable(
         cxb[i] = c_dx[1] * s_dy;
         cyr[i] = c_dy[0] * s_dx;
         cyb[i] = c_dy[1] * s_dx;
-        lit_x[i] = ok_dx;
-        lit_y[i] = ok_dy;
         again[i] = shadowed::marks(c_dx, c_dy, ok_dx & ok_dy);
     }
 }
@@ -620,18 +639,16 @@ mod tests {
             .collect();
         let region_gains: Vec<[f32; 2]> = (0..roi.area()).map(|k| gains[0].0[at(k)]).collect();
         let [want_p, want_q] = &mut want;
+        let plane = |c: usize| colours.iter().map(|px| px[c]).collect::<Vec<f32>>();
+        let [xr, xb, yr, yb] = [0, 1, 2, 3].map(plane);
         let again = shadowed::reread(
             [&lut, &lut],
             &marks,
-            |k| {
-                [
-                    [colours[k][0], colours[k][1]],
-                    [colours[k][2], colours[k][3]],
-                ]
-            },
+            [[&xr, &xb], [&yr, &yb]],
             [&region_gains, &region_gains],
             [want_p, want_q],
             3.0,
+            &mut shadowed::Packed::default(),
         );
         assert!(again > 0, "the scene has strips in shadow");
         for (axis, (got, want)) in [&p, &q].into_iter().zip(&want).enumerate() {

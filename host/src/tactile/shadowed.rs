@@ -45,47 +45,157 @@ pub fn marks(dx: [f32; 2], dy: [f32; 2], lit: bool) -> u8 {
 
 /// Reads again the slopes (`slopes[0]` along x, from the dx phase; `slopes[1]` along y)
 /// of the pixels `marks` names ([`marks`]; see the module documentation); the others are
-/// left as they are. `raw(k)` gives pixel `k`'s normalised colours `[[red, blue] of dx,
-/// of dy]` (without any cross factor); `gains` the table's position gains `[positive,
-/// negative]` of each pixel, per axis. Slopes stay within ±`max_slope`. Returns how many
-/// pixels were read again.
+/// left as they are. `colours` are the run's normalised colours `[[red, blue] of dx, of
+/// dy]` per pixel (without any cross factor); `gains` the table's position gains
+/// `[positive, negative]` of each pixel, per axis. Slopes stay within ±`max_slope`.
+/// Returns how many pixels were read again.
+///
+/// The marked pixels are packed side by side in `packed` first, so that each reading is
+/// one pass of the table over contiguous lanes ([`Lut::eval_planes`], eight pixels at a
+/// time) instead of one pixel at a time: on a wall most of a run is marked. They are
+/// packed in three groups, those read again along x only, along both axes, along y only,
+/// so that each axis is read over one contiguous range of them and no pixel on an axis it
+/// does not need. The readings are those of the pixel-by-pixel order, bit for bit (a test
+/// holds them to it).
 pub fn reread(
     luts: [&Lut; 2],
     marks: &[u8],
-    raw: impl Fn(usize) -> [[f32; 2]; 2],
+    colours: [[&[f32]; 2]; 2],
     gains: [&[[f32; 2]]; 2],
     slopes: [&mut [f32]; 2],
     max_slope: f32,
+    packed: &mut Packed,
 ) -> usize {
     let [p, q] = slopes;
-    let n = marks.len().min(p.len()).min(q.len());
-    let mut count = 0;
-    // Most touched pixels have no strip in shadow.
-    for (k, &mark) in marks[..n].iter().enumerate().filter(|(_, m)| **m != 0) {
-        count += 1;
-        let again = [mark & 1 != 0, mark & 2 != 0];
-        let colours = raw(k);
-        // The factor each phase's colour had: the other phase's.
-        let had = [
-            cross_factor(colours[1][0], colours[1][1]),
-            cross_factor(colours[0][0], colours[0][1]),
-        ];
-        let mut read = [p[k], q[k]];
-        for _ in 0..ITERATIONS {
-            let normal = (1.0 + read[0] * read[0] + read[1] * read[1]).sqrt();
-            for axis in (0..2).filter(|&a| again[a]) {
-                let factor = normal.max(had[axis]).min(MAX_NORMAL);
-                let [red, blue] = colours[axis];
-                let s = luts[axis].eval_with_gains(red * factor, blue * factor, gains[axis][k]);
-                // A reading that is not a number keeps the last one.
+    let n = [
+        marks.len(),
+        p.len(),
+        q.len(),
+        gains[0].len(),
+        gains[1].len(),
+    ]
+    .into_iter()
+    .chain(colours.iter().flatten().map(|c| c.len()))
+    .min()
+    .unwrap_or(0);
+    let ranges = packed.pack(&marks[..n], colours, gains, [&*p, &*q]);
+    let m = packed.at.len();
+    if m == 0 {
+        return 0;
+    }
+    let Packed {
+        at,
+        colour,
+        had,
+        gains,
+        read,
+        normal,
+        scaled,
+        out,
+    } = packed;
+    for _ in 0..ITERATIONS {
+        let [rp, rq] = &*read;
+        for ((n, &p), &q) in normal.iter_mut().zip(rp).zip(rq) {
+            *n = (1.0 + p * p + q * q).sqrt();
+        }
+        // Both axes from the normal of the last reading, as pixel by pixel.
+        for (axis, range) in ranges.iter().enumerate() {
+            let [red, blue] = colour[axis].each_ref().map(|c| &c[range.clone()]);
+            let [sr, sb] = scaled.each_mut().map(|c| &mut c[range.clone()]);
+            let (normal, had) = (&normal[range.clone()], &had[axis][range.clone()]);
+            for ((((sr, sb), &n), &h), (&r, &b)) in sr
+                .iter_mut()
+                .zip(sb.iter_mut())
+                .zip(normal)
+                .zip(had)
+                .zip(red.iter().zip(blue))
+            {
+                let factor = n.max(h).min(MAX_NORMAL);
+                (*sr, *sb) = (r * factor, b * factor);
+            }
+            let out = &mut out[range.clone()];
+            luts[axis].eval_planes(sr, sb, &gains[axis][range.clone()], out);
+            // A reading that is not a number keeps the last one.
+            for (read, &s) in read[axis][range.clone()].iter_mut().zip(&*out) {
                 if s.is_finite() {
-                    read[axis] = s.clamp(-max_slope, max_slope);
+                    *read = s.clamp(-max_slope, max_slope);
                 }
             }
         }
-        [p[k], q[k]] = read;
     }
-    count
+    for (j, &k) in at.iter().enumerate() {
+        (p[k], q[k]) = (read[0][j], read[1][j]);
+    }
+    m
+}
+
+/// The marked pixels of a run side by side, for [`reread`]; kept between runs so that
+/// its buffers are allocated once.
+#[derive(Debug, Default)]
+pub struct Packed {
+    /// Each packed pixel's index in the run: first those read again along x only, then
+    /// along both axes, then along y only.
+    at: Vec<usize>,
+    /// Its normalised `[red, blue]` of dx, of dy.
+    colour: [[Vec<f32>; 2]; 2],
+    /// The factor its colour of dx (dy) had: the other phase's cross factor.
+    had: [Vec<f32>; 2],
+    /// Its table gains per axis.
+    gains: [Vec<[f32; 2]>; 2],
+    /// Its slopes `[p, q]` as last read.
+    read: [Vec<f32>; 2],
+    /// `√(1 + p² + q²)` of the last reading.
+    normal: Vec<f32>,
+    /// `[red, blue]` times the factor, for the table.
+    scaled: [Vec<f32>; 2],
+    /// The table's reading.
+    out: Vec<f32>,
+}
+
+impl Packed {
+    /// Packs the pixels `marks` names; returns the range of the packed pixels read again
+    /// along x, and along y.
+    fn pack(
+        &mut self,
+        marks: &[u8],
+        colours: [[&[f32]; 2]; 2],
+        gains: [&[[f32; 2]]; 2],
+        slopes: [&[f32]; 2],
+    ) -> [std::ops::Range<usize>; 2] {
+        self.at.clear();
+        let mut ends = [0; 3];
+        for (group, mark) in [1u8, 3, 2].into_iter().enumerate() {
+            let named = marks.iter().enumerate().filter(|(_, m)| **m == mark);
+            self.at.extend(named.map(|(k, _)| k));
+            ends[group] = self.at.len();
+        }
+        let at = &self.at;
+        let pick = |v: &mut Vec<f32>, from: &[f32]| {
+            v.clear();
+            v.extend(at.iter().map(|&k| from[k]));
+        };
+        for axis in 0..2 {
+            for (packed, from) in self.colour[axis].iter_mut().zip(colours[axis]) {
+                pick(packed, from);
+            }
+            self.gains[axis].clear();
+            self.gains[axis].extend(at.iter().map(|&k| gains[axis][k]));
+            pick(&mut self.read[axis], slopes[axis]);
+        }
+        for (axis, other) in [(0, 1), (1, 0)] {
+            let [red, blue] = &self.colour[other];
+            self.had[axis].clear();
+            let factors = red.iter().zip(blue).map(|(&r, &b)| cross_factor(r, b));
+            self.had[axis].extend(factors);
+        }
+        let m = at.len();
+        self.normal.resize(m, 0.0);
+        let [sr, sb] = &mut self.scaled;
+        for v in [sr, sb, &mut self.out] {
+            v.resize(m, 0.0);
+        }
+        [0..ends[1], ends[0]..ends[2]]
+    }
 }
 
 #[cfg(test)]
@@ -140,6 +250,102 @@ mod tests {
         [0, 1].map(|a| lut.eval_with_gains(c[a][0] * had[a], c[a][1] * had[a], [1.0, 1.0]))
     }
 
+    /// Colours per pixel as the planes [`reread`] takes.
+    fn planes(colours: &[[[f32; 2]; 2]]) -> [[Vec<f32>; 2]; 2] {
+        [0, 1].map(|phase| [0, 1].map(|c| colours.iter().map(|px| px[phase][c]).collect()))
+    }
+
+    /// [`reread`] of `colours` with fresh buffers.
+    fn reread_colours(
+        lut: &Lut,
+        marks: &[u8],
+        colours: &[[[f32; 2]; 2]],
+        gains: &[[f32; 2]],
+        slopes: [&mut [f32]; 2],
+        max_slope: f32,
+    ) -> usize {
+        let [dx, dy] = planes(colours);
+        reread(
+            [lut, lut],
+            marks,
+            [[&dx[0], &dx[1]], [&dy[0], &dy[1]]],
+            [gains, gains],
+            slopes,
+            max_slope,
+            &mut Packed::default(),
+        )
+    }
+
+    /// The reading pixel by pixel, as the module documentation has it: the reference the
+    /// packed lanes are held to.
+    fn reread_one_by_one(
+        lut: &Lut,
+        marks: &[u8],
+        colours: &[[[f32; 2]; 2]],
+        gains: &[[f32; 2]],
+        [p, q]: [&mut [f32]; 2],
+        max_slope: f32,
+    ) {
+        for (k, &mark) in marks.iter().enumerate().filter(|(_, m)| **m != 0) {
+            let c = colours[k];
+            let had = [
+                cross_factor(c[1][0], c[1][1]),
+                cross_factor(c[0][0], c[0][1]),
+            ];
+            let mut read = [p[k], q[k]];
+            for _ in 0..ITERATIONS {
+                let normal = (1.0 + read[0] * read[0] + read[1] * read[1]).sqrt();
+                for axis in (0..2).filter(|&a| mark & (1 << a) != 0) {
+                    let factor = normal.max(had[axis]).min(MAX_NORMAL);
+                    let [red, blue] = c[axis];
+                    let s = lut.eval_with_gains(red * factor, blue * factor, gains[k]);
+                    if s.is_finite() {
+                        read[axis] = s.clamp(-max_slope, max_slope);
+                    }
+                }
+            }
+            [p[k], q[k]] = read;
+        }
+    }
+
+    /// Many pixels, most of them marked (whole lanes of eight and a remainder), with
+    /// colours that are not numbers, out of the table, negative, and gains of both signs:
+    /// the packed lanes read what the pixel-by-pixel order reads, bit for bit.
+    #[test]
+    fn packed_lanes_read_as_pixel_by_pixel() {
+        let lut = analytic_lut();
+        let mut rng = crate::rng::Rng::new(7);
+        let n = 203;
+        let colours: Vec<[[f32; 2]; 2]> = (0..n)
+            .map(|k| match k % 37 {
+                0 => [[f32::NAN, 1.0], [0.1, 0.0]],
+                1 => [[9.0, -1.0], [0.0, f32::INFINITY]],
+                _ => lambertian(rng.range(-2.0, 2.0) as f32, rng.range(-2.0, 2.0) as f32),
+            })
+            .collect();
+        let marks: Vec<u8> = (0..n).map(|k| [3, 1, 2, 0, 3, 1][k % 6]).collect();
+        let gains: Vec<[f32; 2]> = (0..n)
+            .map(|_| [rng.range(0.5, 1.5) as f32, rng.range(0.5, 1.5) as f32])
+            .collect();
+        let start: Vec<f32> = (0..2 * n).map(|_| rng.range(-1.5, 1.5) as f32).collect();
+        let (mut p, mut q) = (start[..n].to_vec(), start[n..].to_vec());
+        let (mut want_p, mut want_q) = (p.clone(), q.clone());
+        let read = reread_colours(&lut, &marks, &colours, &gains, [&mut p, &mut q], 1.3);
+        reread_one_by_one(
+            &lut,
+            &marks,
+            &colours,
+            &gains,
+            [&mut want_p, &mut want_q],
+            1.3,
+        );
+        assert_eq!(read, marks.iter().filter(|m| **m != 0).count());
+        let bits = |v: &[f32]| v.iter().map(|s| s.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&p), bits(&want_p));
+        assert_eq!(bits(&q), bits(&want_q));
+        assert_ne!(bits(&p), bits(&start[..n]), "some slopes were read again");
+    }
+
     #[test]
     fn marks_name_the_slope_whose_other_phase_has_a_strip_in_shadow() {
         assert_eq!(marks([1.0, 1.0], [1.0, 1.0], true), 0);
@@ -172,14 +378,7 @@ mod tests {
         assert!((q0 - 1.2).abs() < 0.005, "{q0}");
         let (mut p, mut q) = ([p0], [q0]);
         let gains: &[[f32; 2]] = &[[1.0, 1.0]];
-        let n = reread(
-            [&lut, &lut],
-            &[mark],
-            |_| c,
-            [gains, gains],
-            [&mut p, &mut q],
-            5.0,
-        );
+        let n = reread_colours(&lut, &[mark], &[c], gains, [&mut p, &mut q], 5.0);
         assert_eq!(n, 1);
         assert!((p[0] - 0.4).abs() < 0.01, "{}", p[0]);
         assert_eq!(q[0], q0);
@@ -200,14 +399,7 @@ mod tests {
         let before = (p, q);
         let marks = [0, marks(both[0], both[1], true), 3];
         assert_eq!(marks[1], 3);
-        let n = reread(
-            [&lut, &lut],
-            &marks,
-            |k| colours[k],
-            [gains, gains],
-            [&mut p, &mut q],
-            1.0,
-        );
+        let n = reread_colours(&lut, &marks, &colours, gains, [&mut p, &mut q], 1.0);
         assert_eq!(n, 2);
         assert_eq!((p[0], q[0]), (before.0[0], before.1[0]));
         assert!(p[1] >= before.0[1] && q[1] >= before.1[1], "{p:?} {q:?}");
