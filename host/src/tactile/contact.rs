@@ -1328,11 +1328,9 @@ mod tests {
                 let full =
                     look_at_every_row(&p.dx, &p.dy, &refs, &filter, &params, SolverKind::Dct);
                 let seen = find_regions(&p.dx, &p.dy, &refs, &filter, &params, SolverKind::Dct);
-                assert_eq!(
-                    seen.regions, full.regions,
-                    "skin {seed} press {k} ({depth} mm)"
-                );
-                assert_eq!(seen.touched, full.touched, "skin {seed} press {k}");
+                // The same detection, unlit fractions included: where the budgets say the
+                // glance would read every row, the reconstructor looks at every row.
+                assert_eq!(seen, full, "skin {seed} press {k} ({depth} mm)");
                 found += usize::from(!full.regions.is_empty());
             }
             assert!(

@@ -361,8 +361,8 @@ fn deinterleave(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
 
 /// Both phases' normalised colours, each times the other phase's cross factor (1 where
 /// the other phase is rejected) in `colour` and as they are in `normalised`, the filter's
-/// verdicts, and the marks of the slopes to read again ([`shadowed::marks`]). Runs the AVX2 copy when the
-/// CPU has it.
+/// verdicts, and the marks of the slopes to read again ([`shadowed::marks`]). Runs the
+/// AVX2 copy when the CPU has it.
 #[allow(unsafe_code)]
 fn normalise_pair(
     planes: &[[Vec<f32>; 3]; 2],

@@ -15,11 +15,16 @@
 //! press) are weighed as the glance weighs them, from the same sums. A quiet block
 //! cannot count towards contact nor be unlit, so the answer is the glance's, block for
 //! block: a test holds them equal, another holds the budgets to their promise.
+//!
+//! A contact is told as early: once two touching blocks count towards it, the glance
+//! would read every row, so the budgets stop there and say so ([`Verdict`]), and the
+//! reconstructor reads every row at once ([`contact::look_at_every_row`]) instead of
+//! reading the middle rows a second time for the glance first.
 
 use image::RgbImage;
 
 use super::colour::ColourFilter;
-use super::contact::{self, ContactParams, Detection, GLANCE_SHARE, References};
+use super::contact::{self, ContactParams, GLANCE_SHARE, References};
 use super::smooth::{self, BlockMeans};
 
 /// Share of each budget kept as a margin for the rounding of `f32` arithmetic in the
@@ -203,11 +208,12 @@ impl QuietBlocks {
         both as f64 / n as f64
     }
 
-    /// [`contact::glance`] at the pair `dx`, `dy`: `Some` (the same detection) when the
-    /// skin is at rest, `None` when the glance would read every row, or when these
-    /// budgets are not for this pair's size, `block_refs`' size, `filter` or `params`, or
-    /// the CPU cannot sum the bands in vector lanes (the caller then looks as before).
-    #[allow(unsafe_code)]
+    /// [`contact::glance`] at the pair `dx`, `dy`: [`Verdict::AtRest`] with the same
+    /// detection when the skin is at rest, [`Verdict::LookAtEveryRow`] when the glance
+    /// would read every row (said as soon as two blocks that count towards contact touch,
+    /// without reading further), [`Verdict::CannotTell`] when these budgets are not for
+    /// this pair's size, `block_refs`' size, `filter` or `params`, or the CPU cannot sum
+    /// the bands in vector lanes (the caller then looks as before).
     pub fn glance(
         &self,
         dx: &RgbImage,
@@ -215,7 +221,24 @@ impl QuietBlocks {
         block_refs: &References,
         filter: &ColourFilter,
         params: &ContactParams,
-    ) -> Option<Detection> {
+    ) -> Verdict {
+        self.look(dx, dy, block_refs, filter, params)
+            .map_or(Verdict::CannotTell, |at_rest| {
+                at_rest.map_or(Verdict::LookAtEveryRow, Verdict::AtRest)
+            })
+    }
+
+    /// [`Self::glance`]: `None` where it cannot tell, `Some(None)` where the glance
+    /// would read every row.
+    #[allow(unsafe_code)]
+    fn look(
+        &self,
+        dx: &RgbImage,
+        dy: &RgbImage,
+        block_refs: &References,
+        filter: &ColourFilter,
+        params: &ContactParams,
+    ) -> Option<Option<contact::Detection>> {
         let (w, h) = (dx.width() as usize, dx.height() as usize);
         if (w, h) != (self.width * 4, self.height * 4)
             || dy.dimensions() != dx.dimensions()
@@ -248,6 +271,7 @@ impl QuietBlocks {
                 return None;
             };
             let blocks = by * bw..(by + 1) * bw;
+            let mut newly = false;
             over.iter_mut().for_each(|o| *o = false);
             // SAFETY: the CPU has AVX2 (checked above; elsewhere `avx2()` is false and
             // the glance defers before this).
@@ -292,24 +316,59 @@ impl QuietBlocks {
                     };
                     if d > bar {
                         marked.get_or_insert_with(|| vec![false; bw * self.height])[i] = true;
+                        newly = true;
                     }
                 }
             }
-        }
-        if let Some(marked) = &marked
-            && (params.min_cells <= 1 || contact::has_neighbours(marked, bw))
-        {
-            return None;
+            // The glance reads every row once two marked blocks touch (or one is
+            // marked, where a contact may be one block): more marks cannot change
+            // that, so the rest of the frame is not read.
+            if let Some(marked) = &marked
+                && newly
+                && (params.min_cells <= 1 || touches_the_band_above(marked, bw, by))
+            {
+                return Some(None);
+            }
         }
         let n = bw * self.height;
-        Some(Detection {
+        Some(Some(contact::Detection {
             regions: Vec::new(),
             step: 4,
             blocks_across: bw,
             touched: vec![false; n],
             unlit_fraction: unlit.map(|u| u as f32 / n.max(1) as f32),
-        })
+        }))
     }
+}
+
+/// What the budgets tell of a pair ([`QuietBlocks::glance`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// At rest: the glance's detection (no contact).
+    AtRest(contact::Detection),
+    /// The glance would read every row: look at the pair in full
+    /// ([`contact::look_at_every_row`], which is what it then does).
+    LookAtEveryRow,
+    /// These budgets cannot tell for this pair: look as before ([`contact::find_regions`]).
+    CannotTell,
+}
+
+/// Whether a marked block of band `by` (blocks `bw` across) has a marked neighbour in
+/// its own band or the one above (8-connected): over every band, the pairs
+/// [`contact::has_neighbours`] looks for, each once.
+fn touches_the_band_above(marked: &[bool], bw: usize, by: usize) -> bool {
+    let row = &marked[by * bw..(by + 1) * bw];
+    let beside = row.windows(2).any(|p| p[0] & p[1]);
+    beside
+        || by > 0 && {
+            let above = &marked[(by - 1) * bw..by * bw];
+            (0..bw).any(|x| {
+                row[x]
+                    && above[x.saturating_sub(1)..(x + 2).min(bw)]
+                        .iter()
+                        .any(|&a| a)
+            })
+        }
 }
 
 /// A budget `t` (in mean units) in counts of the 8 pixels' sums, less [`MARGIN`] and
@@ -425,6 +484,7 @@ fn block_mean(
 mod tests {
     use super::*;
     use crate::rng::Rng;
+    use crate::tactile::contact;
     use crate::tactile::crosstalk::Unmix;
 
     /// A flat-skin frame of one phase: red and blue LED light falling off across the
@@ -514,7 +574,11 @@ mod tests {
                 }
                 let middle = [&dx, &dy].map(|f| BlockMeans::of_middle_rows(f, 4));
                 let want = contact::glance(&middle[0], &middle[1], &refs, &filter, &params);
-                let got = quiet.glance(&dx, &dy, &refs, &filter, &params);
+                let got = match quiet.glance(&dx, &dy, &refs, &filter, &params) {
+                    Verdict::AtRest(detection) => Some(detection),
+                    Verdict::LookAtEveryRow => None,
+                    Verdict::CannotTell => panic!("budgets made for this pair"),
+                };
                 assert_eq!(got, want, "case {case}, unmix {unmix:?}");
                 answered[usize::from(want.is_some())] += 1;
             }

@@ -27,7 +27,7 @@ use super::model::{GainPlanes, ModelKind, PhotometricModel, TactileModel, light,
 use super::past_reach::{Reach, ReachLimits};
 use super::phase_check::{self, PhaseImageError};
 use super::poisson::{PoissonError, PoissonSolver, SolverKind};
-use super::quiet::QuietBlocks;
+use super::quiet::{QuietBlocks, Verdict};
 use super::raw_glance::RawGlance;
 use super::reference_check;
 use super::sanitize::{DEFAULT_MAX_SLOPE, sanitize};
@@ -765,14 +765,22 @@ impl Reconstructor {
         let filter = self.model.filter;
         let params = self.model.contact;
         // A pair at rest is told from whole-number sums where the references allow
-        // (the glance's answer, block for block: `quiet`); otherwise looked at as before.
-        let quiet = self
+        // (the glance's answer, block for block: `quiet`), which also say when the glance
+        // would look at every row; otherwise looked at as before.
+        let refs = &self.block_refs;
+        let verdict = self
             .quiet
             .as_ref()
-            .and_then(|q| q.glance(dx, dy, &self.block_refs, &filter, &params));
-        let detection = quiet.unwrap_or_else(|| {
-            contact::find_regions(dx, dy, &self.block_refs, &filter, &params, self.solver_kind)
-        });
+            .map(|q| q.glance(dx, dy, refs, &filter, &params));
+        let detection = match verdict {
+            Some(Verdict::AtRest(detection)) => detection,
+            Some(Verdict::LookAtEveryRow) => {
+                contact::look_at_every_row(dx, dy, refs, &filter, &params, self.solver_kind)
+            }
+            Some(Verdict::CannotTell) | None => {
+                contact::find_regions(dx, dy, refs, &filter, &params, self.solver_kind)
+            }
+        };
         // A contact over most of the frame is rare; dx and dy given the wrong way round
         // look like one everywhere. Checked only then: it costs a pass over the frame.
         let touched = detection.touched.iter().filter(|t| **t).count();
