@@ -572,6 +572,42 @@ fn readings_at_rest_share_one_zeroed_map_that_contacts_leave_alone() {
     assert_eq!(mine.depth_mm.get(3, 4), 1.0);
 }
 
+/// A contact reading the caller has dropped lends its maps to the next contact reading,
+/// which reads exactly as a fresh reconstructor's (the last reading's regions zeroed
+/// again); a reading the caller keeps is never written into.
+#[test]
+fn contact_readings_reuse_dropped_maps_and_leave_kept_ones_alone() {
+    let optics = optics();
+    let (model, refs) = calibrated(&optics);
+    let here = render(&optics, &ball(6.0, 6.0, 0.8), 10);
+    let there = render(&optics, &ball(14.0, 10.0, 0.6), 11);
+    let mut rec = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct);
+    let first = rec.reconstruct(&here.dx, &here.dy).unwrap();
+    let first_map = std::sync::Arc::as_ptr(&first.depth_mm);
+    drop(first);
+    let second = rec.reconstruct(&there.dx, &there.dy).unwrap();
+    assert_eq!(
+        std::sync::Arc::as_ptr(&second.depth_mm),
+        first_map,
+        "a dropped reading's map is written again"
+    );
+    let want = reconstructor(&model, &refs, ModelKind::Lut, SolverKind::Dct)
+        .reconstruct(&there.dx, &there.dy)
+        .unwrap();
+    assert!(!want.no_contact());
+    assert_eq!(
+        second.depth_mm, want.depth_mm,
+        "nothing of the first press is left"
+    );
+    assert_eq!(second.contact_mask, want.contact_mask);
+    // Kept: the next contact reading gets maps of its own.
+    let kept = (*second.depth_mm).clone();
+    let third = rec.reconstruct(&here.dx, &here.dy).unwrap();
+    assert!(!std::sync::Arc::ptr_eq(&second.depth_mm, &third.depth_mm));
+    assert_eq!(*second.depth_mm, kept);
+    assert!(third.depth_mm.as_slice().iter().any(|&d| d > 0.4));
+}
+
 #[test]
 fn a_ceiling_light_spot_makes_no_phantom_bump() {
     let optics = optics();

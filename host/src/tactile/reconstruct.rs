@@ -203,8 +203,9 @@ pub const NO_SKIN_AT_REST: &str = "the contact fills its region with no skin at 
 pub struct Reconstruction {
     /// Depth in mm, positive where pressed in, 0 outside the regions of interest. Shared:
     /// every reading without contact from one reconstructor holds the same zeroed map
-    /// (made once, not a 1.2 MB fill per pair at 640×480); [`Arc::make_mut`] or
-    /// [`Arc::unwrap_or_clone`] give one to change.
+    /// (made once, not a 1.2 MB fill per pair at 640×480), and the reconstructor keeps a
+    /// contact reading's maps to write the next contact reading into once this one is
+    /// dropped; [`Arc::make_mut`] or [`Arc::unwrap_or_clone`] give a copy to change.
     pub depth_mm: Arc<Grid<f32>>,
     /// Touched pixels (the dilated contact mask), full frame; shared as `depth_mm`.
     pub contact_mask: Arc<Grid<bool>>,
@@ -379,6 +380,9 @@ pub struct Reconstructor {
     raw_glance: Option<Arc<RawGlance>>,
     /// The zeroed depth map and mask every reading without contact holds.
     flat: FlatMaps,
+    /// The last contact reading's maps and regions, made again for the next contact
+    /// reading when its caller has let them go ([`ReusedMaps`]).
+    last: Option<ReusedMaps>,
 }
 
 /// A frame's depth map and contact mask with nothing in them, shared by the readings
@@ -395,6 +399,36 @@ impl FlatMaps {
             depth: Arc::new(Grid::filled(width, height, 0.0)),
             mask: Arc::new(Grid::filled(width, height, false)),
         }
+    }
+}
+
+/// A contact reading's depth map and contact mask, kept after it is handed back: once
+/// its caller has dropped the reading (the reconstructor holds the only reference), the
+/// next contact reading takes the same maps with only `regions` zeroed again (a region is
+/// the only part of them a reading writes), instead of a fresh 1.5 MB fill at 640×480.
+#[derive(Debug)]
+struct ReusedMaps {
+    depth: Arc<Grid<f32>>,
+    mask: Arc<Grid<bool>>,
+    regions: Vec<Roi>,
+}
+
+impl ReusedMaps {
+    /// The maps, zeroed, if nobody else holds them any more; `None` otherwise (the
+    /// caller kept the reading, or a part of it).
+    fn take_zeroed(mut self) -> Option<FlatMaps> {
+        let depth = Arc::get_mut(&mut self.depth)?;
+        let mask = Arc::get_mut(&mut self.mask)?;
+        for roi in &self.regions {
+            for y in roi.y..roi.y + roi.height {
+                depth.row_mut(y)[roi.x..roi.x + roi.width].fill(0.0);
+                mask.row_mut(y)[roi.x..roi.x + roi.width].fill(false);
+            }
+        }
+        Some(FlatMaps {
+            depth: self.depth,
+            mask: self.mask,
+        })
     }
 }
 
@@ -425,6 +459,7 @@ impl Reconstructor {
             linear: Default::default(),
             raw_glance: self.raw_glance.clone(),
             flat: self.flat.clone(),
+            last: None,
         }
     }
 
@@ -587,6 +622,7 @@ impl Reconstructor {
         let raw_glance = raw_glance_of(&model, ambient.as_ref());
         Ok(Self {
             flat: FlatMaps::new(model.width, model.height),
+            last: None,
             raw_glance,
             photometric_curves,
             lut_gains,
@@ -798,13 +834,25 @@ impl Reconstructor {
         }
         let mut out = self.reading(&detection, ambient, start);
         if !detection.regions.is_empty() {
-            // Maps of this reading's own, to write the regions into.
+            // Maps of this reading's own, to write the regions into: the last contact
+            // reading's if its caller let them go, else new ones.
             let (w, h) = (self.model.width, self.model.height);
-            out.depth_mm = Arc::new(Grid::filled(w, h, 0.0));
-            out.contact_mask = Arc::new(Grid::filled(w, h, false));
+            let maps = self
+                .last
+                .take()
+                .and_then(ReusedMaps::take_zeroed)
+                .unwrap_or_else(|| FlatMaps::new(w, h));
+            (out.depth_mm, out.contact_mask) = (maps.depth, maps.mask);
         }
         for roi in &detection.regions {
             self.region(dx, dy, roi, &detection, &mut out)?;
+        }
+        if !detection.regions.is_empty() {
+            self.last = Some(ReusedMaps {
+                depth: Arc::clone(&out.depth_mm),
+                mask: Arc::clone(&out.contact_mask),
+                regions: detection.regions.clone(),
+            });
         }
         out.regions = detection.regions;
         out.timings.total_ms = ms(start, Instant::now());
