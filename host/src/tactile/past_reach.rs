@@ -112,23 +112,36 @@ impl<'a> Reach<'a> {
         .unwrap_or(0);
         let mut count = 0;
         let mut slot = None;
-        for k in 0..n {
-            if !(lit[0][k] && lit[1][k])
-                || !(self.reached(0, p[k], gains[0][k]) || self.reached(1, q[k], gains[1][k]))
-            {
+        // Which pixels to read is asked for a chunk at a time in vector lanes (most
+        // chunks have none), then the chunk's marked pixels are read in order.
+        let mut marks = [false; MARK_CHUNK];
+        for start in (0..n).step_by(MARK_CHUNK) {
+            let end = (start + MARK_CHUNK).min(n);
+            let marks = &mut marks[..end - start];
+            mark_reached(
+                self.from,
+                [&lit[0][start..end], &lit[1][start..end]],
+                [&p[start..end], &q[start..end]],
+                [&gains[0][start..end], &gains[1][start..end]],
+                marks,
+            );
+            if !marks.iter().fold(false, |any, &m| any | m) {
                 continue;
             }
-            let Some(reader) = self.reader(&mut slot) else {
-                return count;
-            };
-            count += 1;
-            let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
-            let [x, y] = position(k);
-            // Read a few pixels at a time; each pixel's table slopes stay as they were
-            // until its reading comes back (nothing else writes them).
-            reader.queue(k, fx, fy, x, y, |k, read| {
-                take_steeper([&mut p[k], &mut q[k]], read, max_slope);
-            });
+            for (k, _) in (start..end).zip(marks.iter()).filter(|(_, m)| **m) {
+                let Some(reader) = self.reader(&mut slot) else {
+                    return count;
+                };
+                count += 1;
+                let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
+                let [x, y] = position(k);
+                // Read a few pixels at a time; each pixel's table slopes stay as they
+                // were until its reading comes back (nothing else writes them, and the
+                // marks were made from the slopes before any came back).
+                reader.queue(k, fx, fy, x, y, |k, read| {
+                    take_steeper([&mut p[k], &mut q[k]], read, max_slope);
+                });
+            }
         }
         if let Some(reader) = slot.as_mut() {
             reader.flush(|k, read| take_steeper([&mut p[k], &mut q[k]], read, max_slope));
@@ -190,6 +203,65 @@ impl<'a> Reach<'a> {
             reader.flush(|k, read| take_steeper([&mut p[k], &mut q[k]], read, max_slope));
         }
         count
+    }
+}
+
+/// Pixels a chunk of [`Reach::extend`] asks about at once.
+const MARK_CHUNK: usize = 64;
+
+/// Marks the pixels both phases light (`lit`) whose slopes `[p, q]` reach the limits
+/// `from` ([`Reach::reached`]'s rule, per axis) on either axis. Runs the AVX2 copy when
+/// the CPU has it.
+#[allow(unsafe_code)]
+fn mark_reached(
+    from: [[f32; 2]; 2],
+    lit: [&[bool]; 2],
+    slopes: [&[f32]; 2],
+    gains: [&[[f32; 2]]; 2],
+    marks: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::avx2() {
+        // SAFETY: `mark_reached_avx2` only needs AVX2, detected just above.
+        return unsafe { mark_reached_avx2(from, lit, slopes, gains, marks) };
+    }
+    mark_reached_portable(from, lit, slopes, gains, marks)
+}
+
+/// [`mark_reached_portable`] in 8-wide lanes (comparisons only: the same marks).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn mark_reached_avx2(
+    from: [[f32; 2]; 2],
+    lit: [&[bool]; 2],
+    slopes: [&[f32]; 2],
+    gains: [&[[f32; 2]]; 2],
+    marks: &mut [bool],
+) {
+    mark_reached_portable(from, lit, slopes, gains, marks)
+}
+
+#[inline(always)]
+fn mark_reached_portable(
+    from: [[f32; 2]; 2],
+    lit: [&[bool]; 2],
+    slopes: [&[f32]; 2],
+    gains: [&[[f32; 2]]; 2],
+    marks: &mut [bool],
+) {
+    let n = marks.len();
+    let (lx, ly) = (&lit[0][..n], &lit[1][..n]);
+    let (p, q) = (&slopes[0][..n], &slopes[1][..n]);
+    let (gx, gy) = (&gains[0][..n], &gains[1][..n]);
+    // Branch-free: both signs' limits weighed and the slope's sign's answer kept (a
+    // select on the sign became a branch the sign's noise mispredicted).
+    let reached = |from: [f32; 2], slope: f32, gains: [f32; 2]| {
+        let negative = slope < 0.0;
+        let size = slope.abs();
+        (!negative & (size >= from[0] * gains[0])) | (negative & (size >= from[1] * gains[1]))
+    };
+    for i in 0..n {
+        marks[i] = lx[i] & ly[i] & (reached(from[0], p[i], gx[i]) | reached(from[1], q[i], gy[i]));
     }
 }
 
@@ -349,6 +421,50 @@ mod tests {
             3.0,
         );
         assert_eq!(none, 0);
+    }
+
+    /// The chunk's marks in lanes are the pixel-by-pixel rule's: slopes at, under and
+    /// over either sign's limit, NaN, ±0 and unlit phases, over a length that is not a
+    /// multiple of the lanes.
+    #[test]
+    fn marks_in_lanes_follow_the_pixel_by_pixel_rule() {
+        let (luts, light) = models(0.8);
+        let reach = Reach::new(
+            ReachLimits::of([&luts[0], &luts[1]]).unwrap(),
+            [&light[0], &light[1]],
+        );
+        let mut rng = crate::rng::Rng::new(7);
+        let n = 61;
+        let special = [0.0, -0.0, f32::NAN, 0.6, -0.6];
+        let mut slope = |k: usize| {
+            if k.is_multiple_of(5) {
+                special[(k / 5) % special.len()]
+            } else {
+                rng.range(-1.2, 1.2) as f32
+            }
+        };
+        let p: Vec<f32> = (0..n).map(&mut slope).collect();
+        let q: Vec<f32> = (0..n).map(|k| slope(k + 3)).collect();
+        let mut gain = || [rng.range(0.5, 1.5) as f32, rng.range(0.5, 1.5) as f32];
+        let (gx, gy): (Vec<_>, Vec<_>) = (0..n).map(|_| (gain(), gain())).unzip();
+        let lx: Vec<bool> = (0..n).map(|k| k % 7 != 3).collect();
+        let ly: Vec<bool> = (0..n).map(|k| k % 11 != 5).collect();
+        // A slope exactly at a limit counts as reached.
+        let mut p = p;
+        p[1] = reach.from[0][0] * gx[1][0];
+        let mut marks = vec![false; n];
+        mark_reached(reach.from, [&lx, &ly], [&p, &q], [&gx, &gy], &mut marks);
+        let mut reached = 0;
+        for k in 0..n {
+            let want =
+                lx[k] && ly[k] && (reach.reached(0, p[k], gx[k]) || reach.reached(1, q[k], gy[k]));
+            assert_eq!(marks[k], want, "pixel {k}: p {} q {}", p[k], q[k]);
+            reached += usize::from(want);
+        }
+        assert!(
+            marks[1] && reached > 5 && reached < n - 5,
+            "{reached} of {n}"
+        );
     }
 
     #[test]
