@@ -272,6 +272,12 @@ fn the_chain_holds_on_a_tuning_and_an_independent_family() {
         assert!(r.edge_peak_ratio.unwrap() > 0.9, "{table}");
         let disk = r.disk.expect("disks fit the frame");
         assert!((disk.mean - 1.0).abs() < disk_tolerance, "{table}");
+        // Times are reported, the pairs at rest timed in turn with the contact pairs:
+        // a contact pair (detection, model and solve) costs more than one at rest.
+        let [contact_ms, rest_ms] = r.pair_ms.expect("contact and rest pairs timed");
+        let ratio = r.contact_over_rest.expect("timed in turn");
+        assert!(contact_ms > rest_ms && ratio > 1.0, "{table}");
+        assert_eq!(r.refused_frames, 0, "{table}");
     }
 }
 

@@ -196,8 +196,14 @@ pub struct FamilyReport {
     pub beside_max_mm: Option<f64>,
     /// Largest ratio of the regions' area to the imprint's, over the gentle disks.
     pub roi_ratio: Option<f64>,
-    /// Median time of a contact pair (gentle disk) and of a pair at rest (ms).
+    /// Median time of a contact pair (gentle disk) and of a pair at rest (ms); the pairs
+    /// at rest are read in turn with the contact pairs ([`REST_READS_PER_CONTACT`] after
+    /// each), so both see the machine in the same state.
     pub pair_ms: Option<[f64; 2]>,
+    /// Median over the gentle disks of a contact pair's time over the median time of the
+    /// pairs at rest read right after it: the rest pair's saving measured in pairs, which
+    /// a machine slower for a while slows alike.
+    pub contact_over_rest: Option<f64>,
     /// Frames the reconstruction refused (an error, or a frame flagged as showing no
     /// usable LED light): every frame here is a lit pair, so any is a failure.
     pub refused_frames: usize,
@@ -262,6 +268,7 @@ pub fn evaluate_skin(
         beside_max_mm: None,
         roi_ratio: None,
         pair_ms: None,
+        contact_over_rest: None,
         refused_frames: 0,
         first_refusal: None,
     };
@@ -372,7 +379,8 @@ pub fn evaluate_skin(
     };
     report.past_reach = rec.set_past_reach(config.past_reach);
     let (mut refused, mut first_refusal) = (0, None);
-    let mut read = |frames: &SkinFrames| {
+    // `counted`: a refusal counts towards the report (not for reads that only time).
+    let mut read = |frames: &SkinFrames, counted: bool| {
         let read = rec
             .reconstruct_frames(PhaseFrames {
                 dx: &frames.dx,
@@ -380,7 +388,9 @@ pub fn evaluate_skin(
                 dark: config.dark.then_some(&frames.dark),
             })
             .and_then(Reconstruction::require_lit);
-        if let Err(e) = &read {
+        if let Err(e) = &read
+            && counted
+        {
             refused += 1;
             first_refusal.get_or_insert_with(|| e.to_string());
         }
@@ -388,6 +398,13 @@ pub fn evaluate_skin(
     };
     let render_all =
         |scenes: &[Scene], first_frame: u64| render_all(skin, scenes, first_frame, config.ambient);
+
+    // The skin at rest, made first: its pairs are read between the contact pairs too,
+    // to time the two in turn.
+    let rest: Vec<Scene> = vec![Scene::default(); config.rest_frames];
+    let rest_frames = render_all(&rest, 4000);
+    let mut next_rest = (0..rest_frames.len()).cycle();
+    let (mut rest_ms, mut ratios) = (Vec::new(), Vec::new());
 
     // Disks at random places.
     let mut rng = Rng::new(config.skin_seed ^ 0xD15C);
@@ -418,10 +435,20 @@ pub fn evaluate_skin(
         let mut readings = Vec::new();
         for (scene, f) in scenes.iter().zip(&frames) {
             let truth = scene.truth(w, h, ppm).depth;
-            let Ok(r) = read(f) else { continue };
+            let Ok(r) = read(f, true) else { continue };
             readings.push(errors(&r.depth_mm, &truth).reading_mm);
             if k == 0 {
                 contact_ms.push(r.timings.total_ms);
+                let after: Vec<f64> = next_rest
+                    .by_ref()
+                    .take(REST_READS_PER_CONTACT)
+                    .filter_map(|i| read(&rest_frames[i], false).ok())
+                    .map(|rest| rest.timings.total_ms)
+                    .collect();
+                if !after.is_empty() {
+                    rest_ms.extend(&after);
+                    ratios.push(r.timings.total_ms / median(after).max(1e-6));
+                }
                 beside_max =
                     beside_max.max(beside(&r.depth_mm, &truth, (3.0 * ppm).round() as usize));
                 let imprint = truth.as_slice().iter().filter(|&&d| d > 0.0).count().max(1);
@@ -464,7 +491,7 @@ pub fn evaluate_skin(
     for (scene, f) in edge_scenes.iter().zip(&frames) {
         let truth = scene.truth(w, h, ppm).depth;
         let true_peak = truth.as_slice().iter().copied().fold(0.0f32, f32::max) as f64;
-        let peak = match read(f) {
+        let peak = match read(f, true) {
             Ok(r) => r.depth_mm.as_slice().iter().copied().fold(0.0f32, f32::max) as f64,
             Err(_) => 0.0,
         };
@@ -477,11 +504,9 @@ pub fn evaluate_skin(
 
     // The skin at rest.
     progress("skin at rest");
-    let rest: Vec<Scene> = vec![Scene::default(); config.rest_frames];
-    let frames = render_all(&rest, 4000);
-    let (mut contacts, mut max_abs, mut rest_ms) = (0, 0.0f64, Vec::new());
-    for f in &frames {
-        if let Ok(r) = read(f) {
+    let (mut contacts, mut max_abs) = (0, 0.0f64);
+    for f in &rest_frames {
+        if let Ok(r) = read(f, true) {
             contacts += usize::from(!r.no_contact());
             max_abs = max_abs.max(
                 r.depth_mm
@@ -489,7 +514,6 @@ pub fn evaluate_skin(
                     .iter()
                     .fold(0.0f32, |m, d| m.max(d.abs())) as f64,
             );
-            rest_ms.push(r.timings.total_ms);
         }
     }
     report.rest_contacts = Some(contacts);
@@ -497,6 +521,7 @@ pub fn evaluate_skin(
     (report.refused_frames, report.first_refusal) = (refused, first_refusal);
     if !contact_ms.is_empty() && !rest_ms.is_empty() {
         report.pair_ms = Some([median(contact_ms), median(rest_ms)]);
+        report.contact_over_rest = Some(median(ratios));
     }
     report
 }
@@ -514,6 +539,10 @@ fn render_all(
         .map(|(i, s)| skin.render(s, first_frame + i as u64, ambient))
         .collect()
 }
+
+/// Pairs at rest read right after each contact pair to time them in turn
+/// ([`FamilyReport::contact_over_rest`]).
+pub const REST_READS_PER_CONTACT: usize = 3;
 
 /// `count` presses of a ball of `diameter` mm, 0.8–1.2 mm deep (at most half its radius):
 /// a quarter of them centred on a frame edge, the rest anywhere inside. Frame numbers
@@ -673,13 +702,15 @@ pub fn goal_rows(r: &FamilyReport) -> Vec<(String, String, String, Option<bool>)
     rows.push((
         "time per pair".to_string(),
         "contact ≤ 3 ms; rest ≥ 20× cheaper".to_string(),
-        r.pair_ms.map_or("-".to_string(), |[c, n]| {
-            format!(
-                "contact {c:.2} ms, rest {n:.3} ms ({:.0}×)",
-                c / n.max(1e-6)
-            )
-        }),
-        r.pair_ms.map(|[c, n]| c <= 3.0 && c >= 20.0 * n),
+        match (r.pair_ms, r.contact_over_rest) {
+            (Some([c, n]), Some(ratio)) => {
+                format!("contact {c:.2} ms, rest {n:.3} ms ({ratio:.0}× in turn)")
+            }
+            _ => "-".to_string(),
+        },
+        r.pair_ms
+            .zip(r.contact_over_rest)
+            .map(|([c, _], ratio)| c <= 3.0 && ratio >= 20.0),
     ));
     rows
 }
