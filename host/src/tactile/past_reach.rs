@@ -74,10 +74,7 @@ impl<'a> Reach<'a> {
     /// reaches the table's limit on `axis`.
     #[inline(always)]
     fn reached(&self, axis: usize, slope: f32, gains: [f32; 2]) -> bool {
-        let negative = usize::from(slope < 0.0);
-        let gain = gains[negative];
-        // Gains are positive (a model file's are checked); the table's own value.
-        slope.abs() >= self.from[axis][negative] * gain
+        reaches(self.from[axis], slope, gains)
     }
 
     /// Reads again, with the light model, the pixels of a run whose table slopes reach
@@ -206,11 +203,23 @@ impl<'a> Reach<'a> {
     }
 }
 
+/// Whether `slope` (with its pixel's gains `[positive, negative]`) reaches the limit of
+/// its sign, `from` being `[positive, negative magnitude]`. Gains are positive (a model
+/// file's are checked). Branch-free, so a loop over a run stays in vector lanes: both
+/// signs' limits weighed and the slope's sign's answer kept (a select on the sign became
+/// a branch the sign's noise mispredicted).
+#[inline(always)]
+fn reaches(from: [f32; 2], slope: f32, gains: [f32; 2]) -> bool {
+    let negative = slope < 0.0;
+    let size = slope.abs();
+    (!negative & (size >= from[0] * gains[0])) | (negative & (size >= from[1] * gains[1]))
+}
+
 /// Pixels a chunk of [`Reach::extend`] asks about at once.
 const MARK_CHUNK: usize = 64;
 
 /// Marks the pixels both phases light (`lit`) whose slopes `[p, q]` reach the limits
-/// `from` ([`Reach::reached`]'s rule, per axis) on either axis. Runs the AVX2 copy when
+/// `from` ([`reaches`], per axis) on either axis. Runs the AVX2 copy when
 /// the CPU has it.
 #[allow(unsafe_code)]
 fn mark_reached(
@@ -253,15 +262,8 @@ fn mark_reached_portable(
     let (lx, ly) = (&lit[0][..n], &lit[1][..n]);
     let (p, q) = (&slopes[0][..n], &slopes[1][..n]);
     let (gx, gy) = (&gains[0][..n], &gains[1][..n]);
-    // Branch-free: both signs' limits weighed and the slope's sign's answer kept (a
-    // select on the sign became a branch the sign's noise mispredicted).
-    let reached = |from: [f32; 2], slope: f32, gains: [f32; 2]| {
-        let negative = slope < 0.0;
-        let size = slope.abs();
-        (!negative & (size >= from[0] * gains[0])) | (negative & (size >= from[1] * gains[1]))
-    };
     for i in 0..n {
-        marks[i] = lx[i] & ly[i] & (reached(from[0], p[i], gx[i]) | reached(from[1], q[i], gy[i]));
+        marks[i] = lx[i] & ly[i] & (reaches(from[0], p[i], gx[i]) | reaches(from[1], q[i], gy[i]));
     }
 }
 

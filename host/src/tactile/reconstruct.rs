@@ -408,8 +408,7 @@ impl FlatMaps {
 /// the only part of them a reading writes), instead of a fresh 1.5 MB fill at 640×480.
 #[derive(Debug)]
 struct ReusedMaps {
-    depth: Arc<Grid<f32>>,
-    mask: Arc<Grid<bool>>,
+    maps: FlatMaps,
     regions: Vec<Roi>,
 }
 
@@ -417,18 +416,15 @@ impl ReusedMaps {
     /// The maps, zeroed, if nobody else holds them any more; `None` otherwise (the
     /// caller kept the reading, or a part of it).
     fn take_zeroed(mut self) -> Option<FlatMaps> {
-        let depth = Arc::get_mut(&mut self.depth)?;
-        let mask = Arc::get_mut(&mut self.mask)?;
+        let depth = Arc::get_mut(&mut self.maps.depth)?;
+        let mask = Arc::get_mut(&mut self.maps.mask)?;
         for roi in &self.regions {
             for y in roi.y..roi.y + roi.height {
                 depth.row_mut(y)[roi.x..roi.x + roi.width].fill(0.0);
                 mask.row_mut(y)[roi.x..roi.x + roi.width].fill(false);
             }
         }
-        Some(FlatMaps {
-            depth: self.depth,
-            mask: self.mask,
-        })
+        Some(self.maps)
     }
 }
 
@@ -843,14 +839,14 @@ impl Reconstructor {
                 .and_then(ReusedMaps::take_zeroed)
                 .unwrap_or_else(|| FlatMaps::new(w, h));
             (out.depth_mm, out.contact_mask) = (maps.depth, maps.mask);
-        }
-        for roi in &detection.regions {
-            self.region(dx, dy, roi, &detection, &mut out)?;
-        }
-        if !detection.regions.is_empty() {
+            for roi in &detection.regions {
+                self.region(dx, dy, roi, &detection, &mut out)?;
+            }
             self.last = Some(ReusedMaps {
-                depth: Arc::clone(&out.depth_mm),
-                mask: Arc::clone(&out.contact_mask),
+                maps: FlatMaps {
+                    depth: Arc::clone(&out.depth_mm),
+                    mask: Arc::clone(&out.contact_mask),
+                },
                 regions: detection.regions.clone(),
             });
         }
