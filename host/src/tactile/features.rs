@@ -18,7 +18,7 @@ use image::RgbImage;
 use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
 use super::model::{GainPlanes, Lut, cross_factor, side_light};
-use super::past_reach::Reach;
+use super::past_reach::{Pending, Reach};
 use super::sanitize::sanitize;
 use super::shadowed;
 use crate::timing::ms_between as ms;
@@ -190,6 +190,8 @@ impl Features {
         };
         let (row, unread) = (&mut self.row, &mut self.unread);
         let [p, q] = slopes;
+        // Pixels past the table's reach queue for the light model across the runs.
+        let mut pending = Pending::default();
         let mut clock = Instant::now();
         for_each_run(mask, roi, w, |ry, first, span| {
             row.fill(inputs, span.clone());
@@ -245,17 +247,23 @@ impl Features {
                 let position = |k: usize| [(x0 + k) as f32 / w as f32, y];
                 let [[xr, xb], [yr, yb]] = &row.colour;
                 counts.past_reach += reach.extend(
+                    &mut pending,
                     [&row.lit[0], &row.lit[1]],
                     [[xr, xb], [yr, yb]],
                     position,
                     span_gains,
-                    [&mut p[at.clone()], &mut q[at.clone()]],
+                    at.clone(),
+                    [&mut *p, &mut *q],
                     max_slope,
                 );
             }
             clock = Instant::now();
             timings.model_ms += ms(t, clock);
         });
+        if let Some(reach) = &inputs.reach {
+            reach.finish(&mut pending, [p, q], max_slope);
+            timings.model_ms += ms(clock, Instant::now());
+        }
         (counts, timings)
     }
 }

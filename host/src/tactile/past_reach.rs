@@ -45,6 +45,11 @@ impl ReachLimits {
     }
 }
 
+/// Pixels of a region [`Reach::extend`] queued for the light model and not read yet
+/// ([`Reach::finish`] reads them); one per region, made empty.
+#[derive(Default)]
+pub struct Pending<'a>(Option<PairReader<'a>>);
+
 /// The light models and the limits from which they read a pixel too.
 #[derive(Debug, Clone, Copy)]
 pub struct Reach<'a> {
@@ -61,8 +66,8 @@ impl<'a> Reach<'a> {
         }
     }
 
-    /// The light models' reader in `slot`, made at the first pixel read (most runs read
-    /// none); `None` for a damaged light model, which reads nothing.
+    /// The light models' reader in `slot`, made at the first pixel read (most regions
+    /// read none); `None` for a damaged light model, which reads nothing.
     fn reader<'s>(&self, slot: &'s mut Option<PairReader<'a>>) -> Option<&'s mut PairReader<'a>> {
         if slot.is_none() {
             *slot = Some(PairReader::new(self.light)?);
@@ -77,27 +82,35 @@ impl<'a> Reach<'a> {
         reaches(self.from[axis], slope, gains)
     }
 
-    /// Reads again, with the light model, the pixels of a run whose table slopes reach
-    /// the limit on either axis and that both phases light (`lit`): `features` are the
-    /// run's model inputs `[red, blue]` per phase (each phase's normalised colour times
-    /// the other phase's cross factor, [`colour_features`](super::model::colour_features)),
+    /// Queues for the light model the pixels of a run whose table slopes reach the limit
+    /// on either axis and that both phases light (`lit`): `features` are the run's model
+    /// inputs `[red, blue]` per phase (each phase's normalised colour times the other
+    /// phase's cross factor, [`colour_features`](super::model::colour_features)),
     /// `position(k)` pixel `k`'s position `[x / width, y / height]`, `gains` the table's
-    /// position gains per axis. An axis takes the light model's slope where it points the
-    /// same way and is steeper (bounded by ±`max_slope`). Returns how many pixels were
-    /// read.
+    /// position gains per axis, `run` the run's indices in the region's `[p, q]` grids
+    /// `slopes`. Queued pixels are read [`LANES`](super::model::light::LANES) at a time,
+    /// across runs (a run rarely fills them), and an axis takes the light model's slope
+    /// where it points the same way and is steeper (bounded by ±`max_slope`);
+    /// [`Self::finish`] reads the last ones, after the region's last run. Returns how many
+    /// pixels were queued.
+    #[allow(clippy::too_many_arguments)]
     pub fn extend(
         &self,
+        pending: &mut Pending<'a>,
         lit: [&[bool]; 2],
         features: [[&[f32]; 2]; 2],
         position: impl Fn(usize) -> [f32; 2],
         gains: [&[[f32; 2]]; 2],
+        run: std::ops::Range<usize>,
         slopes: [&mut [f32]; 2],
         max_slope: f32,
     ) -> usize {
         let [p, q] = slopes;
+        if run.start > run.end || run.end > p.len().min(q.len()) {
+            return 0;
+        }
         let n = [
-            p.len(),
-            q.len(),
+            run.len(),
             lit[0].len(),
             lit[1].len(),
             gains[0].len(),
@@ -108,9 +121,8 @@ impl<'a> Reach<'a> {
         .min()
         .unwrap_or(0);
         let mut count = 0;
-        let mut slot = None;
         // Which pixels to read is asked for a chunk at a time in vector lanes (most
-        // chunks have none), then the chunk's marked pixels are read in order.
+        // chunks have none), then the chunk's marked pixels are queued in order.
         let mut marks = [false; MARK_CHUNK];
         for start in (0..n).step_by(MARK_CHUNK) {
             let end = (start + MARK_CHUNK).min(n);
@@ -118,7 +130,10 @@ impl<'a> Reach<'a> {
             mark_reached(
                 self.from,
                 [&lit[0][start..end], &lit[1][start..end]],
-                [&p[start..end], &q[start..end]],
+                [
+                    &p[run.start + start..run.start + end],
+                    &q[run.start + start..run.start + end],
+                ],
                 [&gains[0][start..end], &gains[1][start..end]],
                 marks,
             );
@@ -126,24 +141,34 @@ impl<'a> Reach<'a> {
                 continue;
             }
             for (k, _) in (start..end).zip(marks.iter()).filter(|(_, m)| **m) {
-                let Some(reader) = self.reader(&mut slot) else {
+                let Some(reader) = self.reader(&mut pending.0) else {
                     return count;
                 };
                 count += 1;
                 let [fx, fy] = features.map(|[red, blue]| [red[k], blue[k]]);
                 let [x, y] = position(k);
-                // Read a few pixels at a time; each pixel's table slopes stay as they
-                // were until its reading comes back (nothing else writes them, and the
-                // marks were made from the slopes before any came back).
-                reader.queue(k, fx, fy, x, y, |k, read| {
+                // Each pixel's table slopes stay as they were until its reading comes
+                // back (nothing else writes them, and a run's marks were made from its
+                // slopes before any came back).
+                reader.queue(run.start + k, fx, fy, x, y, |k, read| {
                     take_steeper([&mut p[k], &mut q[k]], read, max_slope);
                 });
             }
         }
-        if let Some(reader) = slot.as_mut() {
-            reader.flush(|k, read| take_steeper([&mut p[k], &mut q[k]], read, max_slope));
-        }
         count
+    }
+
+    /// Reads the pixels [`Self::extend`] left queued in `pending` into the region's
+    /// `[p, q]` grids `slopes`.
+    pub fn finish(&self, pending: &mut Pending<'a>, slopes: [&mut [f32]; 2], max_slope: f32) {
+        let [p, q] = slopes;
+        if let Some(reader) = pending.0.as_mut() {
+            reader.flush(|k, read| {
+                if let (Some(p), Some(q)) = (p.get_mut(k), q.get_mut(k)) {
+                    take_steeper([p, q], read, max_slope);
+                }
+            });
+        }
     }
 
     /// [`Self::extend`] for a model read from feature rows (the perceptron): `rows` are
@@ -336,7 +361,9 @@ mod tests {
         let lit = vec![lit; n];
         let limits = ReachLimits::of([&luts[0], &luts[1]]).unwrap();
         let reach = Reach::new(limits, [&light[0], &light[1]]);
+        let mut pending = Pending::default();
         let count = reach.extend(
+            &mut pending,
             [&lit, &lit],
             [
                 [&planes[0][0], &planes[0][1]],
@@ -344,9 +371,11 @@ mod tests {
             ],
             |_| [0.5, 0.5],
             [&gains, &gains],
+            0..n,
             [&mut p, &mut q],
             3.0,
         );
+        reach.finish(&mut pending, [&mut p, &mut q], 3.0);
         let after = p.into_iter().zip(q).map(|(p, q)| [p, q]).collect();
         (table, after, count)
     }
@@ -423,6 +452,81 @@ mod tests {
             3.0,
         );
         assert_eq!(none, 0);
+    }
+
+    /// A region read run by run with one queue between them reads each pixel as the
+    /// region read in one run does, bit for bit, however the runs split the lanes; a run
+    /// beyond the grids queues nothing.
+    #[test]
+    fn runs_sharing_one_queue_read_as_one_run() {
+        let (luts, light) = models(0.8);
+        let mut rng = crate::rng::Rng::new(11);
+        // Mostly steep pixels, so that the queue fills several times over.
+        let slopes: Vec<(f32, f32)> = (0..70)
+            .map(|k| {
+                let steep = if k % 3 == 0 { 0.3 } else { 1.4 };
+                let p = rng.range(-1.0, 1.0) as f32 * steep;
+                (p, rng.range(-1.0, 1.0) as f32 * (1.7 - p.abs()))
+            })
+            .collect();
+        let (table, whole, count) = read(&luts, &light, &slopes, true);
+        assert!(
+            count > 2 * crate::tactile::model::light::LANES,
+            "{count} pixels read"
+        );
+        let f: Vec<_> = slopes.iter().map(|&(p, q)| features(p, q)).collect();
+        let plane = |phase: usize, c: usize| f.iter().map(|f| f[phase][c]).collect::<Vec<_>>();
+        let planes = [[plane(0, 0), plane(0, 1)], [plane(1, 0), plane(1, 1)]];
+        let n = slopes.len();
+        let (gains, lit) = (vec![[1.0f32, 1.0]; n], vec![true; n]);
+        let (mut p, mut q): (Vec<f32>, Vec<f32>) = table.iter().map(|s| (s[0], s[1])).unzip();
+        let reach = Reach::new(
+            ReachLimits::of([&luts[0], &luts[1]]).unwrap(),
+            [&light[0], &light[1]],
+        );
+        let mut pending = Pending::default();
+        let mut queued = 0;
+        for run in [0..3, 3..4, 4..29, 29..29, 29..n] {
+            let r = run.clone();
+            queued += reach.extend(
+                &mut pending,
+                [&lit[r.clone()], &lit[r.clone()]],
+                [
+                    [&planes[0][0][r.clone()], &planes[0][1][r.clone()]],
+                    [&planes[1][0][r.clone()], &planes[1][1][r.clone()]],
+                ],
+                |_| [0.5, 0.5],
+                [&gains[r.clone()], &gains[r]],
+                run,
+                [&mut p, &mut q],
+                3.0,
+            );
+        }
+        // Past the grids: nothing queued, nothing written.
+        let beyond = reach.extend(
+            &mut pending,
+            [&lit, &lit],
+            [
+                [&planes[0][0], &planes[0][1]],
+                [&planes[1][0], &planes[1][1]],
+            ],
+            |_| [0.5, 0.5],
+            [&gains, &gains],
+            n - 2..n + 5,
+            [&mut p, &mut q],
+            3.0,
+        );
+        reach.finish(&mut pending, [&mut p, &mut q], 3.0);
+        assert_eq!((queued, beyond), (count, 0));
+        for k in 0..n {
+            assert_eq!(
+                [p[k], q[k]].map(f32::to_bits),
+                whole[k].map(f32::to_bits),
+                "pixel {k}: {:?}",
+                slopes[k]
+            );
+        }
+        assert_ne!(whole, table, "some pixels were read again");
     }
 
     /// The chunk's marks in lanes are the pixel-by-pixel rule's: slopes at, under and
