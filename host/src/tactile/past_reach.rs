@@ -340,13 +340,26 @@ mod tests {
         )
     }
 
-    /// The table's slopes of pixels at `slopes`, then [`Reach::extend`] on them; the
-    /// pixels read by the light model are counted.
+    /// The table's slopes of pixels at `slopes`, then [`Reach::extend`] on them in one
+    /// run; the pixels read by the light model are counted.
     fn read(
         luts: &[Lut; 2],
         light: &[LightModel; 2],
         slopes: &[(f32, f32)],
         lit: bool,
+    ) -> (Vec<[f32; 2]>, Vec<[f32; 2]>, usize) {
+        let whole = 0..slopes.len();
+        read_in_runs(luts, light, slopes, lit, std::slice::from_ref(&whole))
+    }
+
+    /// [`read`] with the pixels split into `runs` that share one queue. Each time, a run
+    /// past the grids' end is asked for too, and must queue nothing.
+    fn read_in_runs(
+        luts: &[Lut; 2],
+        light: &[LightModel; 2],
+        slopes: &[(f32, f32)],
+        lit: bool,
+        runs: &[std::ops::Range<usize>],
     ) -> (Vec<[f32; 2]>, Vec<[f32; 2]>, usize) {
         let f: Vec<_> = slopes.iter().map(|&(p, q)| features(p, q)).collect();
         let plane = |phase: usize, c: usize| f.iter().map(|f| f[phase][c]).collect::<Vec<_>>();
@@ -357,24 +370,36 @@ mod tests {
             .collect();
         let (mut p, mut q): (Vec<f32>, Vec<f32>) = table.iter().map(|s| (s[0], s[1])).unzip();
         let n = slopes.len();
-        let gains = vec![[1.0f32, 1.0]; n];
-        let lit = vec![lit; n];
+        let gains = vec![[1.0f32, 1.0]; n + 8];
+        let lit = vec![lit; n + 8];
         let limits = ReachLimits::of([&luts[0], &luts[1]]).unwrap();
         let reach = Reach::new(limits, [&light[0], &light[1]]);
         let mut pending = Pending::default();
-        let count = reach.extend(
-            &mut pending,
-            [&lit, &lit],
-            [
-                [&planes[0][0], &planes[0][1]],
-                [&planes[1][0], &planes[1][1]],
-            ],
-            |_| [0.5, 0.5],
-            [&gains, &gains],
-            0..n,
-            [&mut p, &mut q],
-            3.0,
-        );
+        let mut count = 0;
+        let past_the_end = n.saturating_sub(2)..n + 5;
+        for (k, run) in runs.iter().chain([&past_the_end]).enumerate() {
+            // The inputs of the run, beginning at its first pixel (beyond the grids, the
+            // run's inputs are there; its slopes are not).
+            let r = run.start.min(n)..run.end.min(n);
+            let queued = reach.extend(
+                &mut pending,
+                [&lit[run.clone()], &lit[run.clone()]],
+                [
+                    [&planes[0][0][r.clone()], &planes[0][1][r.clone()]],
+                    [&planes[1][0][r.clone()], &planes[1][1][r]],
+                ],
+                |_| [0.5, 0.5],
+                [&gains[run.clone()], &gains[run.clone()]],
+                run.clone(),
+                [&mut p, &mut q],
+                3.0,
+            );
+            if k < runs.len() {
+                count += queued;
+            } else {
+                assert_eq!(queued, 0, "a run past the grids queued pixels");
+            }
+        }
         reach.finish(&mut pending, [&mut p, &mut q], 3.0);
         let after = p.into_iter().zip(q).map(|(p, q)| [p, q]).collect();
         (table, after, count)
@@ -455,8 +480,7 @@ mod tests {
     }
 
     /// A region read run by run with one queue between them reads each pixel as the
-    /// region read in one run does, bit for bit, however the runs split the lanes; a run
-    /// beyond the grids queues nothing.
+    /// region read in one run does, bit for bit, however the runs split the lanes.
     #[test]
     fn runs_sharing_one_queue_read_as_one_run() {
         let (luts, light) = models(0.8);
@@ -474,53 +498,13 @@ mod tests {
             count > 2 * crate::tactile::model::light::LANES,
             "{count} pixels read"
         );
-        let f: Vec<_> = slopes.iter().map(|&(p, q)| features(p, q)).collect();
-        let plane = |phase: usize, c: usize| f.iter().map(|f| f[phase][c]).collect::<Vec<_>>();
-        let planes = [[plane(0, 0), plane(0, 1)], [plane(1, 0), plane(1, 1)]];
         let n = slopes.len();
-        let (gains, lit) = (vec![[1.0f32, 1.0]; n], vec![true; n]);
-        let (mut p, mut q): (Vec<f32>, Vec<f32>) = table.iter().map(|s| (s[0], s[1])).unzip();
-        let reach = Reach::new(
-            ReachLimits::of([&luts[0], &luts[1]]).unwrap(),
-            [&light[0], &light[1]],
-        );
-        let mut pending = Pending::default();
-        let mut queued = 0;
-        for run in [0..3, 3..4, 4..29, 29..29, 29..n] {
-            let r = run.clone();
-            queued += reach.extend(
-                &mut pending,
-                [&lit[r.clone()], &lit[r.clone()]],
-                [
-                    [&planes[0][0][r.clone()], &planes[0][1][r.clone()]],
-                    [&planes[1][0][r.clone()], &planes[1][1][r.clone()]],
-                ],
-                |_| [0.5, 0.5],
-                [&gains[r.clone()], &gains[r]],
-                run,
-                [&mut p, &mut q],
-                3.0,
-            );
-        }
-        // Past the grids: nothing queued, nothing written.
-        let beyond = reach.extend(
-            &mut pending,
-            [&lit, &lit],
-            [
-                [&planes[0][0], &planes[0][1]],
-                [&planes[1][0], &planes[1][1]],
-            ],
-            |_| [0.5, 0.5],
-            [&gains, &gains],
-            n - 2..n + 5,
-            [&mut p, &mut q],
-            3.0,
-        );
-        reach.finish(&mut pending, [&mut p, &mut q], 3.0);
-        assert_eq!((queued, beyond), (count, 0));
+        let runs = [0..3, 3..4, 4..29, 29..29, 29..n];
+        let (_, split, queued) = read_in_runs(&luts, &light, &slopes, true, &runs);
+        assert_eq!(queued, count);
         for k in 0..n {
             assert_eq!(
-                [p[k], q[k]].map(f32::to_bits),
+                split[k].map(f32::to_bits),
                 whole[k].map(f32::to_bits),
                 "pixel {k}: {:?}",
                 slopes[k]
