@@ -19,6 +19,7 @@ use super::colour::{ColourFilter, ReferencePlanes};
 use super::contact::{References, Roi, runs};
 use super::model::{GainPlanes, Lut, cross_factor, side_light};
 use super::past_reach::{Pending, Reach};
+use super::rgb_planes::deinterleave;
 use super::sanitize::sanitize;
 use super::shadowed;
 use crate::timing::ms_between as ms;
@@ -356,14 +357,6 @@ impl RowScratch {
             &mut self.lit,
             &mut self.again,
         );
-    }
-}
-
-/// Interleaved 8-bit RGB into three float planes.
-#[inline]
-fn deinterleave(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
-    for (((px, r), g), b) in raw.chunks_exact(3).zip(r).zip(g).zip(b) {
-        (*r, *g, *b) = (f32::from(px[0]), f32::from(px[1]), f32::from(px[2]));
     }
 }
 

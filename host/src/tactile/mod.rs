@@ -31,6 +31,7 @@ pub mod raw_glance;
 pub mod reconstruct;
 pub mod reference_check;
 pub mod render;
+pub mod rgb_planes;
 pub mod sanitize;
 pub mod shadowed;
 pub mod skins;
