@@ -344,7 +344,7 @@ impl Lut {
             _mm256_set1_ps(top),
         );
         let last = _mm256_set1_epi32(last);
-        let (stride, next) = (_mm256_set1_epi32(bins as i32), _mm256_set1_epi32(1));
+        let stride = _mm256_set1_epi32(bins as i32);
         // As `table_colour`'s split: `max` first with the value as its first operand, so
         // NaN becomes 0 as `f32::max` makes it; then within [0, top], an exact conversion.
         let split = |v: __m256| {
@@ -361,17 +361,30 @@ impl Lut {
         };
         for k in (0..n).step_by(8) {
             // SAFETY: `k + 8 <= n` for every plane (gains are two floats a pixel); every
-            // index is at most `(bins − 2)·bins + (bins − 2) + bins + 1 = bins² − 1`, inside
-            // the checked table (`bins²` entries).
+            // entry read (an index and the one after it) is at most `(bins − 2)·bins +
+            // (bins − 2) + bins + 1 = bins² − 1`, inside the checked table (`bins²`
+            // entries).
             unsafe {
                 let r = _mm256_mul_ps(_mm256_loadu_ps(red.as_ptr().add(k)), scale);
                 let b = _mm256_mul_ps(_mm256_loadu_ps(blue.as_ptr().add(k)), scale);
                 let ((ir, fr), (ib, fb)) = (split(r), split(b));
                 let row = _mm256_add_epi32(_mm256_mullo_epi32(ir, stride), ib);
                 let below = _mm256_add_epi32(row, stride);
-                let at = |i: __m256i| _mm256_i32gather_ps::<4>(table.as_ptr(), i);
-                let upper = blend(at(row), at(_mm256_add_epi32(row, next)), fb);
-                let lower = blend(at(below), at(_mm256_add_epi32(below, next)), fb);
+                // Each entry with its neighbour along blue in one 64-bit gather (half the
+                // elements of gathering the two apart), split into the two again.
+                let pairs = |i: __m256i| {
+                    let base = table.as_ptr().cast::<i64>();
+                    let low = _mm256_i32gather_epi64::<4>(base, _mm256_castsi256_si128(i));
+                    let high = _mm256_i32gather_epi64::<4>(base, _mm256_extracti128_si256::<1>(i));
+                    let (low, high) = (_mm256_castsi256_ps(low), _mm256_castsi256_ps(high));
+                    (
+                        in_order(_mm256_shuffle_ps::<0b10_00_10_00>(low, high)),
+                        in_order(_mm256_shuffle_ps::<0b11_01_11_01>(low, high)),
+                    )
+                };
+                let ((a, a_next), (c, c_next)) = (pairs(row), pairs(below));
+                let upper = blend(a, a_next, fb);
+                let lower = blend(c, c_next, fb);
                 let colour = blend(upper, lower, fr);
                 let g = gains.as_ptr().add(k).cast::<f32>();
                 let (g0, g1) = (_mm256_loadu_ps(g), _mm256_loadu_ps(g.add(8)));
