@@ -151,7 +151,7 @@ impl<'a> Reach<'a> {
                 // back (nothing else writes them, and a run's marks were made from its
                 // slopes before any came back).
                 reader.queue(run.start + k, fx, fy, x, y, |k, read| {
-                    take_steeper([&mut p[k], &mut q[k]], read, max_slope);
+                    take_steeper_at([&mut *p, &mut *q], k, read, max_slope);
                 });
             }
         }
@@ -163,11 +163,7 @@ impl<'a> Reach<'a> {
     pub fn finish(&self, pending: &mut Pending<'a>, slopes: [&mut [f32]; 2], max_slope: f32) {
         let [p, q] = slopes;
         if let Some(reader) = pending.0.as_mut() {
-            reader.flush(|k, read| {
-                if let (Some(p), Some(q)) = (p.get_mut(k), q.get_mut(k)) {
-                    take_steeper([p, q], read, max_slope);
-                }
-            });
+            reader.flush(|k, read| take_steeper_at([&mut *p, &mut *q], k, read, max_slope));
         }
     }
 
@@ -289,6 +285,16 @@ fn mark_reached_portable(
     let (gx, gy) = (&gains[0][..n], &gains[1][..n]);
     for i in 0..n {
         marks[i] = lx[i] & ly[i] & (reaches(from[0], p[i], gx[i]) | reaches(from[1], q[i], gy[i]));
+    }
+}
+
+/// [`take_steeper`] at index `k` of the `[p, q]` grids `slopes`; nothing where `k` lies
+/// past them (a queue kept from a larger region).
+#[inline]
+fn take_steeper_at(slopes: [&mut [f32]; 2], k: usize, read: [f32; 2], max_slope: f32) {
+    let [p, q] = slopes;
+    if let (Some(p), Some(q)) = (p.get_mut(k), q.get_mut(k)) {
+        take_steeper([p, q], read, max_slope);
     }
 }
 
