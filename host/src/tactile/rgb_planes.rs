@@ -13,15 +13,15 @@ pub fn deinterleave(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
         // SAFETY: `deinterleave_avx2` only needs AVX2, detected just above.
         return unsafe { deinterleave_avx2(raw, r, g, b) };
     }
-    deinterleave_portable(raw, r, g, b, 0);
+    deinterleave_portable(raw, r, g, b);
 }
 
-/// [`deinterleave`] one pixel at a time from pixel `from` on.
-fn deinterleave_portable(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32], from: usize) {
+/// [`deinterleave`] one pixel at a time.
+fn deinterleave_portable(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
     let pixels = raw
         .chunks_exact(3)
         .zip(r.iter_mut().zip(g.iter_mut()).zip(b.iter_mut()));
-    for (px, ((r, g), b)) in pixels.skip(from) {
+    for (px, ((r, g), b)) in pixels {
         (*r, *g, *b) = (f32::from(px[0]), f32::from(px[1]), f32::from(px[2]));
     }
 }
@@ -75,7 +75,8 @@ fn deinterleave_avx2(raw: &[u8], r: &mut [f32], g: &mut [f32], b: &mut [f32]) {
         }
         i += 8;
     }
-    deinterleave_portable(raw, r, g, b, i);
+    // The last pixels (fewer than eight) one at a time; `i <= n` lies in every slice.
+    deinterleave_portable(&raw[3 * i..], &mut r[i..], &mut g[i..], &mut b[i..]);
 }
 
 #[cfg(test)]
