@@ -156,20 +156,26 @@ impl BlockMeans {
 }
 
 /// The red, green and blue sums (exact whole numbers as `f32`) of each block of 4×4 px
-/// in band `by` (block row) of `image` over the block's two middle rows, as
-/// [`BlockMeans::of_middle_rows`] sums them before scaling, into `out`'s planes (emptied
-/// first; one value per block of the band), in vector lanes ([`band_sums_avx2`]), and
+/// in band `by` (block row) of `image` over the block's row `row` (0–3) alone, into
+/// `out`'s planes (emptied first; one value per block of the band), in vector lanes
+/// ([`band_sums_avx2`]; the same rows of the next band are asked for ahead of use), and
 /// whether a value read there is 255 (`out.clipped` is left empty). `None`, with `out`
-/// empty, where the frame is not whole blocks of four or the CPU lacks AVX2. For
-/// [`crate::tactile::quiet`], which reads them while they are in the cache.
+/// empty, where the frame is not whole blocks of four, `row` is not one of a block's
+/// or the CPU lacks AVX2. For [`crate::tactile::quiet`], which screens each block by one
+/// of its rows while they are in the cache.
 #[allow(unsafe_code)]
-pub(crate) fn middle_row_sums(image: &RgbImage, by: usize, out: &mut BlockMeans) -> Option<bool> {
+pub(crate) fn row_sums(
+    image: &RgbImage,
+    by: usize,
+    row: usize,
+    out: &mut BlockMeans,
+) -> Option<bool> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     for plane in [&mut out.red, &mut out.green, &mut out.blue] {
         plane.clear();
     }
     out.clipped.clear();
-    if w == 0 || w % 4 != 0 || h % 4 != 0 || (by + 1) * 4 > h {
+    if w == 0 || w % 4 != 0 || h % 4 != 0 || (by + 1) * 4 > h || row >= 4 {
         return None;
     }
     let (raw, stride) = (image.as_raw(), w * 3);
@@ -179,14 +185,14 @@ pub(crate) fn middle_row_sums(image: &RgbImage, by: usize, out: &mut BlockMeans)
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::avx2() {
         // SAFETY: `band_sums_avx2` only needs AVX2, detected just above.
-        return Some(unsafe { band_sums_avx2(band, ahead, stride, [1, 2], 1.0, out) });
+        return Some(unsafe { band_sums_avx2(band, ahead, stride, [row], 1.0, out) });
     }
     let _ = (band, ahead);
     None
 }
 
 /// No blocks yet, with room for one band of `blocks` blocks of four: the scratch of
-/// [`middle_row_sums`].
+/// [`row_sums`].
 pub(crate) fn band_scratch(blocks: usize) -> BlockMeans {
     BlockMeans::with_room(4, blocks, 1)
 }
