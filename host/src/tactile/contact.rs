@@ -903,6 +903,75 @@ pub fn dilate(mask: &mut [bool], w: usize, h: usize, r: usize) {
     }
 }
 
+/// For tests of the glance and of the screen that stands for it: a skin of our renderer
+/// with faint presses straddling its contact threshold.
+#[cfg(test)]
+pub(crate) mod faint_presses {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::tactile::render::{Optics, RenderedPair, Scene, Shape, render};
+
+    /// Skin `seed` of our renderer at 320×240: its flat frames, block references, eight
+    /// pairs at rest and the threshold as calibration sets it from them (half as much
+    /// again as their largest departure).
+    pub(crate) struct FaintSkin {
+        pub optics: Optics,
+        pub flat: RenderedPair,
+        pub refs: References,
+        pub filter: ColourFilter,
+        pub params: ContactParams,
+        pub at_rest: Vec<RenderedPair>,
+    }
+
+    impl FaintSkin {
+        pub(crate) fn new(seed: u64) -> Self {
+            let filter = ColourFilter::default();
+            let optics = Optics::random(320, 240, seed);
+            let flat = render(&optics, &Scene::default(), 0);
+            let refs = block_references(&flat.dx, &flat.dy, 4, Unmix::IDENTITY);
+            let at_rest: Vec<_> = (1..=8)
+                .map(|k| render(&optics, &Scene::default(), k))
+                .collect();
+            let largest = at_rest
+                .iter()
+                .flat_map(|p| {
+                    let means = |img| BlockMeans::of(img, 4);
+                    block_deviations(&means(&p.dx), &means(&p.dy), &refs, &filter)
+                })
+                .filter(|d| d.is_finite())
+                .fold(0.0f32, f32::max);
+            let params = ContactParams {
+                threshold: 1.5 * largest,
+                ..ContactParams::default()
+            };
+            Self {
+                optics,
+                flat,
+                refs,
+                filter,
+                params,
+                at_rest,
+            }
+        }
+
+        /// Press `k`: a 4 mm ball 0.02, 0.04, 0.08 or 0.16 mm deep (by `k`) at a place
+        /// drawn from `rng`, and its depth.
+        pub(crate) fn press(&self, rng: &mut Rng, k: u64) -> (RenderedPair, f64) {
+            let depth = [0.02, 0.04, 0.08, 0.16][k as usize % 4];
+            let shape = Shape::Ball {
+                cx: rng.range(0.5, 20.8),
+                cy: rng.range(0.5, 15.5),
+                diameter: 4.0,
+                depth,
+            };
+            let scene = Scene {
+                shapes: vec![shape],
+            };
+            (render(&self.optics, &scene, 100 + k), depth)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1274,34 +1343,15 @@ mod tests {
     #[test]
     fn the_glance_misses_no_contact_the_full_look_finds() {
         use crate::rng::Rng;
-        use crate::tactile::render::{Optics, Scene, Shape, render};
-        let filter = ColourFilter::default();
         for seed in [1u64, 2] {
-            let optics = Optics::random(320, 240, seed);
-            let flat = render(&optics, &Scene::default(), 0);
-            let refs = block_references(&flat.dx, &flat.dy, 4, Unmix::IDENTITY);
-            // The threshold as calibration sets it from flat skin: half as much again as
-            // its largest departure.
-            let at_rest: Vec<_> = (1..=8)
-                .map(|k| render(&optics, &Scene::default(), k))
-                .collect();
-            let largest = at_rest
-                .iter()
-                .flat_map(|p| {
-                    let means = |img| BlockMeans::of(img, 4);
-                    block_deviations(&means(&p.dx), &means(&p.dy), &refs, &filter)
-                })
-                .filter(|d| d.is_finite())
-                .fold(0.0f32, f32::max);
-            let params = ContactParams {
-                threshold: 1.5 * largest,
-                ..ContactParams::default()
-            };
-            let answered = at_rest
+            let skin = faint_presses::FaintSkin::new(seed);
+            let (refs, filter, params) = (&skin.refs, &skin.filter, &skin.params);
+            let answered = skin
+                .at_rest
                 .iter()
                 .filter(|p| {
                     let [mx, my] = [&p.dx, &p.dy].map(|img| BlockMeans::of_middle_rows(img, 4));
-                    glance(&mx, &my, &refs, &filter, &params).is_some()
+                    glance(&mx, &my, refs, filter, params).is_some()
                 })
                 .count();
             assert!(
@@ -1311,23 +1361,9 @@ mod tests {
             let mut rng = Rng::new(seed);
             let mut found = 0;
             for k in 0..40u64 {
-                let depth = [0.02, 0.04, 0.08, 0.16][k as usize % 4];
-                let shape = Shape::Ball {
-                    cx: rng.range(0.5, 20.8),
-                    cy: rng.range(0.5, 15.5),
-                    diameter: 4.0,
-                    depth,
-                };
-                let p = render(
-                    &optics,
-                    &Scene {
-                        shapes: vec![shape],
-                    },
-                    100 + k,
-                );
-                let full =
-                    look_at_every_row(&p.dx, &p.dy, &refs, &filter, &params, SolverKind::Dct);
-                let seen = find_regions(&p.dx, &p.dy, &refs, &filter, &params, SolverKind::Dct);
+                let (p, depth) = skin.press(&mut rng, k);
+                let full = look_at_every_row(&p.dx, &p.dy, refs, filter, params, SolverKind::Dct);
+                let seen = find_regions(&p.dx, &p.dy, refs, filter, params, SolverKind::Dct);
                 // The same detection, unlit fractions included: where the budgets say the
                 // glance would read every row, the reconstructor looks at every row.
                 assert_eq!(seen, full, "skin {seed} press {k} ({depth} mm)");

@@ -959,40 +959,23 @@ mod tests {
     /// pairs alone.
     #[test]
     fn the_screen_misses_no_contact_the_full_look_finds() {
-        use crate::tactile::contact::{block_deviations, look_at_every_row};
+        use crate::tactile::contact::{faint_presses::FaintSkin, look_at_every_row};
         use crate::tactile::poisson::SolverKind;
-        use crate::tactile::render::{Optics, Scene, Shape, render};
         if !crate::cpu::avx2() {
             eprintln!("skipped: this CPU has no AVX2, so the quiet glance always defers");
             return;
         }
-        let filter = ColourFilter::default();
         for seed in [1u64, 2] {
-            let optics = Optics::random(320, 240, seed);
-            let flat = render(&optics, &Scene::default(), 0);
-            let refs = contact::block_references(&flat.dx, &flat.dy, 4, Unmix::IDENTITY);
-            let at_rest: Vec<_> = (1..=8)
-                .map(|k| render(&optics, &Scene::default(), k))
-                .collect();
-            let largest = at_rest
-                .iter()
-                .flat_map(|p| {
-                    let means = |img| BlockMeans::of(img, 4);
-                    block_deviations(&means(&p.dx), &means(&p.dy), &refs, &filter)
-                })
-                .filter(|d| d.is_finite())
-                .fold(0.0f32, f32::max);
-            let params = ContactParams {
-                threshold: 1.5 * largest,
-                ..ContactParams::default()
-            };
-            let quiet =
-                QuietBlocks::new(&flat.dx, &flat.dy, &refs, &filter, &params).expect("4×4 blocks");
-            let answered = at_rest
+            let skin = FaintSkin::new(seed);
+            let (refs, filter, params) = (&skin.refs, &skin.filter, &skin.params);
+            let quiet = QuietBlocks::new(&skin.flat.dx, &skin.flat.dy, refs, filter, params)
+                .expect("4×4 blocks");
+            let answered = skin
+                .at_rest
                 .iter()
                 .filter(|p| {
                     matches!(
-                        quiet.glance(&p.dx, &p.dy, &refs, &filter, &params),
+                        quiet.glance(&p.dx, &p.dy, refs, filter, params),
                         Verdict::AtRest(_)
                     )
                 })
@@ -1004,23 +987,9 @@ mod tests {
             let mut rng = Rng::new(seed);
             let (mut found, mut screened) = (0, 0);
             for k in 0..60u64 {
-                let depth = [0.02, 0.04, 0.08, 0.16][k as usize % 4];
-                let shape = Shape::Ball {
-                    cx: rng.range(0.5, 20.8),
-                    cy: rng.range(0.5, 15.5),
-                    diameter: 4.0,
-                    depth,
-                };
-                let p = render(
-                    &optics,
-                    &Scene {
-                        shapes: vec![shape],
-                    },
-                    100 + k,
-                );
-                let full =
-                    look_at_every_row(&p.dx, &p.dy, &refs, &filter, &params, SolverKind::Dct);
-                let verdict = quiet.glance(&p.dx, &p.dy, &refs, &filter, &params);
+                let (p, depth) = skin.press(&mut rng, k);
+                let full = look_at_every_row(&p.dx, &p.dy, refs, filter, params, SolverKind::Dct);
+                let verdict = quiet.glance(&p.dx, &p.dy, refs, filter, params);
                 if !full.regions.is_empty() {
                     found += 1;
                     assert_eq!(
